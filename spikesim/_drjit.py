@@ -1,0 +1,57 @@
+"""Import Dr.Jit with its LLVM backend pointed at a libLLVM that works.
+
+Dr.Jit 1.5's CPU backend needs libLLVM >= 17; older ones crash with "Cannot select: fminimum"
+(DESIGN.md section 6). Debian's `libllvm19` works, but Dr.Jit does not find it by itself, so the
+path is set here, before the first `import drjit`, unless the user set DRJIT_LIBLLVM_PATH.
+"""
+from __future__ import annotations
+
+import glob
+import os
+
+_CANDIDATES = (
+    "/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1",
+    "/usr/lib/x86_64-linux-gnu/libLLVM-19.so",
+    "/usr/lib/aarch64-linux-gnu/libLLVM.so.19.1",
+    "/usr/lib/aarch64-linux-gnu/libLLVM-19.so",
+    "/usr/lib/llvm-19/lib/libLLVM.so",
+    "/usr/lib/llvm-18/lib/libLLVM.so",
+    "/usr/lib/llvm-17/lib/libLLVM.so",
+    "/opt/homebrew/opt/llvm/lib/libLLVM.dylib",
+)
+
+
+def find_libllvm() -> str | None:
+    """Return a libLLVM >= 17 on this machine, or None."""
+    for path in _CANDIDATES:
+        if os.path.exists(path):
+            return path
+    for path in sorted(glob.glob("/usr/lib/*/libLLVM*.so*"), reverse=True):
+        name = os.path.basename(path)
+        for major in ("17", "18", "19", "20", "21"):
+            if f"-{major}" in name or f".so.{major}" in name:
+                return path
+    return None
+
+
+def configure() -> None:
+    """Set DRJIT_LIBLLVM_PATH before Dr.Jit is imported (no-op if the user set it)."""
+    if "DRJIT_LIBLLVM_PATH" not in os.environ:
+        path = find_libllvm()
+        if path is not None:
+            os.environ["DRJIT_LIBLLVM_PATH"] = path
+
+
+configure()
+import drjit as dr  # noqa: E402  (must follow configure())
+
+
+def has_llvm() -> bool:
+    return bool(dr.has_backend(dr.JitBackend.LLVM))
+
+
+def has_cuda() -> bool:
+    return bool(dr.has_backend(dr.JitBackend.CUDA))
+
+
+__all__ = ["dr", "configure", "find_libllvm", "has_llvm", "has_cuda"]

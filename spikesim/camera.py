@@ -1,0 +1,223 @@
+"""The spike camera's configuration: geometry, readout and every noise term.
+
+Units: light and charge are measured in thresholds. A pixel's input `y` is the expected number of
+spikes per readout step (photo-current x readout period / threshold, DESIGN.md section 2), so the
+nominal threshold is 1 and every noise magnitude below is a fraction of it.
+
+Each noise term is its own documented option (in the manner of v2e); a magnitude of 0 (or
+`"off"`) switches it off, and the kernels then leave its code out entirely.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+SHOT_NOISE_MODELS = ("off", "gaussian", "poisson")
+PRECISIONS = ("float32", "float64")
+
+#: Noise terms and the value that switches each off.
+NOISE_TERMS: dict[str, Any] = {
+    "dark_current_hz": 0.0,
+    "dark_current_spread": 0.0,
+    "gain_spread": 0.0,
+    "threshold_mismatch": 0.0,
+    "threshold_offset": 0.0,
+    "comparator_noise": 0.0,
+    "shot_noise": "off",
+    "reset_loss": 0.0,
+    "random_initial_state": False,
+}
+
+
+@dataclass(frozen=True)
+class SpikeCamera:
+    """A spike camera: integrate-and-fire pixels read out every `readout_period_s`.
+
+    The defaults are the published magnitudes (the "realistic" preset); `SpikeCamera.noiseless()`
+    switches every noise term off.
+
+    Saturation: at most one spike is read out per step. Charge left above one threshold after the
+    reset is discarded (the accumulator is clamped to [0, threshold]), so a pixel with y >= 1
+    fires at every step and its accumulator stays bounded.
+    """
+
+    height: int = 250
+    """Rows of the sensor (400 x 250 is the PKU spike camera; DESIGN.md section 2)."""
+    width: int = 400
+    """Columns of the sensor."""
+    readout_period_s: float = 25e-6
+    """T, the time between readouts: 25 us = 40 kHz (some sensors run at 20 kHz, 50 us)."""
+    threshold_electrons: float = 1000.0
+    """Photo-electrons one threshold represents; sets the size of photon shot noise.
+    Estimate (docs/sensor.md): a 20 um pixel, QE x fill factor 0.4, f/1.4, 100 lux on a white
+    Lambertian surface collects about 280 e- per 25 us; ~1000 e- per threshold then gives
+    y ~ 0.25, the firing rate of indoor recordings."""
+
+    dark_current_hz: float = 94.0
+    """Mean dark current in thresholds per second: 0.47 % of the threshold per step at 20 kHz
+    (SCSim 2024, SpikingSIM 2022), i.e. about 94 dark spikes/s. A current, so per step it
+    scales with the readout period."""
+    dark_current_spread: float = 0.39
+    """Pixel-to-pixel coefficient of variation of the dark current (SCSim 2024: 39 %), drawn
+    lognormal so it stays positive with the skew of real dark-current maps."""
+    gain_spread: float = 0.058
+    """Photo-response non-uniformity: standard deviation of the per-pixel gain (5.8 %)."""
+    threshold_mismatch: float = 0.003
+    """Per-pixel relative threshold error from capacitance mismatch (0.3 %)."""
+    threshold_offset: float = 0.045
+    """Per-pixel comparator voltage offset as a fraction of the threshold swing (4.5 %)."""
+    comparator_noise: float = 0.006
+    """Temporal comparator noise, redrawn at every comparison, fraction of threshold (0.6 %)."""
+    shot_noise: str = "gaussian"
+    """Photon (and dark-electron) shot noise: "off", "gaussian" (per-step increment with the
+    Poisson variance, all backends) or "poisson" (exact per-step Poisson, NumPy reference only).
+    Reaching the threshold sums ~threshold_electrons electrons, so the two differ only in the
+    third cumulant of the spike time, O(1/sqrt(threshold_electrons)); tests check they agree."""
+    reset_loss: float = 0.002
+    """Fraction of the integration lost in the step after a spike (reset/readout delay, 0.2 %)."""
+    random_initial_state: bool = True
+    """Start each accumulator uniform in [0, threshold) instead of empty."""
+    precision: str = "float32"
+    """Accumulator precision: "float32" (fast) or "float64"."""
+
+    def __post_init__(self) -> None:
+        _check_int("height", self.height)
+        _check_int("width", self.width)
+        _check_positive("readout_period_s", self.readout_period_s)
+        if self.readout_period_s > 1.0:
+            raise ValueError(f"readout_period_s={self.readout_period_s} s is not a sensor readout period (> 1 s)")
+        _check_positive("threshold_electrons", self.threshold_electrons)
+        for name in ("dark_current_hz", "dark_current_spread", "gain_spread", "threshold_mismatch",
+                     "threshold_offset", "comparator_noise", "reset_loss"):
+            _check_nonnegative(name, getattr(self, name))
+        # Spreads above these make the drawn pixel parameters meaningless (negative gains or
+        # thresholds many sigma away); reject rather than clip silently.
+        for name, limit in (("gain_spread", 0.3), ("threshold_mismatch", 0.2), ("threshold_offset", 0.2),
+                            ("comparator_noise", 0.5), ("dark_current_spread", 5.0)):
+            if getattr(self, name) > limit:
+                raise ValueError(f"{name}={getattr(self, name)} is above the supported maximum {limit}")
+        if self.reset_loss >= 1.0:
+            raise ValueError(f"reset_loss={self.reset_loss} must be below 1 (it is a fraction of one step)")
+        if self.dark_current_hz * self.readout_period_s >= 1.0:
+            raise ValueError(
+                f"dark_current_hz={self.dark_current_hz} gives {self.dark_current_hz * self.readout_period_s:.3g} "
+                "thresholds per step: a dark current that saturates the pixel is not a dark current")
+        if self.shot_noise not in SHOT_NOISE_MODELS:
+            raise ValueError(f"shot_noise={self.shot_noise!r}; expected one of {SHOT_NOISE_MODELS}")
+        if self.precision not in PRECISIONS:
+            raise ValueError(f"precision={self.precision!r}; expected one of {PRECISIONS}")
+        if not isinstance(self.random_initial_state, bool):
+            raise TypeError(f"random_initial_state must be a bool, got {self.random_initial_state!r}")
+
+    # ---- derived quantities -------------------------------------------------------------------
+    @property
+    def readout_rate_hz(self) -> float:
+        return 1.0 / self.readout_period_s
+
+    @property
+    def dark_per_step(self) -> float:
+        """Mean dark current in thresholds per readout step (d in DESIGN.md section 2)."""
+        return self.dark_current_hz * self.readout_period_s
+
+    @property
+    def num_pixels(self) -> int:
+        return self.height * self.width
+
+    @property
+    def is_noiseless(self) -> bool:
+        return all(getattr(self, k) == v for k, v in NOISE_TERMS.items())
+
+    @property
+    def has_temporal_noise(self) -> bool:
+        """Whether the stream depends on per-step random draws (else it is deterministic)."""
+        return self.shot_noise != "off" or self.comparator_noise > 0
+
+    # ---- presets and variations -------------------------------------------------------------
+    @classmethod
+    def realistic(cls, **overrides: Any) -> "SpikeCamera":
+        """Every noise term on at its published magnitude."""
+        return cls(**overrides)
+
+    @classmethod
+    def noiseless(cls, **overrides: Any) -> "SpikeCamera":
+        """The ideal integrate-and-fire pixel: no noise, empty accumulators at step 0."""
+        return cls(**{**NOISE_TERMS, **overrides})
+
+    def without(self, *terms: str) -> "SpikeCamera":
+        """A copy with the named noise terms switched off."""
+        unknown = [t for t in terms if t not in NOISE_TERMS]
+        if unknown:
+            raise ValueError(f"unknown noise term(s) {unknown}; known: {sorted(NOISE_TERMS)}")
+        return dataclasses.replace(self, **{t: NOISE_TERMS[t] for t in terms})
+
+    def replace(self, **changes: Any) -> "SpikeCamera":
+        return dataclasses.replace(self, **changes)
+
+    # ---- files --------------------------------------------------------------------------------
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> "SpikeCamera":
+        if "preset" in data:
+            data = dict(data)
+            preset = data.pop("preset")
+            if preset not in ("realistic", "noiseless"):
+                raise ValueError(f"unknown camera preset {preset!r}; expected 'realistic' or 'noiseless'")
+            base = cls.noiseless() if preset == "noiseless" else cls.realistic()
+            return base.replace(**_known_fields(cls, data))
+        return cls(**_known_fields(cls, data))
+
+    @classmethod
+    def from_file(cls, path: str | Path) -> "SpikeCamera":
+        """Load a camera from JSON (or TOML); unknown keys are an error naming the file."""
+        path = Path(path)
+        try:
+            text = path.read_text()
+        except OSError as exc:
+            raise FileNotFoundError(f"camera config {path}: {exc.strerror}") from exc
+        try:
+            if path.suffix == ".toml":
+                import tomllib
+                data = tomllib.loads(text)
+            else:
+                data = json.loads(text)
+        except ValueError as exc:
+            raise ValueError(f"camera config {path} is not valid {path.suffix or 'JSON'}: {exc}") from exc
+        try:
+            return cls.from_dict(data)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"camera config {path}: {exc}") from exc
+
+    def save(self, path: str | Path) -> None:
+        Path(path).write_text(json.dumps(self.to_dict(), indent=2) + "\n")
+
+
+def _known_fields(cls: type, data: dict[str, Any]) -> dict[str, Any]:
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - names)
+    if unknown:
+        raise ValueError(f"unknown camera parameter(s) {unknown}; known: {sorted(names)}")
+    return data
+
+
+def _check_int(name: str, value: Any) -> None:
+    if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
+        raise ValueError(f"{name} must be a positive integer, got {value!r}")
+
+
+def _check_positive(name: str, value: Any) -> None:
+    if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value) or value <= 0:
+        raise ValueError(f"{name} must be a positive finite number, got {value!r}")
+
+
+def _check_nonnegative(name: str, value: Any) -> None:
+    if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value) or value < 0:
+        raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
+
+
+__all__ = ["SpikeCamera", "NOISE_TERMS", "SHOT_NOISE_MODELS", "PRECISIONS"]

@@ -1,0 +1,90 @@
+"""The NumPy reference of the spike camera model: one readout step at a time, written for clarity.
+
+Every backend implements exactly this update, in this order of floating-point operations, for
+pixel x at step n (accumulator A and threshold theta in units of the nominal threshold):
+
+    y      = Y_j (1 - w) + Y_{j+1} w        keyframe interpolation, w = (n mod k) / k; y = Y_j if k = 1
+    e      = y g + d                        gain (PRNU) and dark current, DESIGN.md section 2
+    e      = e + sqrt(e / N_e) z1           shot noise (gaussian; or Poisson(e N_e) / N_e)
+    e      = e (1 - r)   if x fired at n-1  reset/readout loss
+    A      = A + e                          integrate (paper eq. 1)
+    fire   = A >= theta + sigma_c z2        comparator with temporal noise
+    A      = A - theta   if fire            reset by subtraction: A mod theta (paper eq. 1)
+    A      = min(max(A, 0), theta)          saturation: at most one spike per readout
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .camera import SpikeCamera
+from .fixed_pattern import PixelParameters
+
+
+class NumpySensor:
+    """Reference backend. State: accumulator, last-step spikes, temporal-noise generator."""
+
+    name = "numpy"
+
+    def __init__(self, camera: SpikeCamera, params: PixelParameters, seed: int):
+        self.camera = camera
+        self.params = params
+        self.dtype = params.dtype
+        self.accumulator = params.initial_accumulator.copy()
+        self.fired = np.zeros(camera.num_pixels, dtype=bool)
+        # Temporal noise: a sequential generator, so chunked calls draw what one call would.
+        self._rng = np.random.Generator(np.random.Philox(np.random.SeedSequence([int(seed), 2])))
+
+    def run(self, keyframes: np.ndarray, phase: int, keyframe_every: int, num_steps: int,
+            first_step: int) -> np.ndarray:
+        """Simulate `num_steps` steps; step s reads keyframes around (phase + s) / keyframe_every.
+
+        Returns the packed spike frames, uint8 (num_steps, ceil(H*W/8)), LSB first.
+        """
+        cam, p, dt = self.camera, self.params, self.dtype
+        k = keyframe_every
+        nbytes = (cam.num_pixels + 7) // 8
+        out = np.empty((num_steps, nbytes), dtype=np.uint8)
+        one = dt.type(1)
+        inv_ne = dt.type(1.0 / cam.threshold_electrons)
+        retain = dt.type(1.0 - cam.reset_loss)
+        sigma_c = dt.type(cam.comparator_noise)
+        threshold = p.threshold if p.threshold is not None else one
+        A = self.accumulator
+        for s in range(num_steps):
+            t = phase + s
+            j, r = divmod(t, k)
+            y = keyframes[j].astype(dt, copy=False)
+            if r:
+                w = dt.type(r) / dt.type(k)
+                y = y * (one - w) + keyframes[j + 1].astype(dt, copy=False) * w
+            e = y * p.gain if p.gain is not None else y
+            if p.dark_per_step is not None:
+                e = e + p.dark_per_step
+            if cam.shot_noise == "gaussian":
+                e = e + np.sqrt(e * inv_ne) * self._rng.standard_normal(e.shape, dtype=dt)
+            elif cam.shot_noise == "poisson":
+                e = (self._rng.poisson(e.astype(np.float64) * cam.threshold_electrons) * (1.0 / cam.threshold_electrons)).astype(dt)
+            if cam.reset_loss > 0:
+                e = np.where(self.fired, e * retain, e)
+            A = A + e
+            if cam.comparator_noise > 0:
+                fire = A >= threshold + sigma_c * self._rng.standard_normal(A.shape, dtype=dt)
+            else:
+                fire = A >= threshold
+            A = np.where(fire, A - threshold, A)
+            A = np.minimum(np.maximum(A, dt.type(0)), threshold)
+            self.fired = fire
+            out[s] = np.packbits(fire, bitorder="little")
+        self.accumulator = A.astype(dt, copy=False)
+        return out
+
+    # state access shared with the Dr.Jit backend
+    def get_state(self) -> dict[str, np.ndarray]:
+        return {"accumulator": self.accumulator.copy(), "fired": self.fired.copy()}
+
+    def set_state(self, state: dict[str, np.ndarray]) -> None:
+        self.accumulator = np.asarray(state["accumulator"], dtype=self.dtype).copy()
+        self.fired = np.asarray(state["fired"], dtype=bool).copy()
+
+
+__all__ = ["NumpySensor"]
