@@ -33,6 +33,17 @@ def _module(backend: str):
     return m
 
 
+def _owned(arrays: list) -> list:
+    """Copies in Dr.Jit-allocated (64-byte aligned) memory. Arrays wrapping NumPy buffers are
+    traced with unaligned loads, which would compile a second kernel once the state is replaced
+    by the kernel's own (aligned) outputs."""
+    # An operation with an opaque (evaluated) zero cannot be simplified away, so it allocates.
+    out = [(dr.opaque(type(a), False, dr.width(a)) | a) if dr.is_mask_v(a)
+           else (dr.opaque(type(a), 0, dr.width(a)) + a) for a in arrays]
+    dr.eval(*out)
+    return out
+
+
 class DrJitSensor:
     """Dr.Jit backend; state (accumulators, last spikes) stays on the device between calls."""
 
@@ -60,7 +71,7 @@ class DrJitSensor:
             pad = np.full(self.padded, fill, dtype=self.dtype)
             pad[:P] = arr
             cols = pad.reshape(self.num_lanes, LANE_PIXELS)
-            return [self.Float(np.ascontiguousarray(cols[:, j])) for j in range(LANE_PIXELS)]
+            return _owned([self.Float(np.ascontiguousarray(cols[:, j])) for j in range(LANE_PIXELS)])
 
         # Padded pixels: no input, no dark current, threshold 1, empty: they never fire.
         self._gain = lanes(params.gain, 1.0)
@@ -68,6 +79,8 @@ class DrJitSensor:
         self._threshold = lanes(params.threshold, 1.0)
         self._acc = lanes(params.initial_accumulator, 0.0)
         self._fired = [dr.zeros(m.Bool, self.num_lanes) for _ in range(LANE_PIXELS)]
+        # Evaluated, not literal, so the first call traces the same kernel as later ones.
+        dr.make_opaque(*self._fired)
 
     # ------------------------------------------------------------------------------------------
     def run(self, keyframes: np.ndarray, phase: int, keyframe_every: int, num_steps: int,
@@ -164,8 +177,8 @@ class DrJitSensor:
         fired = np.zeros(self.padded, dtype=bool)
         fired[:P] = state["fired"]
         acc, fired = acc.reshape(self.num_lanes, -1), fired.reshape(self.num_lanes, -1)
-        self._acc = [self.Float(np.ascontiguousarray(acc[:, j])) for j in range(LANE_PIXELS)]
-        self._fired = [m.Bool(np.ascontiguousarray(fired[:, j])) for j in range(LANE_PIXELS)]
+        self._acc = _owned([self.Float(np.ascontiguousarray(acc[:, j])) for j in range(LANE_PIXELS)])
+        self._fired = _owned([m.Bool(np.ascontiguousarray(fired[:, j])) for j in range(LANE_PIXELS)])
 
 
 __all__ = ["DrJitSensor", "LANE_PIXELS"]

@@ -1,0 +1,81 @@
+"""Ground-truth images: linear float EXR for data, tone-mapped PNG for people.
+
+EXR keeps y (expected spikes per step) as float32, unclipped, so metrics are computed on exactly
+what the renderer produced; PNGs are previews only and are never read back for metrics.
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+CHANNEL = "Y"
+
+
+def write_exr(path: str | Path, y: np.ndarray) -> Path:
+    """Write a (H, W) image as single-channel float32 EXR ("Y", ZIP compression), atomically."""
+    import OpenEXR
+
+    path = Path(path)
+    y = np.ascontiguousarray(np.asarray(y, dtype=np.float32))
+    if y.ndim != 2:
+        raise ValueError(f"{path}: expected a (H, W) image, got shape {y.shape}")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.part")
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    OpenEXR.File(header, {CHANNEL: y}).write(str(tmp))
+    os.replace(tmp, path)
+    return path
+
+
+def read_exr(path: str | Path) -> np.ndarray:
+    """Read a single-channel EXR written by `write_exr` (or the luminance of an RGB one)."""
+    import OpenEXR
+
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"ground-truth image {path} does not exist")
+    try:
+        with OpenEXR.File(str(path)) as f:
+            channels = f.channels()
+            if CHANNEL in channels:
+                return np.asarray(channels[CHANNEL].pixels, dtype=np.float32)
+            if "RGB" in channels:
+                rgb = np.asarray(channels["RGB"].pixels, dtype=np.float32)
+                # Rec. 709 luminance weights.
+                return rgb @ np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
+            raise ValueError(f"{path}: no 'Y' or 'RGB' channel (has {sorted(channels)})")
+    except (OSError, RuntimeError) as exc:
+        raise ValueError(f"{path} is not a readable EXR image: {exc}") from exc
+
+
+def to_display(y: np.ndarray, gamma: float = 2.2, scale: float | None = None, percentile: float | None = None) -> np.ndarray:
+    """Linear y -> 8-bit display values: y * scale, clipped to [0, 1], encoded with 1/gamma.
+
+    `scale` defaults to 1 (y = 1 is white: one spike per step); `percentile` instead maps that
+    percentile of the image to white, the display enhancement used for very dark results.
+    """
+    y = np.asarray(y, dtype=np.float64)
+    if percentile is not None:
+        ref = np.percentile(y, percentile)
+        scale = 1.0 / ref if ref > 0 else 1.0
+    v = np.clip(y * (1.0 if scale is None else scale), 0.0, 1.0) ** (1.0 / gamma)
+    return np.round(v * 255.0).astype(np.uint8)
+
+
+def write_png(path: str | Path, y: np.ndarray, gamma: float = 2.2, scale: float | None = None,
+              percentile: float | None = None) -> Path:
+    """A tone-mapped preview PNG of a linear image (see `to_display`)."""
+    from PIL import Image
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    img = to_display(y, gamma=gamma, scale=scale, percentile=percentile)
+    tmp = path.with_name(f".{path.name}.part")
+    Image.fromarray(img).save(tmp, format="PNG")
+    os.replace(tmp, path)
+    return path
+
+
+__all__ = ["write_exr", "read_exr", "write_png", "to_display"]

@@ -1,0 +1,45 @@
+"""Mitsuba set-up: the libLLVM path, variant selection and cache clean-up.
+
+Mitsuba's variant is process-global, so every entry point that touches Mitsuba objects calls
+`use_variant` first; that keeps a mono and a spectral renderer usable in one process.
+"""
+from __future__ import annotations
+
+from spikesim._drjit import dr  # noqa: F401  (sets DRJIT_LIBLLVM_PATH before mitsuba imports drjit)
+
+import mitsuba as mi
+
+#: Our variant names -> the Mitsuba variant suffix (DESIGN.md section 4: mono is the fast path,
+#: spectral weighted by the silicon response is the accurate one, rgb is for previews only).
+VARIANTS = {"mono": "ad_mono", "spectral": "ad_spectral", "rgb": "ad_rgb"}
+DEVICES = ("llvm", "cuda")
+
+
+def variant_name(variant: str, device: str = "llvm") -> str:
+    """The Mitsuba variant string for one of our variants on a device."""
+    if variant not in VARIANTS:
+        raise ValueError(f"variant={variant!r}; expected one of {tuple(VARIANTS)}")
+    if device not in DEVICES:
+        raise ValueError(f"device={device!r}; expected one of {DEVICES}")
+    name = f"{device}_{VARIANTS[variant]}"
+    if name not in mi.variants():
+        raise RuntimeError(f"Mitsuba variant {name!r} is not in this build (has {mi.variants()})")
+    return name
+
+
+def use_variant(name: str) -> None:
+    """Switch Mitsuba to `name` if it is not already active (switching is cheap but not free)."""
+    if mi.variant() != name:
+        mi.set_variant(name)
+
+
+def clear_caches() -> None:
+    """What Mitsuba's own test suite does between tests (DESIGN.md section 4): sync, flush the
+    kernel and malloc caches, clear the kernel history."""
+    dr.sync_thread()
+    dr.flush_kernel_cache()
+    dr.flush_malloc_cache()
+    dr.kernel_history_clear()
+
+
+__all__ = ["VARIANTS", "variant_name", "use_variant", "clear_caches", "mi", "dr"]

@@ -1,0 +1,27 @@
+"""Errors for bad scene input: each names the offending file and says what is wrong with it."""
+from __future__ import annotations
+
+from pathlib import Path
+
+
+class SceneError(ValueError):
+    """A scene, motion or light file that cannot be used as given.
+
+    The message always starts with the file, so a user can fix the input without reading code.
+    """
+
+    def __init__(self, path: str | Path | None, problem: str):
+        self.path = None if path is None else Path(path)
+        self.problem = problem
+        super().__init__(f"{self.path}: {problem}" if self.path is not None else problem)
+
+
+class MotionError(SceneError):
+    """A motion file that is malformed or names objects the scene does not have."""
+
+
+class LightError(SceneError):
+    """A light file with an unknown spectrum, a non-physical power or a malformed emitter."""
+
+
+__all__ = ["SceneError", "MotionError", "LightError"]

@@ -1,0 +1,121 @@
+"""Light spectra in absolute photometric scale, on the wavelength grid Mitsuba renders.
+
+Every light is described by a relative spectral distribution S(lambda) normalised so that one
+photometric unit (1 lm, 1 cd, 1 lx or 1 cd/m^2) is K_m * integral S V = 1; the absolute spectral
+quantity is then (photometric value) x S(lambda). colour-science supplies the CIE tables.
+
+Why our own integrals: colour-science's `luminous_flux`/`luminous_efficacy` integrate over the
+spectrum's own range only (DESIGN.md section 4), so everything here is integrated on one fixed
+grid, 360-830 nm, which is also Mitsuba's spectral range (MI_CIE_MIN/MI_CIE_MAX).
+"""
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+
+#: Wavelength grid, nm: Mitsuba's spectral range (MI_CIE_MIN = 360, MI_CIE_MAX = 830), 1 nm steps.
+LAMBDA_MIN_NM = 360.0
+LAMBDA_MAX_NM = 830.0
+WAVELENGTHS_NM = np.arange(LAMBDA_MIN_NM, LAMBDA_MAX_NM + 0.5, 1.0)
+
+#: Maximum luminous efficacy of radiation, lm/W (CIE 018:2019 / SI brochure, K_cd definition).
+K_M = 683.002
+#: Planck constant (J s) and speed of light (m/s), exact SI 2019 values.
+PLANCK_H = 6.62607015e-34
+LIGHT_C = 299792458.0
+
+#: Colour-science names of the CIE illuminants we accept, with what each stands for.
+#: A: incandescent/tungsten (CIE 015:2018); D50/D65: daylight; FL1-FL12 and FL3.x: fluorescent
+#: lamps; LED-B1..B5, LED-BH1, LED-RGB1, LED-V1/V2: white LEDs (CIE 015:2018 Table 11.4);
+#: HP1-HP5: high-pressure discharge lamps (HP1 = standard high-pressure sodium street lamp).
+DAYLIGHT = {"D50": (0.3457, 0.3585), "D55": (0.3324, 0.3474), "D65": (0.3127, 0.3290), "D75": (0.2990, 0.3149)}
+
+
+def _trapz(y: np.ndarray, x: np.ndarray) -> float:
+    return float(np.sum(0.5 * (y[1:] + y[:-1]) * np.diff(x)))
+
+
+def integrate(values: np.ndarray) -> float:
+    """Trapezoidal integral over WAVELENGTHS_NM (values per nm -> total)."""
+    return _trapz(np.asarray(values, dtype=np.float64), WAVELENGTHS_NM)
+
+
+@lru_cache(maxsize=None)
+def photopic_v() -> np.ndarray:
+    """CIE 1924 photopic luminous efficiency V(lambda) on WAVELENGTHS_NM (colour-science)."""
+    from colour.colorimetry import SDS_LEFS_PHOTOPIC
+
+    sd = SDS_LEFS_PHOTOPIC["CIE 1924 Photopic Standard Observer"]
+    return np.interp(WAVELENGTHS_NM, sd.wavelengths, sd.values, left=0.0, right=0.0)
+
+
+def available_spectra() -> list[str]:
+    """Every light spectrum name `light_spectrum` accepts."""
+    import colour
+
+    names = set(colour.SDS_ILLUMINANTS.keys()) | set(DAYLIGHT) | {"A"}
+    names -= {"ID65", "ID50", "B", "C", "E"}  # indoor-daylight variants and obsolete sources
+    names = {n for n in names if not n.startswith("ISO")}
+    return sorted(names)
+
+
+@lru_cache(maxsize=None)
+def _raw_spectrum(name: str) -> np.ndarray:
+    import colour
+    from colour.colorimetry import sd_CIE_illuminant_D_series, sd_CIE_standard_illuminant_A
+
+    if name == "A":
+        # Illuminant A is Planck's law at 2856 K, so it is exact over the whole grid
+        # (the tabulated copy stops at 780 nm).
+        shape = colour.SpectralShape(LAMBDA_MIN_NM, LAMBDA_MAX_NM, 1.0)
+        sd = sd_CIE_standard_illuminant_A(shape)
+        return np.asarray(sd.values, dtype=np.float64)
+    if name in DAYLIGHT:
+        # CIE daylight from its basis functions S0, S1, S2 (defined to 830 nm; CIE 015:2018
+        # eq. 4.6), which reproduces the tabulated D65 within 0.2 % and extends it past 780 nm.
+        sd = sd_CIE_illuminant_D_series(np.array(DAYLIGHT[name]))
+        return np.interp(WAVELENGTHS_NM, sd.wavelengths, sd.values, left=0.0, right=0.0)
+    if name not in available_spectra():
+        raise KeyError(name)
+    sd = colour.SDS_ILLUMINANTS[name]
+    # Fluorescent, LED and discharge tables stop at 380-780 nm; these lamps emit next to nothing
+    # outside that range (phosphor and LED emission bands), so the rest of the grid is zero.
+    return np.interp(WAVELENGTHS_NM, sd.wavelengths, sd.values, left=0.0, right=0.0)
+
+
+@lru_cache(maxsize=None)
+def light_spectrum(name: str) -> np.ndarray:
+    """Spectral quantity per photometric unit, W/nm per lm (or per cd, lx, cd/m^2).
+
+    Normalised so that K_m * integral S V dlambda = 1: multiply by a lumen (candela, lux, nit)
+    value to get the absolute spectral flux (intensity, irradiance, radiance).
+    """
+    raw = _raw_spectrum(name)
+    s = raw / (K_M * integrate(raw * photopic_v()))
+    s.setflags(write=False)
+    return s
+
+
+def photons_per_joule() -> np.ndarray:
+    """lambda / (h c): photons per joule of radiant energy at each wavelength of the grid."""
+    return WAVELENGTHS_NM * 1e-9 / (PLANCK_H * LIGHT_C)
+
+
+def luminous_efficacy_of_radiation(name: str) -> float:
+    """lm/W of the radiation itself over 360-830 nm (not a lamp's efficacy, which includes its
+    heat and infrared losses: take those from the literature, see lights.LAMP_EFFICACY)."""
+    return 1.0 / integrate(light_spectrum(name))
+
+
+def regular_values(values: np.ndarray, step_nm: float = 5.0) -> tuple[float, float, np.ndarray]:
+    """Resample a grid function to `step_nm` for a Mitsuba `regular` spectrum (start, end, values)."""
+    grid = np.arange(LAMBDA_MIN_NM, LAMBDA_MAX_NM + 0.5 * step_nm, step_nm)
+    return LAMBDA_MIN_NM, LAMBDA_MAX_NM, np.interp(grid, WAVELENGTHS_NM, values)
+
+
+__all__ = [
+    "WAVELENGTHS_NM", "LAMBDA_MIN_NM", "LAMBDA_MAX_NM", "K_M", "PLANCK_H", "LIGHT_C", "integrate",
+    "photopic_v", "available_spectra", "light_spectrum", "photons_per_joule",
+    "luminous_efficacy_of_radiation", "regular_values",
+]

@@ -1,0 +1,67 @@
+import json
+
+import pytest
+
+from spikesim.camera import NOISE_TERMS, SpikeCamera
+
+
+def test_defaults_are_the_published_magnitudes():
+    cam = SpikeCamera()
+    assert (cam.width, cam.height) == (400, 250)
+    assert cam.readout_period_s == 25e-6
+    # 0.47 % of the threshold per step at 20 kHz is half that per step at 40 kHz (a current).
+    assert cam.dark_per_step == pytest.approx(0.0047 / 2, rel=0.01)
+    assert cam.dark_current_hz * 50e-6 == pytest.approx(0.0047, rel=0.01)
+    assert cam.gain_spread == 0.058 and cam.comparator_noise == 0.006 and cam.reset_loss == 0.002
+
+
+def test_noiseless_switches_every_term_off():
+    cam = SpikeCamera.noiseless()
+    assert cam.is_noiseless and not cam.has_temporal_noise
+    for term, off in NOISE_TERMS.items():
+        assert getattr(cam, term) == off
+    assert not SpikeCamera().is_noiseless
+
+
+def test_without_names_unknown_terms():
+    cam = SpikeCamera().without("comparator_noise", "shot_noise")
+    assert cam.comparator_noise == 0 and cam.shot_noise == "off" and cam.gain_spread > 0
+    with pytest.raises(ValueError, match="unknown noise term"):
+        SpikeCamera().without("sunspots")
+
+
+@pytest.mark.parametrize("field,value,message", [
+    ("threshold_electrons", 0, "threshold_electrons"),
+    ("threshold_electrons", float("nan"), "threshold_electrons"),
+    ("readout_period_s", -1e-6, "readout_period_s"),
+    ("readout_period_s", 5.0, "readout_period_s"),
+    ("height", 0, "height"),
+    ("width", 2.5, "width"),
+    ("gain_spread", -0.1, "gain_spread"),
+    ("gain_spread", 0.9, "gain_spread"),
+    ("reset_loss", 1.0, "reset_loss"),
+    ("dark_current_hz", 1e6, "dark_current_hz"),
+    ("shot_noise", "loud", "shot_noise"),
+    ("precision", "float16", "precision"),
+])
+def test_bad_parameters_are_named(field, value, message):
+    with pytest.raises(ValueError, match=message):
+        SpikeCamera(**{field: value})
+
+
+def test_file_round_trip_and_errors(tmp_path):
+    cam = SpikeCamera(height=20, width=30, comparator_noise=0.01)
+    path = tmp_path / "cam.json"
+    cam.save(path)
+    assert SpikeCamera.from_file(path) == cam
+    (tmp_path / "preset.json").write_text(json.dumps({"preset": "noiseless", "width": 64}))
+    loaded = SpikeCamera.from_file(tmp_path / "preset.json")
+    assert loaded.is_noiseless and loaded.width == 64
+    (tmp_path / "bad.json").write_text(json.dumps({"widht": 64}))
+    with pytest.raises(ValueError, match=r"bad.json.*widht"):
+        SpikeCamera.from_file(tmp_path / "bad.json")
+    (tmp_path / "broken.json").write_text("{")
+    with pytest.raises(ValueError, match="broken.json"):
+        SpikeCamera.from_file(tmp_path / "broken.json")
+    (tmp_path / "cam.toml").write_text('preset = "noiseless"\nheight = 8\n')
+    assert SpikeCamera.from_file(tmp_path / "cam.toml").height == 8
