@@ -40,9 +40,10 @@ class SpikeCamera:
     The defaults are the published magnitudes (the "realistic" preset); `SpikeCamera.noiseless()`
     switches every noise term off.
 
-    Saturation: at most one spike is read out per step. Charge left above one threshold after the
-    reset is discarded (the accumulator is clamped to [0, threshold]), so a pixel with y >= 1
-    fires at every step and its accumulator stays bounded.
+    Saturation: at most one spike is read out per step. Charge that one spike per step cannot
+    carry is discarded (the accumulator is clamped to [-threshold, 2 threshold], room for the
+    residuals of a noisy comparator), so a pixel with y >= 1 fires at every step and its
+    accumulator stays bounded.
     """
 
     height: int = 250

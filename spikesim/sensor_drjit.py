@@ -148,7 +148,7 @@ class DrJitSensor:
                 else:
                     f = a >= threshold
                 a = dr.select(f, a - threshold, a)
-                acc[p] = dr.minimum(dr.maximum(a, 0.0), threshold)
+                acc[p] = dr.minimum(dr.maximum(a, -threshold), threshold + threshold)
                 fired[p] = f
                 bits |= dr.select(f, UInt32(1 << p), UInt32(0))
             dr.scatter(out, bits, s * L + lane)

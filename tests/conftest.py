@@ -9,20 +9,7 @@ import pytest
 SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 
 
-def _drjit_available() -> bool:
-    try:
-        from spikesim._drjit import has_llvm
-        return has_llvm()
-    except Exception:  # pragma: no cover - depends on the machine
-        return False
-
-
-HAS_LLVM = _drjit_available()
-
-
-def drjit_backends() -> list[str]:
-    from spikesim.simulate import available_backends
-    return [b for b in available_backends() if b != "numpy"]
+from sensor_testing import HAS_LLVM
 
 
 @pytest.fixture(autouse=True)
@@ -41,5 +28,3 @@ def shared_data() -> Path:
         pytest.skip(f"shared test data not found at {SHARED_DATA} (see ../shared/data/README.md)")
     return SHARED_DATA
 
-
-requires_llvm = pytest.mark.skipif(not HAS_LLVM, reason="Dr.Jit LLVM backend unavailable (needs libLLVM >= 17)")

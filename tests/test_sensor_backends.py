@@ -7,7 +7,7 @@ from spikesim.camera import SpikeCamera
 from spikesim.simulate import Simulator
 from spikesim.stats import firing_rate
 
-from conftest import drjit_backends, requires_llvm
+from sensor_testing import drjit_backends, requires_llvm
 
 pytestmark = requires_llvm
 

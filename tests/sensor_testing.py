@@ -1,0 +1,24 @@
+"""Helpers shared by the sensor tests (a uniquely named module: sub-folders have their own
+conftest.py, so `from conftest import ...` would be ambiguous)."""
+from __future__ import annotations
+
+import pytest
+
+
+def _drjit_available() -> bool:
+    try:
+        from spikesim._drjit import has_llvm
+        return has_llvm()
+    except Exception:  # pragma: no cover - depends on the machine
+        return False
+
+
+HAS_LLVM = _drjit_available()
+
+
+def drjit_backends() -> list[str]:
+    from spikesim.simulate import available_backends
+    return [b for b in available_backends() if b != "numpy"]
+
+
+requires_llvm = pytest.mark.skipif(not HAS_LLVM, reason="Dr.Jit LLVM backend unavailable (needs libLLVM >= 17)")
