@@ -33,6 +33,10 @@ def _module(backend: str):
     return m
 
 
+class InvalidFrames(ValueError):
+    """Raised by a backend before any state changes; the Simulator then names the frame."""
+
+
 def _owned(arrays: list) -> list:
     """Copies in Dr.Jit-allocated (64-byte aligned) memory. Arrays wrapping NumPy buffers are
     traced with unaligned loads, which would compile a second kernel once the state is replaced
@@ -109,7 +113,7 @@ class DrJitSensor:
         padded_tail = P % LANE_PIXELS != 0
         gain, dark, thr = self._gain, self._dark, self._threshold
 
-        def body(s, acc, fired):
+        def body(s, acc, fired, bad):
             acc, fired = list(acc), list(fired)
             t = phase_op + s
             if interpolate:
@@ -125,6 +129,9 @@ class DrJitSensor:
                 pix = lane * LANE_PIXELS + p
                 active = pix < P if padded_tail else True
                 y = Float(dr.gather(m.Float32, frames, base_a + pix, active))
+                # Input validation for free while the value is in a register: NaN, +-inf and
+                # negative y flag the chunk, which is then rejected without touching the state.
+                bad |= ~((y >= 0.0) & (y < math.inf))
                 if interpolate:
                     yb = Float(dr.gather(m.Float32, frames, base_b + pix, active))
                     y = dr.select(r > 0, y * (1.0 - w) + yb * w, y)
@@ -152,11 +159,14 @@ class DrJitSensor:
                 fired[p] = f
                 bits |= dr.select(f, UInt32(1 << p), UInt32(0))
             dr.scatter(out, bits, s * L + lane)
-            return s + 1, acc, fired
+            return s + 1, acc, fired, bad
 
         s0 = UInt32(0)
-        _, acc, fired = dr.while_loop((s0, self._acc, self._fired), lambda s, a, f: s < n_op, body)
-        dr.eval(out, acc, fired)
+        bad0 = dr.opaque(m.Bool, False, L)
+        _, acc, fired, bad = dr.while_loop((s0, self._acc, self._fired, bad0), lambda s, a, f, b: s < n_op, body)
+        dr.eval(out, acc, fired, bad)
+        if bool(dr.any(bad)):
+            raise InvalidFrames("a frame holds NaN, infinite or negative irradiance")
         self._acc, self._fired = list(acc), list(fired)
         words = out.numpy().reshape(num_steps, L)
         return words.view(np.uint8)[:, : (P + 7) // 8]
@@ -181,4 +191,4 @@ class DrJitSensor:
         self._fired = _owned([m.Bool(np.ascontiguousarray(fired[:, j])) for j in range(LANE_PIXELS)])
 
 
-__all__ = ["DrJitSensor", "LANE_PIXELS"]
+__all__ = ["DrJitSensor", "InvalidFrames", "LANE_PIXELS"]

@@ -84,3 +84,18 @@ def test_step_counter_crosses_2_to_the_32():
     chunked = Simulator(cam, backend="llvm", seed=4, chunk_steps=3)
     chunked.steps_done = (1 << 32) - 5
     assert chunked.run(constant_frames(0.3, 10, 2, 32)) == s
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_a_rejected_chunk_leaves_the_state_untouched(backend):
+    cam = SpikeCamera.realistic(height=4, width=8)
+    sim = Simulator(cam, backend=backend, seed=2)
+    sim.run(constant_frames(0.2, 5, 4, 8))
+    before = sim.get_state()
+    frames = np.full((3, 4, 8), 0.2, np.float32)
+    frames[1, 0, 0] = np.nan
+    with pytest.raises(ValueError, match="frame 6: 1 NaN"):
+        sim.run(frames)
+    after = sim.get_state()
+    assert after["steps_done"] == before["steps_done"] == 5
+    assert np.array_equal(after["accumulator"], before["accumulator"])

@@ -14,10 +14,10 @@ The chain (each factor a field below, each with its source):
 4. y = e / threshold_electrons (DESIGN.md section 2: y is expected spikes per step).
 
 Default assumptions (documented in docs/scenes.md, chosen with spikesim.camera.SpikeCamera's
-estimate): a 20 um pixel (the 400 x 250 PKU sensor is an 8 x 5 mm array), effective fill factor
-0.5, a silicon photodiode with peak QE ~0.75, an f/1.4 lens with 90 % transmittance. With them a
-white Lambertian surface under 100 lx of daylight gives y ~ 0.27 spikes per 25 us step and 1 lx
-gives 1/100 of that (see `white_surface_y`).
+estimate): a 20 um pixel (the 400 x 250 array is then 8 x 5 mm), fill factor 0.3, a silicon
+photodiode with peak QE 0.75 at 510 nm, an f/1.4 lens with 90 % transmittance. With them a white
+Lambertian surface under 100 lx of D65 daylight collects ~290 photo-electrons per 25 us step,
+y ~ 0.29 (0.18-0.41 across the CIE lamps), and 1 lx gives 1/100 of that (`white_surface_y`).
 """
 from __future__ import annotations
 
@@ -81,8 +81,9 @@ class PixelResponse:
     pixel_pitch_m: float = 20e-6
     """Pixel pitch. Assumed 20 um (spikesim.camera.SpikeCamera's estimate): integrate-and-fire
     pixels carry a comparator and reset logic, so they are large."""
-    fill_factor: float = 0.5
-    """Effective photosensitive fraction of the pixel, microlens gain included (assumption)."""
+    fill_factor: float = 0.3
+    """Photosensitive fraction of the pixel (assumption): an integrate-and-fire pixel spends much
+    of its area on the comparator and reset circuit; 3T active pixels reach 30-50 %."""
     dead_layer_um: float = 0.1
     """Surface layer whose carriers recombine before collection (blue loss); silicon.py."""
     collection_depth_um: float = 4.0

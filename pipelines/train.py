@@ -1,0 +1,290 @@
+"""`spikesim train`: train a reconstruction network on a dataset in the project's layout.
+
+The default config ("full") is the paper's recipe: 41-step windows, 64x64 random crops, batch 8,
+K = 21 consecutive windows, Adam (0.9, 0.99), lr 1e-4 x0.1 at epoch 70 of 100, L1 summed over the
+K windows. Writes <out>/last.pt (every ckpt_every epochs and on stopping; atomic), <out>/best.pt
+(best validation PSNR), <out>/train_log.csv, <out>/val_log.csv, <out>/tb/ (TensorBoard) and
+<out>/config.json; `--resume` continues from <out>/last.pt exactly where it stopped.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+import json
+import math
+import random
+import sys
+import time
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+import torch
+from torch.utils.data import DataLoader
+
+from model.arch import build_model, count_parameters
+from model.checkpoint import load_checkpoint, save_checkpoint
+from model.config import ExperimentConfig, available_configs, load_config
+from model.data import Scene, SequenceDataset, open_scenes, split_scenes
+from model.losses import build_loss
+from model.metrics import psnr, ssim
+from model.representations import tfp_windows
+
+
+def seed_everything(seed: int) -> None:
+    """Python, NumPy and torch (CPU and CUDA) generators from one seed."""
+    random.seed(seed)
+    np.random.seed(seed % 2**32)
+    torch.manual_seed(seed)
+
+
+def _worker_init(worker_id: int) -> None:
+    s = torch.initial_seed() % 2**32
+    random.seed(s)
+    np.random.seed(s)
+
+
+def resolve_device(name: str) -> torch.device:
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    dev = torch.device(name)
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise RuntimeError("--device cuda asked for, but torch sees no CUDA device")
+    return dev
+
+
+class _CsvLog:
+    """Append-only CSV with a fixed header (kept across resumes)."""
+
+    def __init__(self, path: Path, fields: Sequence[str]) -> None:
+        self.path, self.fields = path, list(fields)
+        if not path.exists():
+            with path.open("w", newline="") as f:
+                csv.writer(f).writerow(self.fields)
+
+    def write(self, row: dict[str, Any]) -> None:
+        with self.path.open("a", newline="") as f:
+            csv.writer(f).writerow([row.get(k, "") for k in self.fields])
+
+
+class _Tensorboard:
+    """SummaryWriter when tensorboard imports; otherwise a no-op with one warning."""
+
+    def __init__(self, log_dir: Path) -> None:
+        try:
+            from torch.utils.tensorboard import SummaryWriter
+            self.writer = SummaryWriter(str(log_dir))
+        except Exception as e:  # tensorboard missing or broken: CSV logs still carry everything
+            print(f"[train] TensorBoard disabled ({e}); CSV logs only", file=sys.stderr)
+            self.writer = None
+
+    def scalar(self, tag: str, value: float, step: int) -> None:
+        if self.writer is not None:
+            self.writer.add_scalar(tag, value, step)
+
+    def close(self) -> None:
+        if self.writer is not None:
+            self.writer.close()
+
+
+@torch.no_grad()
+def validate(model: torch.nn.Module, dataset: SequenceDataset, device: torch.device) -> dict[str, float]:
+    """Mean PSNR / SSIM over every frame of the validation samples, for the model and for TFP
+    on the same windows (the yardstick the model has to beat)."""
+    model.eval()
+    scores: dict[str, list[float]] = {"psnr": [], "ssim": [], "psnr_tfp": [], "ssim_tfp": []}
+    for i in range(len(dataset)):
+        item = dataset[i]
+        spikes = item["spikes"].to(device)
+        pred = model(spikes.unsqueeze(0))[0].float().cpu().numpy()
+        base = tfp_windows(spikes).cpu().numpy()
+        gt = item["gt"].numpy()
+        for k in range(gt.shape[0]):
+            scores["psnr"].append(psnr(pred[k], gt[k]))
+            scores["ssim"].append(ssim(pred[k], gt[k]))
+            scores["psnr_tfp"].append(psnr(base[k], gt[k]))
+            scores["ssim_tfp"].append(ssim(base[k], gt[k]))
+    model.train()
+    return {k: float(np.mean(v)) for k, v in scores.items()}
+
+
+def _epoch_order(n: int, seed: int, epoch: int) -> list[int]:
+    """The shuffled sample order of one epoch, a pure function of (seed, epoch) so a resumed run
+    continues with exactly the batches it would have seen."""
+    g = torch.Generator().manual_seed(seed * 1_000_003 + epoch)
+    return torch.randperm(n, generator=g).tolist()
+
+
+def run_training(experiment: ExperimentConfig, train_scenes: Sequence[Scene], val_scenes: Sequence[Scene],
+                 out_dir: str | Path, device: str = "auto", resume: bool = False,
+                 progress: bool = True) -> dict[str, Any]:
+    """Train; returns a summary (steps, last loss, best validation PSNR, throughput)."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    tc, mc = experiment.train, experiment.model
+    dev = resolve_device(device)
+    seed_everything(tc.seed)
+    model = build_model(mc).to(dev)
+    opt = torch.optim.Adam(model.parameters(), lr=tc.lr, betas=tuple(tc.betas))
+    sched = torch.optim.lr_scheduler.MultiStepLR(opt, milestones=list(tc.lr_milestones), gamma=tc.lr_gamma)
+    use_amp = tc.amp and dev.type == "cuda"
+    scaler = torch.amp.GradScaler("cuda", enabled=use_amp)
+    loss_fn = build_loss(tc.loss)
+
+    train_ds = SequenceDataset(train_scenes, mc.window, tc.num_windows, tc.crop, random_crop=True,
+                               seed=tc.seed, start_stride=tc.start_stride, samples_per_epoch=tc.samples_per_epoch)
+    val_ds = None
+    if val_scenes:
+        per_scene = max(1, tc.val_max_samples // len(val_scenes))
+        val_ds = SequenceDataset(val_scenes, mc.window, tc.num_windows, tc.val_crop, random_crop=False,
+                                 seed=tc.seed, max_per_scene=per_scene)
+
+    epoch, batch_in_epoch, step, best = 0, 0, 0, -math.inf
+    last_path, best_path = out / "last.pt", out / "best.pt"
+    if resume:
+        if not last_path.exists():
+            raise FileNotFoundError(f"--resume: no checkpoint at {last_path}")
+        state = load_checkpoint(last_path, dev)
+        saved = ExperimentConfig.from_dict(state["experiment"])
+        if saved.model != mc:
+            raise ValueError(f"--resume: {last_path} holds a different model config: {saved.model} vs {mc}")
+        model.load_state_dict(state["model_state"])
+        opt.load_state_dict(state["optimizer_state"])
+        sched.load_state_dict(state["scheduler_state"])
+        if state.get("scaler_state"):
+            scaler.load_state_dict(state["scaler_state"])
+        torch.set_rng_state(state["rng"]["torch"].cpu())
+        epoch, step = state["epoch"], state["step"]
+        batch_in_epoch = state["extra"].get("batch_in_epoch", 0)
+        best = state["extra"].get("best_val_psnr", -math.inf)
+    (out / "config.json").write_text(json.dumps(experiment.to_dict(), indent=2))
+
+    train_log = _CsvLog(out / "train_log.csv", ["time", "epoch", "step", "loss", "lr", "samples_per_s"])
+    val_log = _CsvLog(out / "val_log.csv", ["time", "epoch", "step", "psnr", "ssim", "psnr_tfp", "ssim_tfp"])
+    tb = _Tensorboard(out / "tb")
+    try:
+        from tqdm import tqdm
+    except ImportError:  # progress bars are a nicety
+        tqdm = None
+
+    def checkpoint(path: Path, epoch_: int, batch_: int) -> None:
+        save_checkpoint(path, model, experiment, opt, sched, scaler, epoch_, step,
+                        extra={"batch_in_epoch": batch_, "best_val_psnr": best})
+
+    print(f"[train] {experiment.name}: {count_parameters(model):,} parameters, device {dev}, "
+          f"{len(train_ds)} samples/epoch from {len(train_scenes)} scenes, "
+          f"{len(val_ds) if val_ds else 0} validation samples", file=sys.stderr)
+    model.train()
+    last_loss, t_start, samples_seen = math.nan, time.perf_counter(), 0
+    stopped = False
+    while epoch < tc.epochs and not stopped:
+        train_ds.set_epoch(epoch)
+        order = _epoch_order(len(train_ds), tc.seed, epoch)
+        batches = [order[i:i + tc.batch_size] for i in range(0, len(order), tc.batch_size)]
+        loader = DataLoader(train_ds, batch_sampler=batches[batch_in_epoch:], num_workers=tc.num_workers,
+                            worker_init_fn=_worker_init, pin_memory=dev.type == "cuda")
+        bar = tqdm(loader, desc=f"epoch {epoch + 1}/{tc.epochs}", initial=batch_in_epoch, total=len(batches),
+                   disable=not progress, file=sys.stderr) if tqdm else loader
+        for batch in bar:
+            t0 = time.perf_counter()
+            spikes = batch["spikes"].to(dev, non_blocking=True)
+            gt = batch["gt"].to(dev, non_blocking=True)
+            with torch.autocast(dev.type, enabled=use_amp):
+                pred = model(spikes)
+            loss = loss_fn(pred.float(), gt)
+            if not torch.isfinite(loss):
+                raise FloatingPointError(f"loss became {loss.item()} at step {step}")
+            opt.zero_grad(set_to_none=True)
+            scaler.scale(loss).backward()
+            if tc.grad_clip is not None:
+                scaler.unscale_(opt)
+                torch.nn.utils.clip_grad_norm_(model.parameters(), tc.grad_clip)
+            scaler.step(opt)
+            scaler.update()
+            step += 1
+            batch_in_epoch += 1
+            samples_seen += spikes.shape[0]
+            last_loss = float(loss.item())
+            rate = spikes.shape[0] / max(time.perf_counter() - t0, 1e-9)
+            train_log.write({"time": time.time(), "epoch": epoch, "step": step, "loss": last_loss,
+                             "lr": opt.param_groups[0]["lr"], "samples_per_s": rate})
+            tb.scalar("train/loss", last_loss, step)
+            if tqdm:
+                bar.set_postfix(loss=f"{last_loss:.4f}")
+            if tc.max_steps is not None and step >= tc.max_steps:
+                stopped = True
+                break
+        if not stopped:
+            epoch, batch_in_epoch = epoch + 1, 0
+            sched.step()
+        if val_ds is not None and (stopped or epoch % tc.val_every == 0):
+            scores = validate(model, val_ds, dev)
+            val_log.write({"time": time.time(), "epoch": epoch, "step": step, **scores})
+            for k, v in scores.items():
+                tb.scalar(f"val/{k}", v, step)
+            print(f"[train] epoch {epoch} step {step}: loss {last_loss:.4f}, val PSNR {scores['psnr']:.2f} dB "
+                  f"(TFP {scores['psnr_tfp']:.2f}), SSIM {scores['ssim']:.4f}", file=sys.stderr)
+            if scores["psnr"] > best:
+                best = scores["psnr"]
+                checkpoint(best_path, epoch, batch_in_epoch)
+        if stopped or epoch % tc.ckpt_every == 0 or epoch >= tc.epochs:
+            checkpoint(last_path, epoch, batch_in_epoch)
+    tb.close()
+    elapsed = time.perf_counter() - t_start
+    return {"steps": step, "epoch": epoch, "last_loss": last_loss, "best_val_psnr": best,
+            "samples_per_s": samples_seen / elapsed if elapsed > 0 else math.nan, "out": str(out)}
+
+
+def _apply_overrides(exp: ExperimentConfig, args: argparse.Namespace) -> ExperimentConfig:
+    mapping = {"epochs": "epochs", "max_steps": "max_steps", "batch_size": "batch_size",
+               "num_windows": "num_windows", "crop": "crop", "lr": "lr", "seed": "seed",
+               "num_workers": "num_workers", "samples_per_epoch": "samples_per_epoch", "val_crop": "val_crop"}
+    changes = {field: getattr(args, arg) for arg, field in mapping.items() if getattr(args, arg, None) is not None}
+    if getattr(args, "no_amp", False):
+        changes["amp"] = False
+    return dataclasses.replace(exp, train=dataclasses.replace(exp.train, **changes)) if changes else exp
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    exp = _apply_overrides(load_config(args.config), args)
+    scenes = open_scenes(args.data)
+    if args.val_data:
+        train_scenes, val_scenes = scenes, open_scenes(args.val_data)
+    else:
+        train_scenes, val_scenes = split_scenes(scenes, exp.train.val_fraction, exp.train.val_scenes, exp.train.seed)
+    out = Path(args.out) if args.out else Path("runs") / exp.name
+    summary = run_training(exp, train_scenes, val_scenes, out, args.device, args.resume, progress=not args.quiet)
+    print(json.dumps(summary, indent=2))
+    return 0
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """Register `train` on the CLI's subparsers."""
+    p = subparsers.add_parser("train", help="train the reconstruction network",
+                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--config", default="full",
+                   help=f"named config ({', '.join(available_configs())}) or a JSON file (default: full)")
+    p.add_argument("--data", required=True, help="dataset root (project layout: manifest.json, <scene>/...)")
+    p.add_argument("--val-data", help="separate validation dataset root (default: split --data by scene)")
+    p.add_argument("--out", help="run folder (default: runs/<config name>)")
+    p.add_argument("--resume", action="store_true", help="continue from <out>/last.pt")
+    p.add_argument("--device", default="auto", help="auto (CUDA when present), cpu, cuda, cuda:1, ...")
+    p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: torch's default)")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    g = p.add_argument_group("overrides of the config's train section")
+    g.add_argument("--epochs", type=int)
+    g.add_argument("--max-steps", type=int)
+    g.add_argument("--batch-size", type=int)
+    g.add_argument("--num-windows", type=int, help="K, consecutive windows per sample")
+    g.add_argument("--crop", type=int)
+    g.add_argument("--val-crop", type=int)
+    g.add_argument("--lr", type=float)
+    g.add_argument("--seed", type=int)
+    g.add_argument("--num-workers", type=int)
+    g.add_argument("--samples-per-epoch", type=int)
+    g.add_argument("--no-amp", action="store_true", help="no mixed precision on CUDA")
+    p.set_defaults(func=cmd_train)
+    return p

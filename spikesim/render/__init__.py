@@ -1,0 +1,28 @@
+"""Rendering: physically lit, moving Mitsuba 3 scenes turned into y (expected spikes per step).
+
+Stages, one module each: `lights` (spectra and photometric power -> emitters), `exposure`
+(radiance -> electrons -> y), `motion` (motion files), `animate` (motion -> scene parameters),
+`scene` (XML preparation and loading), `renderer` (SceneRenderer: frames and ground truth).
+Importing this package does not import Mitsuba until a renderer is created.
+"""
+from __future__ import annotations
+
+from typing import Any
+
+from .errors import LightError, MotionError, SceneError
+from .exposure import Exposure, Optics, PixelResponse
+from .motion import MotionSpec, load_motion, parse_motion
+
+__all__ = ["SceneRenderer", "RenderSettings", "SceneError", "MotionError", "LightError", "Exposure", "Optics",
+           "PixelResponse", "MotionSpec", "load_motion", "parse_motion", "load_lights"]
+
+
+def __getattr__(name: str) -> Any:
+    # Mitsuba is heavy to import: load it only when a renderer or the light loader is asked for.
+    if name in ("SceneRenderer", "RenderSettings"):
+        from . import renderer
+        return getattr(renderer, name)
+    if name == "load_lights":
+        from .lights import load_lights
+        return load_lights
+    raise AttributeError(name)

@@ -1,0 +1,258 @@
+"""SceneRenderer: a physically lit, moving scene rendered step by step into y (spikes per step).
+
+One scene is loaded once and re-rendered many times: motion is applied by parameter updates and
+every frame reuses the compiled kernels, so memory stays flat over thousands of frames
+(DESIGN.md section 4). Frames are yielded one at a time, never held as a sequence.
+
+Time sampling. Step n integrates light over [n T, (n + 1) T) (DESIGN.md section 2), so the frame
+for step n is the mean over that interval: a render at its midpoint, or, when objects move more
+than `blur_threshold_px` pixels within the step, the mean of s renders at sub-step midpoints
+(Mitsuba 3.9 has no motion blur of its own, DESIGN.md section 4). Ground truth at step n is the
+same quantity rendered with many more samples.
+"""
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+from typing import Any, Iterator
+
+import numpy as np
+
+from .animate import Animator
+from .backend import mi, use_variant, variant_name
+from .errors import LightError
+from .exposure import Exposure, Optics, PixelResponse
+from .lights import load_lights
+from .motion import MotionSpec, load_motion
+from .projection import PinholeCamera
+from .scene import SceneFiles, load_scene, prepare_xml
+
+#: Seed streams, so frames and ground truth at the same step use independent samples.
+_FRAMES, _GROUND_TRUTH, _PREVIEW = 0, 1, 2
+
+
+@dataclass(frozen=True)
+class RenderSettings:
+    """The renderer's knobs (everything that changes the output besides the scene files)."""
+
+    variant: str = "mono"
+    """"mono" (fast path: grey surfaces, the light's spectrum folded into one number),
+    "spectral" (accurate: spectral rendering weighted by the silicon response) or "rgb"
+    (previews only, no y)."""
+    spp: int = 4
+    """Samples per pixel of each render of a frame (a step with s sub-steps renders s times)."""
+    gt_spp: int = 64
+    """Samples per pixel of each render of a ground-truth image."""
+    seed: int = 0
+    """Every render's seed derives from (seed, stream, step, sub-step): frames are reproducible and
+    independent of where a stream starts."""
+    substeps: int | str = "auto"
+    """Renders averaged per step: an integer, or "auto" = ceil(motion in pixels / blur_threshold_px)."""
+    blur_threshold_px: float = 1.0
+    max_substeps: int = 16
+    resolution: tuple[int, int] | None = None
+    """(height, width) override, e.g. (25, 40) for tests; default: the camera's, else the XML's."""
+    device: str = "llvm"
+    """Dr.Jit backend: "llvm" (CPU) or "cuda"."""
+
+    def __post_init__(self) -> None:
+        if self.variant not in ("mono", "spectral", "rgb"):
+            raise ValueError(f"variant={self.variant!r}; expected 'mono', 'spectral' or 'rgb'")
+        for name in ("spp", "gt_spp", "max_substeps"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                raise ValueError(f"{name}={v!r} must be a positive integer")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
+            raise ValueError(f"seed={self.seed!r} must be a non-negative integer")
+        if self.substeps != "auto" and (isinstance(self.substeps, bool) or not isinstance(self.substeps, int)
+                                        or self.substeps < 1):
+            raise ValueError(f"substeps={self.substeps!r} must be 'auto' or a positive integer")
+        if not self.blur_threshold_px > 0:
+            raise ValueError(f"blur_threshold_px={self.blur_threshold_px!r} must be positive")
+        if self.resolution is not None:
+            r = tuple(self.resolution)
+            if len(r) != 2 or not all(isinstance(x, int) and x > 0 for x in r):
+                raise ValueError(f"resolution={self.resolution!r} must be (height, width) positive integers")
+            object.__setattr__(self, "resolution", r)
+        if self.device not in ("llvm", "cuda"):
+            raise ValueError(f"device={self.device!r}; expected 'llvm' or 'cuda'")
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["resolution"] = list(self.resolution) if self.resolution else None
+        return d
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> "RenderSettings":
+        unknown = set(data) - {f.name for f in fields(cls)}
+        if unknown:
+            raise ValueError(f"unknown render settings {sorted(unknown)}")
+        d = dict(data)
+        if d.get("resolution") is not None:
+            d["resolution"] = tuple(d["resolution"])
+        return cls(**d)
+
+    @classmethod
+    def from_file(cls, path: str | Path) -> "RenderSettings":
+        path = Path(path)
+        try:
+            return cls.from_dict(json.loads(path.read_text()))
+        except (ValueError, TypeError) as exc:
+            raise ValueError(f"{path}: {exc}") from exc
+
+
+def _seed(*parts: int) -> int:
+    """A 32-bit render seed from integer parts (NumPy's SeedSequence hashing)."""
+    return int(np.random.SeedSequence([int(p) for p in parts]).generate_state(1, np.uint32)[0])
+
+
+class SceneRenderer:
+    """Render a scene under one lighting condition as y frames for the spike sensor.
+
+    >>> r = SceneRenderer("ball", light="low", variant="mono", spp=4)
+    >>> for y in r.frames(0, 41):      # (250, 400) float32 arrays, one per step
+    ...     ...
+    """
+
+    def __init__(self, scene: str | Path, light: str = "normal", variant: str | None = None,
+                 spp: int | None = None, resolution: tuple[int, int] | None = None, seed: int | None = None,
+                 *, camera: Any = None, optics: Optics | None = None, pixel: PixelResponse | None = None,
+                 motion: str | Path | None = None, lights: str | Path | None = None,
+                 settings: RenderSettings | None = None, **overrides: Any):
+        given = {k: v for k, v in {"variant": variant, "spp": spp, "resolution": resolution, "seed": seed,
+                                   **overrides}.items() if v is not None}
+        base = settings.to_dict() if settings is not None else {}
+        if "resolution" not in given and not base.get("resolution") and camera is not None:
+            given["resolution"] = (int(camera.height), int(camera.width))
+        self.settings = RenderSettings.from_dict({**base, **given})
+        self.files = SceneFiles.resolve(scene, motion=motion, lights=lights)
+        conditions = load_lights(self.files.lights)
+        if light not in conditions:
+            raise LightError(self.files.lights, f"has no lighting {light!r} (it has {sorted(conditions)})")
+        self.light = light
+        self.lighting = conditions[light]
+        self.motion = load_motion(self.files.motion) if self.files.motion else MotionSpec.static()
+        self.exposure = Exposure.for_camera(camera, optics=optics, pixel=pixel)
+        self._variant = variant_name(self.settings.variant, self.settings.device)
+        use_variant(self._variant)
+        text, self.sensor_id, (h, w) = prepare_xml(self.files.xml, self.settings.variant, self.lighting,
+                                                   self.exposure.pixel, self.settings.resolution)
+        self.height, self.width = h, w
+        self.scene = load_scene(self.files.xml, text)
+        self.params = mi.traverse(self.scene)
+        self.animator = Animator(self.scene, self.params, self.motion)
+        self.camera_model = PinholeCamera.from_params(self.params, self.sensor_id, w, h)
+        self._gain = self.exposure.gain_map(h, w, self.camera_model.x_fov_deg)
+        self.stats = {"renders": 0, "render_seconds": 0.0, "frames": 0}
+
+    # ---- time ---------------------------------------------------------------------------------
+    @property
+    def readout_period_s(self) -> float:
+        return self.exposure.readout_period_s
+
+    def time_of(self, step: float, fraction: float = 0.5) -> float:
+        """Seconds on the motion clock at `fraction` of step `step`'s readout period."""
+        return self.motion.start_time_s + (step + fraction) * self.readout_period_s
+
+    def motion_px(self, step: int) -> float:
+        """Largest image-plane displacement (pixels) of any moving object during step `step`."""
+        if not self.animator.moving:
+            return 0.0
+        a, _ = self.camera_model.project(self.animator.world_points(self.time_of(step, 0.0)))
+        b, _ = self.camera_model.project(self.animator.world_points(self.time_of(step, 1.0)))
+        d = np.linalg.norm(b - a, axis=-1)
+        d = d[np.isfinite(d)]
+        return float(d.max()) if d.size else 0.0
+
+    def substeps_for(self, step: int) -> int:
+        s = self.settings
+        if s.substeps != "auto":
+            return int(s.substeps)
+        return int(min(s.max_substeps, max(1, math.ceil(self.motion_px(step) / s.blur_threshold_px - 1e-9))))
+
+    # ---- rendering ----------------------------------------------------------------------------
+    def _film(self, step: int, spp: int, stream: int) -> np.ndarray:
+        """Mean film value over step `step` (electron-weighted radiance; RGB for previews)."""
+        use_variant(self._variant)
+        n = self.substeps_for(step)
+        acc = None
+        for sub in range(n):
+            self.animator.apply(self.time_of(step, (sub + 0.5) / n))
+            t0 = time.perf_counter()
+            img = np.array(mi.render(self.scene, spp=spp, seed=_seed(self.settings.seed, stream, step, sub)),
+                           dtype=np.float32)
+            self.stats["render_seconds"] += time.perf_counter() - t0
+            self.stats["renders"] += 1
+            acc = img if acc is None else acc + img
+        return acc / n
+
+    def render_step(self, step: int, spp: int | None = None) -> np.ndarray:
+        """y at step `step` (float32 (H, W)), with `spp` samples per render (default: settings.spp)."""
+        return self._to_y(step, self._film(self._check_step(step), spp or self.settings.spp, _FRAMES))
+
+    def ground_truth(self, step: int, spp: int | None = None) -> np.ndarray:
+        """Ground-truth y at step `step`: the same mean over the readout period, with gt_spp."""
+        return self._to_y(step, self._film(self._check_step(step), spp or self.settings.gt_spp, _GROUND_TRUTH))
+
+    def frames(self, start_step: int = 0, num_steps: int = 1, keyframe_every: int = 1) -> Iterator[np.ndarray]:
+        """Stream y frames for steps start_step .. start_step + num_steps - 1.
+
+        With keyframe_every = k > 1 only keyframes are rendered: frame j is y at step
+        start_step + j k, for j = 0 .. ceil((num_steps - 1) / k), so the last keyframe reaches or
+        passes the last step and the sensor can interpolate every step in between
+        (spikesim.simulate.Simulator.run(frames, keyframe_every=k)).
+        """
+        self._check_step(start_step)
+        if isinstance(num_steps, bool) or not isinstance(num_steps, int) or num_steps < 1:
+            raise ValueError(f"num_steps={num_steps!r} must be a positive integer")
+        if isinstance(keyframe_every, bool) or not isinstance(keyframe_every, int) or keyframe_every < 1:
+            raise ValueError(f"keyframe_every={keyframe_every!r} must be a positive integer")
+        n_keys = -(-(num_steps - 1) // keyframe_every) + 1
+        for j in range(n_keys):
+            yield self.render_step(start_step + j * keyframe_every)
+            self.stats["frames"] += 1
+
+    def preview_rgb(self, step: int, spp: int | None = None) -> np.ndarray:
+        """Linear RGB (H, W, 3) scaled like y (luminance ~ y), for pictures; needs variant="rgb"."""
+        if self.settings.variant != "rgb":
+            raise ValueError("preview_rgb needs variant='rgb' (RGB renders are for previews only)")
+        return self._film(self._check_step(step), spp or self.settings.gt_spp, _PREVIEW) * self._gain[..., None]
+
+    def _to_y(self, step: int, film: np.ndarray) -> np.ndarray:
+        if self.settings.variant == "rgb":
+            raise ValueError("the rgb variant renders previews only (preview_rgb); use 'mono' or 'spectral' for y")
+        y = film[..., 0] * self._gain
+        if not np.all(np.isfinite(y)):
+            raise RuntimeError(f"{self.files.xml}: step {step} rendered {int((~np.isfinite(y)).sum())} "
+                               "non-finite pixels")
+        return np.maximum(y, 0.0).astype(np.float32, copy=False)
+
+    @staticmethod
+    def _check_step(step: int) -> int:
+        if isinstance(step, bool) or not isinstance(step, (int, np.integer)) or step < 0:
+            raise ValueError(f"step={step!r} must be a non-negative integer")
+        return int(step)
+
+    # ---- reproducibility ----------------------------------------------------------------------
+    def describe(self) -> dict[str, Any]:
+        """Every parameter that determines the output, for a dataset's meta.json."""
+        return {
+            "scene": self.files.name,
+            "files": {k: str(getattr(self.files, k)) for k in ("xml", "motion", "lights") if getattr(self.files, k)},
+            "sha256": self.files.digests(),
+            "light": self.lighting.describe(self.exposure.pixel),
+            "motion": self.motion.describe(),
+            "render": {**self.settings.to_dict(), "height": self.height, "width": self.width,
+                       "mitsuba_variant": self._variant, "reconstruction_filter": "box",
+                       "time_sampling": "mean over each readout period (sub-step midpoints)"},
+            "camera": {"x_fov_deg": self.camera_model.x_fov_deg,
+                       "to_world": self.camera_model.to_world.tolist()},
+            "exposure": {**self.exposure.to_dict(), "y_per_radiance": self.exposure.y_per_radiance},
+            "versions": {"mitsuba": mi.__version__, "drjit": __import__("drjit").__version__},
+        }
+
+
+__all__ = ["SceneRenderer", "RenderSettings"]
