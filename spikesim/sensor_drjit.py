@@ -139,11 +139,13 @@ class DrJitSensor:
                 if dark is not None:
                     e = e + dark[p]
                 if shot or comparator:
-                    rng = m.Philox4x32(self._key, pix, step_lo + s, step_hi)
-                    u = rng.next_float32x4()
+                    if p % 2 == 0:
+                        # One Philox call gives four uniforms: two for this pixel, two for the next.
+                        u4 = m.Philox4x32(self._key, lane * (LANE_PIXELS // 2) + p // 2, step_lo + s, step_hi).next_float32x4()
+                    u0, u1 = (u4[0], u4[1]) if p % 2 == 0 else (u4[2], u4[3])
                     # Box-Muller: two independent standard normals from two uniforms.
-                    radius = dr.sqrt(-2.0 * dr.log(1.0 - Float(u[0])))
-                    sin_, cos_ = dr.sincos(2.0 * math.pi * Float(u[1]))
+                    radius = dr.sqrt(-2.0 * dr.log(1.0 - Float(u0)))
+                    sin_, cos_ = dr.sincos(2.0 * math.pi * Float(u1))
                 if shot:
                     e = e + dr.sqrt(e * inv_ne) * (radius * cos_)
                 if reset_loss:
@@ -156,14 +158,19 @@ class DrJitSensor:
                     f = a >= threshold
                 a = dr.select(f, a - threshold, a)
                 acc[p] = dr.minimum(dr.maximum(a, -threshold), threshold + threshold)
-                fired[p] = f
+                if reset_loss:
+                    fired[p] = f
                 bits |= dr.select(f, UInt32(1 << p), UInt32(0))
             dr.scatter(out, bits, s * L + lane)
             return s + 1, acc, fired, bad
 
         s0 = UInt32(0)
         bad0 = dr.opaque(m.Bool, False, L)
-        _, acc, fired, bad = dr.while_loop((s0, self._acc, self._fired, bad0), lambda s, a, f, b: s < n_op, body)
+        # The last-step spikes are loop state only where the reset loss reads them.
+        fired0 = self._fired if reset_loss else []
+        _, acc, fired, bad = dr.while_loop((s0, self._acc, fired0, bad0), lambda s, a, f, b: s < n_op, body)
+        if not reset_loss:
+            fired = self._fired
         dr.eval(out, acc, fired, bad)
         if bool(dr.any(bad)):
             raise InvalidFrames("a frame holds NaN, infinite or negative irradiance")
