@@ -13,6 +13,7 @@ _SUBCOMMANDS = (
     "pipelines.inspect_cmd",
     "pipelines.bench",
     "pipelines.golden_stats",
+    "pipelines.generate",
 )
 
 

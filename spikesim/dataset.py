@@ -133,6 +133,8 @@ def write_scene(root: str | Path, name: str, stream: SpikeStream | Path, ground_
             h, w, n = stream.height, stream.width, stream.num_steps
         else:
             os.replace(stream, tmp / SPIKES)
+            if "height" not in meta or "width" not in meta:
+                raise ValueError(f"scene {name}: meta needs 'height' and 'width' when the stream is a file")
             h, w = int(meta["height"]), int(meta["width"])
             n = DatReader(tmp / SPIKES, h, w, flip=flip).num_steps
         items = ground_truth.items() if isinstance(ground_truth, dict) else ground_truth

@@ -1,0 +1,100 @@
+"""Dataset generation: layout, manifest, verify, resume, determinism, parallel workers.
+These use the built-in pattern as the irradiance source (no renderer), so they are fast."""
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from pipelines.generate import PRESETS, SceneJob, generate, job_status, llr_windows, plan_rllr
+from spikesim.dataset import open_dataset, verify
+
+
+def tiny_jobs(n=2, steps=82):
+    import dataclasses
+    preset = dataclasses.replace(PRESETS["small"], height=12, width=32, rllr_steps=steps, rllr_gt_stride=41)
+    return plan_rllr(preset, seed=1, count=n, source="pattern")
+
+
+def test_windows_and_centres():
+    wins, centres = llr_windows(21)
+    assert wins[0] == (0, 41) and wins[-1] == (820, 861) and centres[:2] == (20, 61)
+
+
+def test_generate_verify_and_read_back(tmp_path):
+    jobs = tiny_jobs()
+    report = generate(jobs, tmp_path, workers=1, show_progress=False)
+    assert len(report["generated"]) == 2 and verify(tmp_path) == []
+    scenes = open_dataset(tmp_path)
+    assert [s.name for s in scenes] == ["rllr_0000", "rllr_0001"]
+    s = scenes[0]
+    assert s.num_steps == 82 and s.gt_steps == [0, 41] and s.spikes(0, 41).shape == (41, 12, 32)
+    meta = s.meta
+    # RLLR darkening: a factor in (0, 1) recorded, and applied to the ground truth
+    f = meta["light_power_factor"]
+    assert 0 < f < 1
+    from spikesim.patterns import MovingPattern
+    p = MovingPattern(height=12, width=32, peak_y=0.3, seed=meta["job"]["source"]["pattern_seed"])
+    assert np.allclose(s.ground_truth(41), p.frame(41) * np.float32(f))
+    # the stream's mean rate follows the darkened light
+    assert s.spikes().mean() == pytest.approx(p.frame(41).mean() * f, rel=0.25, abs=0.01)
+
+
+def test_verify_names_altered_and_missing_files(tmp_path):
+    generate(tiny_jobs(), tmp_path, workers=1, show_progress=False)
+    dat = tmp_path / "rllr_0000" / "spikes.dat"
+    data = bytearray(dat.read_bytes())
+    data[10] ^= 0xFF
+    dat.write_bytes(bytes(data))
+    (tmp_path / "rllr_0001" / "gt" / "step_000041.exr").unlink()
+    with open(tmp_path / "rllr_0001" / "spikes.dat", "ab") as f:
+        f.write(b"\x00")
+    problems = verify(tmp_path)
+    assert any("rllr_0000/spikes.dat" in p and "checksum" in p for p in problems)
+    assert any("step_000041.exr: missing" in p for p in problems)
+    assert any("rllr_0001/spikes.dat" in p and "bytes" in p for p in problems)
+
+
+def test_resume_regenerates_only_what_is_missing_and_reproduces_bytes(tmp_path):
+    jobs = tiny_jobs()
+    generate(jobs, tmp_path, workers=1, show_progress=False)
+    before = (tmp_path / "rllr_0001" / "spikes.dat").read_bytes()
+    shutil.rmtree(tmp_path / "rllr_0001")
+    (tmp_path / ".rllr_0001.part").mkdir()  # debris of an interrupted run
+    report = generate(jobs, tmp_path, workers=1, show_progress=False)
+    assert [r["name"] for r in report["generated"]] == ["rllr_0001"] and report["skipped"] == 1
+    assert (tmp_path / "rllr_0001" / "spikes.dat").read_bytes() == before
+    assert verify(tmp_path) == []
+
+
+def test_changed_parameters_are_not_silently_mixed(tmp_path):
+    jobs = tiny_jobs(1)
+    generate(jobs, tmp_path, workers=1, show_progress=False)
+    changed = [SceneJob(**{**jobs[0].__dict__, "seed": 99})]
+    assert job_status(changed[0], tmp_path) == "stale"
+    with pytest.raises(FileExistsError, match="other parameters"):
+        generate(changed, tmp_path, workers=1, show_progress=False)
+    generate(changed, tmp_path, workers=1, show_progress=False, overwrite_stale=True)
+    assert json.loads((tmp_path / "rllr_0000" / "meta.json").read_text())["seed"] == 99
+
+
+def test_an_interrupted_job_leaves_no_complete_looking_folder(tmp_path, monkeypatch):
+    import pipelines.generate as g
+    jobs = tiny_jobs(1)
+
+    def boom(self, step):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(g._FrameSource, "ground_truth", boom)
+    with pytest.raises(KeyboardInterrupt):
+        generate(jobs, tmp_path, workers=1, show_progress=False)
+    assert not (tmp_path / "rllr_0000").exists()
+    assert [p.name for p in tmp_path.iterdir() if not p.name.startswith(".")] == []
+
+
+def test_parallel_workers_give_the_same_bytes(tmp_path):
+    jobs = tiny_jobs(2)
+    generate(jobs, tmp_path / "a", workers=1, show_progress=False)
+    generate(jobs, tmp_path / "b", workers=2, show_progress=False)
+    for name in ("rllr_0000", "rllr_0001"):
+        assert (tmp_path / "a" / name / "spikes.dat").read_bytes() == (tmp_path / "b" / name / "spikes.dat").read_bytes()
