@@ -14,6 +14,7 @@ _SUBCOMMANDS = (
     "pipelines.bench",
     "pipelines.golden_stats",
     "pipelines.generate",
+    "pipelines.render_cmd",
 )
 
 

@@ -48,7 +48,8 @@ class Preset:
     """Ground truth every this many steps in RLLR (1 = every step, as the paper)."""
     spp: int = 4
     gt_spp: int = 64
-    variant: str = "mono"
+    variant: str = "auto"
+    """Renderer variant: "auto" = mono when the lights share one spectrum, else spectral."""
     keyframe_every: int = 1
 
     def __post_init__(self) -> None:

@@ -35,6 +35,14 @@ def add_camera_arguments(p: argparse.ArgumentParser) -> None:
 
 def frames_from_source(args: argparse.Namespace, cam: SpikeCamera) -> tuple[Iterator[np.ndarray], dict]:
     """The irradiance source named on the command line, as a frame iterator plus a description."""
+    if args.frames is not None and args.scene is not None:
+        raise ValueError("give --frames or --scene, not both")
+    if args.scene is not None:
+        from spikesim.render import SceneRenderer
+        r = SceneRenderer(args.scene, light=args.light, camera=cam, motion=args.motion, lights=args.lights,
+                          spp=args.spp, seed=args.seed)
+        steps = args.steps or 2000
+        return r.frames(0, steps, keyframe_every=args.keyframe_every), {"source": "scene", **r.describe()}
     if args.frames is not None:
         src = Path(args.frames)
         if src.suffix == ".npy":
@@ -66,10 +74,11 @@ def run(args: argparse.Namespace) -> int:
     cam = camera_from_args(args)
     frames, source = frames_from_source(args, cam)
     sim = Simulator(cam, backend=args.backend, seed=args.seed)
-    log.info("simulating on backend %s, %dx%d, %s", sim.backend_name, cam.width, cam.height, source)
+    log.info("simulating on backend %s, %dx%d, from %s", sim.backend_name, cam.width, cam.height,
+             source.get("scene") or source.get("source"))
     t0 = time.perf_counter()
     out = sim.run_to_dat(_progress(frames, args), args.out, keyframe_every=args.keyframe_every,
-                         flip=not args.no_flip, extra={"irradiance": source})
+                         flip=not args.no_flip, extra={"irradiance": source}, max_steps=args.steps)
     dt = time.perf_counter() - t0
     from spikesim.stream import DatReader
     stream = DatReader(out, cam.height, cam.width, flip=not args.no_flip).read()
@@ -91,6 +100,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("simulate", help="irradiance frames -> spike stream (.dat + JSON sidecar)")
     src = p.add_argument_group("irradiance source (default: the built-in moving pattern)")
     src.add_argument("--frames", help="an (N, H, W) .npy array of y, or a folder of EXR frames")
+    src.add_argument("--scene", help="a bundled scene (ball, car, cook, fan, rotate) or a scene XML to render")
+    src.add_argument("--light", default="normal", help="lighting condition of the scene (normal, low)")
+    src.add_argument("--motion", help="motion file (default: motion.json beside the XML)")
+    src.add_argument("--lights", help="lights file (default: lights.json beside the XML)")
+    src.add_argument("--spp", type=int, help="render samples per pixel (default: the renderer's)")
     src.add_argument("--peak-y", type=float, default=0.25, help="pattern brightness: y of white (spikes/step)")
     src.add_argument("--steps", type=int, help="number of steps (pattern default 2000)")
     src.add_argument("--keyframe-every", type=int, default=1,

@@ -53,10 +53,11 @@ class SpikeCamera:
     readout_period_s: float = 25e-6
     """T, the time between readouts: 25 us = 40 kHz (some sensors run at 20 kHz, 50 us)."""
     threshold_electrons: float = 1000.0
-    """Photo-electrons one threshold represents; sets the size of photon shot noise.
-    Estimate (docs/sensor.md): a 20 um pixel, QE x fill factor 0.4, f/1.4, 100 lux on a white
-    Lambertian surface collects about 280 e- per 25 us; ~1000 e- per threshold then gives
-    y ~ 0.25, the firing rate of indoor recordings."""
+    """Photo-electrons one threshold represents; sets the size of photon shot noise and, with
+    the optics and pixel response of the renderer's exposure calibration (docs/scenes.md,
+    section 4: 20 um pixel, f/1.4), converts light into y: a white surface under 100 lux
+    collects about 290 e- per 25 us step, so 1000 e- per threshold gives y ~ 0.3, the firing
+    rate of indoor recordings."""
 
     dark_current_hz: float = 94.0
     """Mean dark current in thresholds per second: 0.47 % of the threshold per step at 20 kHz

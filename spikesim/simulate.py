@@ -106,11 +106,17 @@ class Simulator:
         return SpikeStream.concatenate(parts)
 
     def run_to_dat(self, frames: Iterable[Any], path: str | Path, keyframe_every: int = 1, flip: bool = True,
-                   max_frames: int | None = None, extra: dict[str, Any] | None = None) -> Path:
-        """Simulate straight to a `.dat` file (plus its JSON sidecar); memory stays one chunk."""
+                   max_frames: int | None = None, extra: dict[str, Any] | None = None,
+                   max_steps: int | None = None) -> Path:
+        """Simulate straight to a `.dat` file (plus its JSON sidecar); memory stays one chunk.
+        `max_steps` cuts the stream (keyframes may reach past the last wanted step)."""
         cam = self.camera
         with DatWriter(path, cam.height, cam.width, flip=flip) as writer:
             for part in self.stream(frames, keyframe_every=keyframe_every, final=True, max_frames=max_frames):
+                if max_steps is not None:
+                    part = part.slice(0, max(0, max_steps - writer.num_steps))
+                    if part.num_steps == 0:
+                        break
                 writer.write(part)
             n = writer.num_steps
         write_sidecar(path, self.describe(num_steps=n, flip=flip, keyframe_every=keyframe_every, **(extra or {})))

@@ -2,7 +2,9 @@
 
 Stages, one module each: `lights` (spectra and photometric power -> emitters), `exposure`
 (radiance -> electrons -> y), `motion` (motion files), `animate` (motion -> scene parameters),
-`scene` (XML preparation and loading), `renderer` (SceneRenderer: frames and ground truth).
+`scene` (XML preparation and loading), `reflectance` (colours as the sensor sees them, for the
+mono path), `renderer` (SceneRenderer: frames and ground truth), `ground_truth` (EXR + PNG files),
+`benchmark` (the measurements in docs/scenes.md).
 Importing this package does not import Mitsuba until a renderer is created.
 """
 from __future__ import annotations
@@ -13,7 +15,7 @@ from .errors import LightError, MotionError, SceneError
 from .exposure import Exposure, Optics, PixelResponse
 from .motion import MotionSpec, load_motion, parse_motion
 
-__all__ = ["SceneRenderer", "RenderSettings", "SceneError", "MotionError", "LightError", "Exposure", "Optics",
+__all__ = ["SceneRenderer", "RenderSettings", "write_ground_truth", "SceneError", "MotionError", "LightError", "Exposure", "Optics",
            "PixelResponse", "MotionSpec", "load_motion", "parse_motion", "load_lights"]
 
 
@@ -22,6 +24,9 @@ def __getattr__(name: str) -> Any:
     if name in ("SceneRenderer", "RenderSettings"):
         from . import renderer
         return getattr(renderer, name)
+    if name == "write_ground_truth":
+        from .ground_truth import write_ground_truth
+        return write_ground_truth
     if name == "load_lights":
         from .lights import load_lights
         return load_lights

@@ -84,6 +84,8 @@ def _spot_falloff(cos_theta: np.ndarray, cutoff_rad: float, beam_rad: float) -> 
 def _look_at_basis(position: np.ndarray, target: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Mitsuba's look_at frame: (left, up', dir) with dir from position to target."""
     d = target - position
+    if not np.linalg.norm(d) > 0:
+        raise ValueError("target coincides with position")
     d = d / np.linalg.norm(d)
     left = np.cross(up, d)
     if np.linalg.norm(left) < 1e-9:
@@ -294,6 +296,8 @@ def parse_emitter(path: Path, where: str, data: Any) -> EmitterSpec:
         kw["position"] = tuple(_vec(path, f"{where}.position", data.get("position")))
     if etype in ("spot", "rectangle"):
         kw["target"] = tuple(_vec(path, f"{where}.target", data.get("target")))
+        if np.array_equal(kw["target"], kw["position"]):
+            raise LightError(path, f"{where}: target must differ from position (it sets where the light points)")
         if "up" in data:
             kw["up"] = tuple(_unit(path, f"{where}.up", data["up"]))
         else:  # +z unless the emitter faces along z, then +y
@@ -303,7 +307,7 @@ def parse_emitter(path: Path, where: str, data: Any) -> EmitterSpec:
         try:
             _look_at_basis(np.asarray(kw["position"]), np.asarray(kw["target"]), np.asarray(kw["up"]))
         except (ValueError, FloatingPointError):
-            raise LightError(path, f"{where}: target must differ from position and not lie along 'up'") from None
+            raise LightError(path, f"{where}: 'up' must not be parallel to the direction from position to target") from None
     if etype == "rectangle":
         size = _vec(path, f"{where}.size", data.get("size"), n=2)
         if np.any(size <= 0):

@@ -28,6 +28,7 @@ from .exposure import Exposure, Optics, PixelResponse
 from .lights import load_lights
 from .motion import MotionSpec, load_motion
 from .projection import PinholeCamera
+from .mono import spectrum_mix
 from .scene import SceneFiles, load_scene, prepare_xml
 
 #: Seed streams, so frames and ground truth at the same step use independent samples.
@@ -38,10 +39,11 @@ _FRAMES, _GROUND_TRUTH, _PREVIEW = 0, 1, 2
 class RenderSettings:
     """The renderer's knobs (everything that changes the output besides the scene files)."""
 
-    variant: str = "mono"
-    """"mono" (fast path: grey surfaces, the light's spectrum folded into one number),
-    "spectral" (accurate: spectral rendering weighted by the silicon response) or "rgb"
-    (previews only, no y)."""
+    variant: str = "auto"
+    """"mono" (fast path: one number per surface, its sensor reflectance under the light, and the
+    light's spectrum folded into its power), "spectral" (spectral rendering weighted by the
+    silicon response), "rgb" (previews only, no y), or "auto": mono when the lighting has a
+    single spectrum (then mono is exact up to inter-reflections), spectral when it mixes spectra."""
     spp: int = 4
     """Samples per pixel of each render of a frame (a step with s sub-steps renders s times)."""
     gt_spp: int = 64
@@ -59,8 +61,8 @@ class RenderSettings:
     """Dr.Jit backend: "llvm" (CPU) or "cuda"."""
 
     def __post_init__(self) -> None:
-        if self.variant not in ("mono", "spectral", "rgb"):
-            raise ValueError(f"variant={self.variant!r}; expected 'mono', 'spectral' or 'rgb'")
+        if self.variant not in ("auto", "mono", "spectral", "rgb"):
+            raise ValueError(f"variant={self.variant!r}; expected 'auto', 'mono', 'spectral' or 'rgb'")
         for name in ("spp", "gt_spp", "max_substeps"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 1:
@@ -112,6 +114,9 @@ def _seed(*parts: int) -> int:
 class SceneRenderer:
     """Render a scene under one lighting condition as y frames for the spike sensor.
 
+    `camera` (a spikesim.camera.SpikeCamera) supplies the resolution, readout period and
+    threshold; `optics` and `pixel` the exposure assumptions; or pass a whole `exposure`.
+
     >>> r = SceneRenderer("ball", light="low", variant="mono", spp=4)
     >>> for y in r.frames(0, 41):      # (250, 400) float32 arrays, one per step
     ...     ...
@@ -120,12 +125,12 @@ class SceneRenderer:
     def __init__(self, scene: str | Path, light: str = "normal", variant: str | None = None,
                  spp: int | None = None, resolution: tuple[int, int] | None = None, seed: int | None = None,
                  *, camera: Any = None, optics: Optics | None = None, pixel: PixelResponse | None = None,
-                 motion: str | Path | None = None, lights: str | Path | None = None,
-                 settings: RenderSettings | None = None, **overrides: Any):
+                 exposure: Exposure | None = None, motion: str | Path | None = None,
+                 lights: str | Path | None = None, settings: RenderSettings | None = None, **overrides: Any):
         given = {k: v for k, v in {"variant": variant, "spp": spp, "resolution": resolution, "seed": seed,
                                    **overrides}.items() if v is not None}
         base = settings.to_dict() if settings is not None else {}
-        if "resolution" not in given and not base.get("resolution") and camera is not None:
+        if "resolution" not in given and not base.get("resolution") and hasattr(camera, "height"):
             given["resolution"] = (int(camera.height), int(camera.width))
         self.settings = RenderSettings.from_dict({**base, **given})
         self.files = SceneFiles.resolve(scene, motion=motion, lights=lights)
@@ -135,10 +140,13 @@ class SceneRenderer:
         self.light = light
         self.lighting = conditions[light]
         self.motion = load_motion(self.files.motion) if self.files.motion else MotionSpec.static()
-        self.exposure = Exposure.for_camera(camera, optics=optics, pixel=pixel)
-        self._variant = variant_name(self.settings.variant, self.settings.device)
+        self.exposure = exposure or Exposure.for_camera(camera, optics=optics, pixel=pixel)
+        self.variant = self.settings.variant
+        if self.variant == "auto":
+            self.variant = "mono" if len(spectrum_mix(self.lighting)) == 1 else "spectral"
+        self._variant = variant_name(self.variant, self.settings.device)
         use_variant(self._variant)
-        text, self.sensor_id, (h, w) = prepare_xml(self.files.xml, self.settings.variant, self.lighting,
+        text, self.sensor_id, (h, w) = prepare_xml(self.files.xml, self.variant, self.lighting,
                                                    self.exposure.pixel, self.settings.resolution)
         self.height, self.width = h, w
         self.scene = load_scene(self.files.xml, text)
@@ -168,6 +176,7 @@ class SceneRenderer:
         return float(d.max()) if d.size else 0.0
 
     def substeps_for(self, step: int) -> int:
+        """Renders averaged for step `step` (settings.substeps, or from the motion in pixels)."""
         s = self.settings
         if s.substeps != "auto":
             return int(s.substeps)
@@ -217,12 +226,12 @@ class SceneRenderer:
 
     def preview_rgb(self, step: int, spp: int | None = None) -> np.ndarray:
         """Linear RGB (H, W, 3) scaled like y (luminance ~ y), for pictures; needs variant="rgb"."""
-        if self.settings.variant != "rgb":
+        if self.variant != "rgb":
             raise ValueError("preview_rgb needs variant='rgb' (RGB renders are for previews only)")
         return self._film(self._check_step(step), spp or self.settings.gt_spp, _PREVIEW) * self._gain[..., None]
 
     def _to_y(self, step: int, film: np.ndarray) -> np.ndarray:
-        if self.settings.variant == "rgb":
+        if self.variant == "rgb":
             raise ValueError("the rgb variant renders previews only (preview_rgb); use 'mono' or 'spectral' for y")
         y = film[..., 0] * self._gain
         if not np.all(np.isfinite(y)):
@@ -245,8 +254,8 @@ class SceneRenderer:
             "sha256": self.files.digests(),
             "light": self.lighting.describe(self.exposure.pixel),
             "motion": self.motion.describe(),
-            "render": {**self.settings.to_dict(), "height": self.height, "width": self.width,
-                       "mitsuba_variant": self._variant, "reconstruction_filter": "box",
+            "render": {**self.settings.to_dict(), "variant_used": self.variant, "height": self.height,
+                       "width": self.width, "mitsuba_variant": self._variant, "reconstruction_filter": "box",
                        "time_sampling": "mean over each readout period (sub-step midpoints)"},
             "camera": {"x_fov_deg": self.camera_model.x_fov_deg,
                        "to_world": self.camera_model.to_world.tolist()},

@@ -5,10 +5,15 @@ light file so that their power is physical (lights.py). Loading does, in order:
 
 1. parse the XML and check what Mitsuba would only report obscurely: a missing texture or mesh
    file, emitters written into the XML (their units would be meaningless), not exactly one sensor;
-2. replace the film by the variant's film at the requested resolution, always with the `box`
+2. for the mono variant, replace every colour (RGB values and bitmap textures of reflectances)
+   by its sensor reflectance under the lighting's spectrum (reflectance.py), so that the fast path
+   weights colours as the silicon pixel does rather than by luminance;
+3. replace the film by the variant's film at the requested resolution, always with the `box`
    reconstruction filter (DESIGN.md section 4: a Gaussian filter mixes neighbouring pixels);
-3. append the lighting condition's emitters;
-4. load once with `mi.load_string` (re-loading scenes in a loop leaks, DESIGN.md section 4).
+4. append the lighting condition's emitters;
+5. load once with `mi.load_string` (re-loading scenes in a loop leaks, DESIGN.md section 4), with
+   `optimize=False`: Mitsuba 3.7+ otherwise merges meshes that share a BSDF into one shape, and
+   a merged wheel could no longer be moved on its own (mitsuba3 issue #1796).
 """
 from __future__ import annotations
 
@@ -17,11 +22,12 @@ import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
 
+from . import spectra
 from .backend import mi
 from .errors import SceneError
 from .exposure import PixelResponse
 from .lights import LightingCondition
-from . import spectra
+from .mono import to_sensor_reflectance
 
 #: Film channel holding the electron-weighted radiance in the spectral variant.
 SPECTRAL_CHANNEL = "electrons"
@@ -43,7 +49,9 @@ class SceneFiles:
         motion and light files default to `motion.json` and `lights.json` beside it."""
         p = Path(scene)
         if p.suffix.lower() != ".xml" and not p.exists():
-            from scenes import scene_path
+            from scenes import SCENES, scene_path
+            if str(scene).lower() not in SCENES:
+                raise SceneError(p, f"neither a bundled scene ({', '.join(SCENES)}) nor an existing XML file")
             p = scene_path(str(scene))
         if p.is_dir():
             p = p / "scene.xml"
@@ -125,6 +133,8 @@ def prepare_xml(xml_path: Path, variant: str, lighting: LightingCondition, pixel
             el.set("value", str(f.resolve()))
         if el.tag == "include":
             raise SceneError(xml_path, "<include> is not supported: keep a scene in one XML file")
+    if variant == "mono":
+        to_sensor_reflectance(xml_path, root, lighting, pixel)
     sensors = [el for el in root if el.tag == "sensor"]
     if len(sensors) != 1:
         raise SceneError(xml_path, f"needs exactly one <sensor>, found {len(sensors)}")
@@ -151,11 +161,11 @@ def prepare_xml(xml_path: Path, variant: str, lighting: LightingCondition, pixel
 def load_scene(xml_path: Path, text: str):
     """Instantiate the prepared scene, turning Mitsuba's errors into one naming the file."""
     try:
-        return mi.load_string(text)
+        return mi.load_string(text, optimize=False)
     except RuntimeError as exc:
         # Prefer Mitsuba's message on the original file: its line numbers are the user's.
         try:
-            original = mi.load_file(str(xml_path))
+            original = mi.load_file(str(xml_path), optimize=False)
             del original
         except RuntimeError as exc2:
             raise SceneError(xml_path, f"Mitsuba rejected the scene: {exc2}") from None

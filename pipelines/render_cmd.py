@@ -1,0 +1,130 @@
+"""`spikesim render`: render a scene's frames or ground truth at given steps to EXR + PNG.
+
+    spikesim render ball --light low --steps 0:861:41 --ground-truth --out out/ball_low
+    spikesim render fan --variant spectral --spp 4 --steps 0:41 --resolution 125x200
+
+Writes <out>/<frames|gt>/step_NNNNNN.exr (linear y, float32) and a tone-mapped .png beside each,
+plus <out>/render.json (SceneRenderer.describe() and timings). With --variant rgb it writes PNG
+previews only (RGB renders carry no y).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+
+def parse_steps(spec: str) -> list[int]:
+    """"0,20,40", "0:41" (range), "0:861:41" (range with stride), or a comma list of those."""
+    steps: list[int] = []
+    for part in spec.split(","):
+        part = part.strip()
+        if not part:
+            continue
+        try:
+            if ":" in part:
+                nums = [int(x) for x in part.split(":")]
+                if len(nums) not in (2, 3):
+                    raise ValueError
+                steps.extend(range(*nums))
+            else:
+                steps.append(int(part))
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"bad step specification {part!r}; use N, A:B or A:B:S") from None
+    if not steps or min(steps) < 0:
+        raise argparse.ArgumentTypeError(f"{spec!r} selects no steps, or a negative one")
+    return steps
+
+
+def parse_resolution(spec: str) -> tuple[int, int]:
+    """"HxW", e.g. "250x400" (rows x columns, the order of the arrays)."""
+    try:
+        h, w = (int(x) for x in spec.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"resolution {spec!r} must be HEIGHTxWIDTH, e.g. 250x400") from None
+    if h <= 0 or w <= 0:
+        raise argparse.ArgumentTypeError(f"resolution {spec!r} must be positive")
+    return h, w
+
+
+def add_parser(subparsers: Any) -> argparse.ArgumentParser:
+    """Register the `render` subcommand on an argparse subparsers object."""
+    p = subparsers.add_parser("render", help="render a scene's frames or ground truth to EXR + PNG",
+                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("scene", help="bundled scene name (ball, car, cook, fan, rotate) or a scene XML path")
+    p.add_argument("--light", default="normal", help="lighting condition in the scene's lights.json (default normal)")
+    p.add_argument("--variant", choices=("auto", "mono", "spectral", "rgb"), default=None,
+                   help="mono (fast), spectral (accurate), rgb (previews only) or auto (default: mono when "
+                        "the lighting has one spectrum, else spectral)")
+    p.add_argument("--steps", type=parse_steps, default=[0], help="steps to render: N, A:B, A:B:S, comma lists")
+    p.add_argument("--ground-truth", action="store_true", help="render ground truth (gt_spp) instead of frames")
+    p.add_argument("--spp", type=int, default=None, help="samples per pixel per frame render (default 4)")
+    p.add_argument("--gt-spp", type=int, default=None, help="samples per pixel per ground-truth render (default 64)")
+    p.add_argument("--seed", type=int, default=None, help="render seed (default 0)")
+    p.add_argument("--resolution", type=parse_resolution, default=None, help="HEIGHTxWIDTH override, e.g. 25x40")
+    p.add_argument("--motion", type=Path, default=None, help="motion file (default: motion.json beside the XML)")
+    p.add_argument("--lights", type=Path, default=None, help="light file (default: lights.json beside the XML)")
+    p.add_argument("--settings", type=Path, default=None, help="JSON file of RenderSettings")
+    p.add_argument("--exposure", type=Path, default=None, help="JSON file of Exposure (optics, pixel, T, threshold)")
+    p.add_argument("--png-scale", type=float, default=None, help="PNG preview: multiply y by this before display")
+    p.add_argument("--png-percentile", type=float, default=None,
+                   help="PNG preview: map this percentile of y to white (for dark scenes)")
+    p.add_argument("--out", type=Path, default=Path("out/render"), help="output folder (default out/render)")
+    p.set_defaults(func=run)
+    return p
+
+
+def run(args: argparse.Namespace) -> int:
+    from spikesim.imageio import write_exr, write_png
+    from spikesim.render import Exposure, RenderSettings, SceneError, SceneRenderer, write_ground_truth
+
+    try:
+        settings = RenderSettings.from_file(args.settings) if args.settings else None
+        exposure = Exposure.from_file(args.exposure) if args.exposure else None
+        kw: dict[str, Any] = {"gt_spp": args.gt_spp} if args.gt_spp else {}
+        renderer = SceneRenderer(args.scene, light=args.light, variant=args.variant, spp=args.spp,
+                                 resolution=args.resolution, seed=args.seed, motion=args.motion,
+                                 lights=args.lights, settings=settings, exposure=exposure, **kw)
+    except (SceneError, ValueError, KeyError) as exc:
+        print(f"spikesim render: {exc}", file=sys.stderr)
+        return 2
+    kind = "gt" if args.ground_truth else ("preview" if renderer.variant == "rgb" else "frames")
+    folder = args.out / kind
+    folder.mkdir(parents=True, exist_ok=True)
+    timings = []
+    for step in args.steps:
+        t0 = time.perf_counter()
+        name = folder / f"step_{step:06d}"
+        if kind == "preview":
+            rgb = renderer.preview_rgb(step)
+            _write_rgb_png(name.with_suffix(".png"), rgb, args.png_scale, args.png_percentile)
+        elif kind == "gt":
+            write_ground_truth(renderer, [step], folder, png_scale=args.png_scale, png_percentile=args.png_percentile)
+        else:
+            y = renderer.render_step(step)
+            write_exr(name.with_suffix(".exr"), y)
+            write_png(name.with_suffix(".png"), y, scale=args.png_scale, percentile=args.png_percentile)
+        timings.append(time.perf_counter() - t0)
+        print(f"{name}  ({timings[-1]:.2f} s)")
+    meta = {**renderer.describe(), "kind": kind, "steps": args.steps, "seconds_per_step": timings,
+            "stats": renderer.stats}
+    (args.out / "render.json").write_text(json.dumps(meta, indent=2))
+    return 0
+
+
+def _write_rgb_png(path: Path, rgb, scale: float | None, percentile: float | None) -> None:
+    import numpy as np
+    from PIL import Image
+
+    lum = rgb @ np.array([0.2126, 0.7152, 0.0722])
+    if percentile is not None:
+        ref = float(np.percentile(lum, percentile))
+        scale = 1.0 / ref if ref > 0 else 1.0
+    img = np.clip(rgb * (scale or 1.0), 0.0, 1.0) ** (1 / 2.2)
+    Image.fromarray(np.round(img * 255).astype(np.uint8)).save(path)
+
+
+__all__ = ["add_parser", "run", "parse_steps", "parse_resolution"]
