@@ -94,6 +94,7 @@ class Simulator:
         self._keyframe_every: int | None = None
         self._frames_seen = 0
         self._buf: np.ndarray | None = None
+        self._pending_keyframe: tuple[int, np.ndarray] | None = None
 
     # ---- public API -----------------------------------------------------------------------------
     def run(self, frames: Iterable[Any], keyframe_every: int = 1, final: bool = True,
@@ -230,6 +231,37 @@ class Simulator:
         for i in range(b - a):
             check_frame(block[i].reshape(self.camera.height, self.camera.width), first_frame + i,
                         self.camera.height, self.camera.width)
+
+    def stream_keyframes(self, keyframes: Iterable[tuple[int, Any]], final: bool = True) -> Iterator[SpikeStream]:
+        """Adaptive temporal sampling: keyframes at arbitrary, increasing steps.
+
+        `keyframes` yields (step, frame); between two keyframes the sensor interpolates linearly,
+        exactly as with a fixed `keyframe_every` equal to their distance (one compiled kernel
+        serves every spacing). The first keyframe must be at the next step to simulate. Steps up
+        to (not including) the last keyframe are emitted, and with `final=True` its own step too.
+        """
+        cam = self.camera
+        pending = self._pending_keyframe
+        for step, frame in keyframes:
+            step = int(step)
+            arr = check_frame(frame, self._frames_seen, cam.height, cam.width).reshape(1, -1)
+            self._frames_seen += 1
+            if pending is None:
+                if step != self.steps_done:
+                    raise ValueError(f"first keyframe at step {step}, but the stream is at step {self.steps_done}")
+            else:
+                p_step, p_frame = pending
+                if step <= p_step:
+                    raise ValueError(f"keyframe steps must increase: {step} after {p_step}")
+                if step - p_step == 1:  # adjacent keyframes: the first is its step's own frame
+                    yield from self._flush(p_frame, 1, keep_last=False)
+                else:
+                    yield from self._flush(np.concatenate([p_frame, arr]), step - p_step, keep_last=True)
+            pending = (step, arr)
+            self._pending_keyframe = pending
+        if final and pending is not None:
+            yield from self._flush(pending[1], 1, keep_last=False)
+            self._pending_keyframe = None
 
     def describe(self, **extra: Any) -> dict[str, Any]:
         """Everything needed to reproduce a stream bit for bit."""

@@ -114,3 +114,20 @@ def test_backend_errors():
         Simulator(SpikeCamera.noiseless(height=4, width=4), backend="tpu")
     with pytest.raises(ValueError, match="poisson"):
         Simulator(SpikeCamera.noiseless(height=4, width=4, shot_noise="poisson"), backend="llvm")
+
+
+@pytest.mark.parametrize("backend", ["numpy"] + drjit_backends())
+def test_adaptive_keyframes_equal_uniform_ones_where_they_coincide(backend):
+    cam = SpikeCamera.realistic(height=H, width=W)
+    f = frames(5, seed=8, high=0.5)
+    uniform = Simulator(cam, backend=backend, seed=3).run(f, keyframe_every=6)
+    sim = Simulator(cam, backend=backend, seed=3)
+    parts = list(sim.stream_keyframes([(0, f[0]), (6, f[1]), (12, f[2])], final=False))
+    parts += list(sim.stream_keyframes([(18, f[3]), (24, f[4])], final=True))
+    from spikesim.stream import SpikeStream
+    assert SpikeStream.concatenate(parts) == uniform
+    # irregular spacing: steps 0..9 from keyframes at 0, 1, 9
+    irregular = Simulator(cam, backend=backend, seed=3).stream_keyframes([(0, f[0]), (1, f[1]), (9, f[2])])
+    assert sum(p.num_steps for p in irregular) == 10
+    with pytest.raises(ValueError, match="increase"):
+        list(Simulator(cam, backend=backend).stream_keyframes([(0, f[0]), (0, f[1])]))
