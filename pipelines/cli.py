@@ -15,14 +15,29 @@ _SUBCOMMANDS = (
     "pipelines.golden_stats",
     "pipelines.generate",
     "pipelines.render_cmd",
+    "pipelines.train",
+    "pipelines.evaluate",
+    "pipelines.reconstruct",
+    "pipelines.tradeoff",
 )
 
 
-def build_parser() -> argparse.ArgumentParser:
+# The subcommand each module registers, so that a command imports only its own module (the
+# model's pull in torch, ~2 s) unless the full list is asked for.
+_COMMAND_MODULE = {
+    "demo": "pipelines.demo", "simulate": "pipelines.simulate_cmd", "inspect": "pipelines.inspect_cmd",
+    "bench": "pipelines.bench", "golden": "pipelines.golden_stats", "generate": "pipelines.generate",
+    "verify": "pipelines.generate", "render": "pipelines.render_cmd", "train": "pipelines.train",
+    "evaluate": "pipelines.evaluate", "reconstruct": "pipelines.reconstruct", "tradeoff": "pipelines.tradeoff",
+}
+
+
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="spikesim", description=__doc__)
     parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for name in _SUBCOMMANDS:
+    modules = [_COMMAND_MODULE[command]] if command in _COMMAND_MODULE else _SUBCOMMANDS
+    for name in modules:
         try:
             module = importlib.import_module(name)
         except ModuleNotFoundError as exc:
@@ -34,7 +49,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    command = next((a for a in argv if not a.startswith("-")), None)
+    parser = build_parser(command)
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s", datefmt="%H:%M:%S")

@@ -16,6 +16,7 @@ import math
 import random
 import sys
 import time
+import warnings
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -158,6 +159,11 @@ def run_training(experiment: ExperimentConfig, train_scenes: Sequence[Scene], va
         epoch, step = state["epoch"], state["step"]
         batch_in_epoch = state["extra"].get("batch_in_epoch", 0)
         best = state["extra"].get("best_val_psnr", -math.inf)
+    else:
+        if last_path.exists():
+            raise FileExistsError(f"{last_path} exists: pass --resume to continue that run, or choose another --out")
+        for stale in ("train_log.csv", "val_log.csv", "best.pt"):
+            (out / stale).unlink(missing_ok=True)
     (out / "config.json").write_text(json.dumps(experiment.to_dict(), indent=2))
 
     train_log = _CsvLog(out / "train_log.csv", ["time", "epoch", "step", "loss", "lr", "samples_per_s"])
@@ -217,7 +223,9 @@ def run_training(experiment: ExperimentConfig, train_scenes: Sequence[Scene], va
                 break
         if not stopped:
             epoch, batch_in_epoch = epoch + 1, 0
-            sched.step()
+            with warnings.catch_warnings():  # a run resumed exactly at an epoch's end steps no batch first
+                warnings.filterwarnings("ignore", message="Detected call of `lr_scheduler.step")
+                sched.step()
         if val_ds is not None and (stopped or epoch % tc.val_every == 0):
             scores = validate(model, val_ds, dev)
             val_log.write({"time": time.time(), "epoch": epoch, "step": step, **scores})

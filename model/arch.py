@@ -1,0 +1,145 @@
+"""The bidirectional recurrent reconstruction network (paper, section Method; DESIGN.md 5).
+
+For windows i = 0..K-1 of a sequence:
+    F_i   = f(Rep_i)                                    16 residual blocks on the representation
+    Ff_i  = g_f([F_i + a(Ff_{i-1}, F_i), Ff_{i-1}])     forward fusion, Ff_{-1} = 0, no a() at i=0
+    Fb_i  = g_b([F_i + a(Fb_{i+1}, F_i), Fb_{i+1}])     backward fusion, Fb_K = 0, no a() at K-1
+    Y_i   = c([Ff_i, Fb_i])                              head: conv 2C->2C, leaky, 2C->C, leaky, C->1
+with a() the PCD alignment shared by both directions and g = conv 2C->C + leaky + residual blocks
+(separate weights per direction). The per-window pieces are public so streaming inference
+(model/streaming.py) runs exactly the same arithmetic chunk by chunk.
+"""
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from .blocks import conv3x3, conv_lrelu, double_conv, residual_stack
+from .config import ModelConfig
+from .lrrep import build_representation
+from .pcd import PCDAlign
+from .registry import ARCH_REGISTRY
+from .representations import (LastSpike, NextSpike, gisi, lisi_windows, tfi_windows, tfp_windows,
+                              transform_interval)
+
+
+class ReconNet(nn.Module):
+    """LR-Rep + ResNet + bidirectional PCD-aligned recurrent fusion + head."""
+
+    def __init__(self, cfg: ModelConfig) -> None:
+        super().__init__()
+        self.cfg = cfg
+        # Inference setting, not part of the config: the largest GISI (in steps) fed to the net.
+        # Training sequences of K windows never exceed K*T + 1; on a longer stream the "never
+        # fired" distance grows with its length, so inference clips to what training saw.
+        self.max_interval: float | None = None
+        c, nb = cfg.num_features, cfg.num_blocks
+        self.representation = build_representation(cfg)
+        self.extract = residual_stack(c, nb)
+        self.align = PCDAlign(c, cfg.deform_groups, cfg.deform_backend) if cfg.aif else None
+        self.fuse_forward = nn.Sequential(conv_lrelu(2 * c, c), residual_stack(c, nb))
+        self.fuse_backward = nn.Sequential(conv_lrelu(2 * c, c), residual_stack(c, nb))
+        self.head = nn.Sequential(double_conv(2 * c, c, mid_ch=2 * c), conv3x3(c, 1))
+
+    # ---- inputs ---------------------------------------------------------------------------
+    def input_maps(self, spikes: torch.Tensor, first_step: int = 0, last: LastSpike | None = None,
+                   nxt: NextSpike | None = None) -> tuple[torch.Tensor | None, LastSpike | None, NextSpike | None]:
+        """The one-channel map each window's representation needs, (B, K, H, W) float32, or None.
+
+        GISI uses (and returns) the carried spike times; with no carries given, the sequence is
+        taken on its own (last = first_step - 1, next = end of the windows), as in training.
+        """
+        cfg = self.cfg
+        if cfg.representation == "spike":
+            return None, last, nxt
+        if cfg.representation == "tfp":
+            return tfp_windows(spikes), last, nxt
+        if cfg.representation == "tfi":
+            return tfi_windows(spikes), last, nxt
+        if cfg.interval == "lisi":
+            return transform_interval(lisi_windows(spikes), cfg.interval_transform), last, nxt
+        interval, last_out, next_out = gisi(spikes, first_step, last, nxt)
+        if self.max_interval is not None:
+            interval = interval.clamp_max(self.max_interval)
+        return transform_interval(interval, cfg.interval_transform), last_out, next_out
+
+    def padded_size(self, h: int, w: int) -> tuple[int, int]:
+        m = self.cfg.pad_multiple
+        return -(-h // m) * m, -(-w // m) * m
+
+    def pad(self, x: torch.Tensor) -> torch.Tensor:
+        """Replicate-pad the last two dims up to multiples of pad_multiple (250 -> 252 rows)."""
+        h, w = x.shape[-2:]
+        ph, pw = self.padded_size(h, w)
+        if (ph, pw) == (h, w):
+            return x
+        lead = x.shape[:-2]
+        y = F.pad(x.reshape((-1, 1, h, w)), (0, pw - w, 0, ph - h), mode="replicate")
+        return y.reshape(lead + (ph, pw))
+
+    # ---- per-window pieces ----------------------------------------------------------------
+    def encode(self, spikes: torch.Tensor, maps: torch.Tensor | None) -> torch.Tensor:
+        """F = f(Rep) for a batch of padded windows: spikes (N, T, H, W), maps (N, H, W) or None."""
+        rep = self.representation(spikes, None if maps is None else maps.unsqueeze(1))
+        return self.extract(rep)
+
+    def step(self, feat: torch.Tensor, state: torch.Tensor | None, backward: bool) -> torch.Tensor:
+        """One recurrent step; state None = the first window of this direction (zero state, no
+        alignment). Without ADF every window gets the zero state."""
+        fuse = self.fuse_backward if backward else self.fuse_forward
+        if state is None or not self.cfg.adf:
+            return fuse(torch.cat([feat, torch.zeros_like(feat)], 1))
+        x = feat + self.align(state, feat) if self.align is not None else feat
+        return fuse(torch.cat([x, state], 1))
+
+    def decode(self, fwd: torch.Tensor, bwd: torch.Tensor) -> torch.Tensor:
+        """Y = c([Ff, Fb]) -> (N, H, W)."""
+        return self.head(torch.cat([fwd, bwd], 1)).squeeze(1)
+
+    # ---- whole sequence ---------------------------------------------------------------------
+    def forward(self, spikes: torch.Tensor, maps: torch.Tensor | None = None) -> torch.Tensor:
+        """spikes (B, K, T, H, W) bool/uint8/float 0-1 -> reconstructions (B, K, H, W) on the y scale.
+
+        maps: the representation's maps (B, K, H, W); computed from these K windows alone when
+        omitted (GISI with the "never fired" sentinels -1 and K*T).
+        """
+        if spikes.dim() != 5:
+            raise ValueError(f"spikes must be (B, K, T, H, W), got shape {tuple(spikes.shape)}")
+        b, k, t, h, w = spikes.shape
+        if t != self.cfg.window:
+            raise ValueError(f"windows have {t} steps but the model was built for window={self.cfg.window}")
+        if maps is None:
+            maps, _, _ = self.input_maps(spikes)
+        elif tuple(maps.shape) != (b, k, h, w):
+            raise ValueError(f"maps must be (B, K, H, W) = {(b, k, h, w)}, got {tuple(maps.shape)}")
+        x = self.pad(spikes.to(torch.float32))
+        m = None if maps is None else self.pad(maps.to(torch.float32))
+        ph, pw = x.shape[-2:]
+        feats = self.encode(x.reshape(b * k, t, ph, pw), None if m is None else m.reshape(b * k, ph, pw))
+        feats = feats.reshape(b, k, -1, ph, pw)
+        fwd: list[torch.Tensor] = []
+        state = None
+        for i in range(k):
+            state = self.step(feats[:, i], state, backward=False)
+            fwd.append(state)
+        out: list[torch.Tensor] = [torch.empty(0)] * k
+        state = None
+        for i in range(k - 1, -1, -1):
+            state = self.step(feats[:, i], state, backward=True)
+            out[i] = self.decode(fwd[i], state)
+        return torch.stack(out, 1)[..., :h, :w]
+
+
+@ARCH_REGISTRY.register("lrrep_bidirectional")
+def _build_recon_net(cfg: ModelConfig) -> ReconNet:
+    return ReconNet(cfg)
+
+
+def build_model(cfg: ModelConfig) -> nn.Module:
+    """The network a config names (ARCH_REGISTRY)."""
+    return ARCH_REGISTRY.get(cfg.arch)(cfg)
+
+
+def count_parameters(model: nn.Module) -> int:
+    return sum(p.numel() for p in model.parameters() if p.requires_grad)

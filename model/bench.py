@@ -1,0 +1,92 @@
+"""Measurements for docs/model.md: parameter count, inference time per frame, training throughput.
+
+    python -m model.bench --config full --height 250 --width 400 --windows 7 --threads 2
+
+Inference is timed on a synthetic low-light stream (Bernoulli spikes at rate 0.05, seeded), after
+one warm-up pass (oneDNN builds its kernels per shape on the first call). Times are wall clock on
+whatever else the machine is doing: say so beside the numbers.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+import torch
+
+from .arch import build_model, count_parameters
+from .config import load_config
+from .losses import build_loss
+from .streaming import reconstruct_windows
+
+
+def synthetic_windows(windows: int, window: int, height: int, width: int, rate: float, seed: int) -> torch.Tensor:
+    g = torch.Generator().manual_seed(seed)
+    return torch.rand(windows, window, height, width, generator=g) < rate
+
+
+@torch.no_grad()
+def time_inference(config: str, height: int, width: int, windows: int, chunk: int | None, seed: int = 0,
+                   repeats: int = 1) -> dict:
+    exp = load_config(config)
+    torch.manual_seed(seed)
+    model = build_model(exp.model).eval()
+    spikes = synthetic_windows(windows, exp.model.window, height, width, 0.05, seed)
+    reconstruct_windows(model, spikes[: min(2, windows)], chunk=None)  # warm-up
+    best = float("inf")
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        reconstruct_windows(model, spikes, chunk=chunk)
+        best = min(best, time.perf_counter() - t0)
+    return {"config": config, "parameters": count_parameters(model), "height": height, "width": width,
+            "windows": windows, "chunk": chunk, "threads": torch.get_num_threads(),
+            "seconds_total": best, "seconds_per_frame": best / windows}
+
+
+def time_training(config: str, steps: int, seed: int = 0) -> dict:
+    """Samples per second of forward + backward + Adam at the config's crop, batch and K."""
+    exp = load_config(config)
+    tc = exp.train
+    torch.manual_seed(seed)
+    model = build_model(exp.model)
+    opt = torch.optim.Adam(model.parameters(), lr=tc.lr, betas=tuple(tc.betas))
+    loss_fn = build_loss(tc.loss)
+    g = torch.Generator().manual_seed(seed)
+    spikes = torch.rand(tc.batch_size, tc.num_windows, exp.model.window, tc.crop, tc.crop, generator=g) < 0.05
+    gt = torch.rand(tc.batch_size, tc.num_windows, tc.crop, tc.crop, generator=g) * 0.1
+
+    def step() -> None:
+        loss = loss_fn(model(spikes), gt)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+    step()  # warm-up
+    t0 = time.perf_counter()
+    for _ in range(steps):
+        step()
+    dt = time.perf_counter() - t0
+    return {"config": config, "batch_size": tc.batch_size, "num_windows": tc.num_windows, "crop": tc.crop,
+            "threads": torch.get_num_threads(), "steps": steps, "seconds_per_step": dt / steps,
+            "samples_per_s": steps * tc.batch_size / dt}
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--config", default="full")
+    p.add_argument("--height", type=int, default=250)
+    p.add_argument("--width", type=int, default=400)
+    p.add_argument("--windows", type=int, default=7)
+    p.add_argument("--chunk", type=int, default=None, help="streaming chunk (default: one-shot)")
+    p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--repeats", type=int, default=1)
+    p.add_argument("--train-steps", type=int, default=0, help="also time this many training steps")
+    a = p.parse_args(argv)
+    torch.set_num_threads(a.threads)
+    print(json.dumps(time_inference(a.config, a.height, a.width, a.windows, a.chunk, repeats=a.repeats)))
+    if a.train_steps:
+        print(json.dumps(time_training(a.config, a.train_steps)))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,218 @@
+"""Validated configuration: the network (ModelConfig), the training recipe (TrainConfig) and the
+named experiment files in configs/model/*.json that pair them.
+
+Defaults are the paper's (section Implementation Details) and the authors' released network
+(DESIGN.md 5); every ablation is a field, so a named config is data, never a code edit.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+from .representations import INTERVAL_TRANSFORMS
+
+CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs" / "model"
+
+REPRESENTATIONS = ("lr_rep", "spike", "tfp", "tfi")
+INTERVALS = ("gisi", "lisi")
+DEFORM_BACKENDS = ("auto", "torch", "torchvision")
+
+
+def _require(cond: bool, msg: str) -> None:
+    if not cond:
+        raise ValueError(msg)
+
+
+def _from_dict(cls: type, data: dict[str, Any], where: str) -> Any:
+    """Build a dataclass from a dict, naming unknown keys instead of ignoring them."""
+    if not isinstance(data, dict):
+        raise TypeError(f"{where}: expected a JSON object, got {type(data).__name__}")
+    known = {f.name for f in fields(cls)}
+    unknown = sorted(set(data) - known)
+    if unknown:
+        raise ValueError(f"{where}: unknown field(s) {unknown}; known fields: {sorted(known)}")
+    kwargs = {k: (tuple(v) if isinstance(v, list) else v) for k, v in data.items()}
+    return cls(**kwargs)
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """The reconstruction network. Paper model (E) = the defaults.
+
+    representation: "lr_rep" (LR-Rep: spike branch + interval branch + attention), "spike" (the
+      spike-window branch alone: "without LR-Rep"), "tfp" / "tfi" (that map through a conv in
+      LR-Rep's place, paper Table 3).
+    interval: "gisi" (carried across windows) or "lisi" (window-local), for lr_rep only.
+    interval_transform: "raw" (authors) or "inverse" (1/interval) before the interval branch.
+    adf: adjacent deep temporal features, i.e. the recurrent state carried between windows; off,
+      each window is fused with a zero state (same weights, no propagation).
+    aif: PCD alignment of the carried state (needs adf).
+    """
+
+    arch: str = "lrrep_bidirectional"
+    window: int = 41
+    num_features: int = 64
+    num_blocks: int = 16
+    representation: str = "lr_rep"
+    interval: str = "gisi"
+    interval_transform: str = "raw"
+    adf: bool = True
+    aif: bool = True
+    deform_groups: int = 8
+    deform_backend: str = "auto"
+    pad_multiple: int = 4
+
+    def __post_init__(self) -> None:
+        _require(isinstance(self.window, int) and self.window >= 1 and self.window % 2 == 1,
+                 f"model.window must be an odd integer >= 1 (2*dt+1), got {self.window!r}")
+        _require(isinstance(self.num_features, int) and self.num_features >= 1,
+                 f"model.num_features must be a positive integer, got {self.num_features!r}")
+        _require(isinstance(self.num_blocks, int) and self.num_blocks >= 0,
+                 f"model.num_blocks must be an integer >= 0, got {self.num_blocks!r}")
+        _require(self.representation in REPRESENTATIONS,
+                 f"model.representation must be one of {REPRESENTATIONS}, got {self.representation!r}")
+        _require(self.interval in INTERVALS, f"model.interval must be one of {INTERVALS}, got {self.interval!r}")
+        _require(self.interval_transform in INTERVAL_TRANSFORMS,
+                 f"model.interval_transform must be one of {INTERVAL_TRANSFORMS}, got {self.interval_transform!r}")
+        _require(isinstance(self.adf, bool) and isinstance(self.aif, bool), "model.adf and model.aif must be booleans")
+        _require(not self.aif or self.adf, "model.aif=true needs model.adf=true: alignment acts on the carried state")
+        _require(isinstance(self.deform_groups, int) and self.deform_groups >= 1
+                 and self.num_features % self.deform_groups == 0,
+                 f"model.deform_groups={self.deform_groups!r} must be >= 1 and divide num_features={self.num_features}")
+        _require(self.deform_backend in DEFORM_BACKENDS,
+                 f"model.deform_backend must be one of {DEFORM_BACKENDS}, got {self.deform_backend!r}")
+        _require(isinstance(self.pad_multiple, int) and self.pad_multiple >= 4 and self.pad_multiple % 4 == 0,
+                 f"model.pad_multiple must be a multiple of 4 (two stride-2 pyramid levels), got {self.pad_multiple!r}")
+
+    @property
+    def uses_intervals(self) -> bool:
+        return self.representation == "lr_rep"
+
+    @property
+    def carries_spike_times(self) -> bool:
+        """Whether inputs of one window depend on spikes in other windows (GISI)."""
+        return self.representation == "lr_rep" and self.interval == "gisi"
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> "ModelConfig":
+        return _from_dict(cls, data, "model config")
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """The training recipe; defaults are the paper's (section 5.1).
+
+    samples_per_epoch: None = every (scene, start) sample of the training split once per epoch.
+    start_stride: spacing in steps between the first window centres of samples drawn from one
+      scene (1 = every step that has ground truth).
+    val_fraction / val_scenes: the validation split (scene names win over the fraction).
+    val_crop: centre crop for validation PSNR (None = full frames).
+    """
+
+    num_windows: int = 21
+    crop: int = 64
+    batch_size: int = 8
+    epochs: int = 100
+    lr: float = 1e-4
+    betas: tuple[float, float] = (0.9, 0.99)
+    lr_milestones: tuple[int, ...] = (70,)
+    lr_gamma: float = 0.1
+    loss: str = "l1_sum"
+    samples_per_epoch: int | None = None
+    start_stride: int = 1
+    val_fraction: float = 0.1
+    val_scenes: tuple[str, ...] = ()
+    val_crop: int | None = None
+    val_max_samples: int = 4
+    val_every: int = 1
+    ckpt_every: int = 1
+    max_steps: int | None = None
+    num_workers: int = 0
+    amp: bool = True
+    grad_clip: float | None = None
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        def pos_int(name: str, allow_none: bool = False) -> None:
+            v = getattr(self, name)
+            if allow_none and v is None:
+                return
+            _require(isinstance(v, int) and not isinstance(v, bool) and v >= 1,
+                     f"train.{name} must be a positive integer, got {v!r}")
+        for name in ("num_windows", "crop", "batch_size", "epochs", "start_stride", "val_max_samples",
+                     "val_every", "ckpt_every"):
+            pos_int(name)
+        for name in ("samples_per_epoch", "val_crop", "max_steps"):
+            pos_int(name, allow_none=True)
+        _require(self.crop % 4 == 0, f"train.crop must be divisible by 4 (PCD pyramid), got {self.crop}")
+        _require(self.lr > 0, f"train.lr must be > 0, got {self.lr}")
+        _require(len(self.betas) == 2 and all(0 <= b < 1 for b in self.betas),
+                 f"train.betas must be two numbers in [0, 1), got {self.betas}")
+        _require(all(isinstance(m, int) and 0 < m for m in self.lr_milestones)
+                 and list(self.lr_milestones) == sorted(self.lr_milestones),
+                 f"train.lr_milestones must be increasing positive epochs, got {self.lr_milestones}")
+        _require(0 < self.lr_gamma <= 1, f"train.lr_gamma must be in (0, 1], got {self.lr_gamma}")
+        _require(0 <= self.val_fraction < 1, f"train.val_fraction must be in [0, 1), got {self.val_fraction}")
+        _require(isinstance(self.num_workers, int) and self.num_workers >= 0,
+                 f"train.num_workers must be an integer >= 0, got {self.num_workers!r}")
+        _require(self.grad_clip is None or self.grad_clip > 0, f"train.grad_clip must be > 0, got {self.grad_clip}")
+        _require(isinstance(self.seed, int), f"train.seed must be an integer, got {self.seed!r}")
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> "TrainConfig":
+        return _from_dict(cls, data, "train config")
+
+
+@dataclass(frozen=True)
+class ExperimentConfig:
+    """One named config file: {"name", "description", "model": {...}, "train": {...}}."""
+
+    name: str
+    description: str = ""
+    model: ModelConfig = field(default_factory=ModelConfig)
+    train: TrainConfig = field(default_factory=TrainConfig)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"name": self.name, "description": self.description,
+                "model": self.model.to_dict(), "train": self.train.to_dict()}
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any], where: str = "config") -> "ExperimentConfig":
+        if not isinstance(data, dict):
+            raise TypeError(f"{where}: expected a JSON object")
+        unknown = sorted(set(data) - {"name", "description", "model", "train"})
+        if unknown:
+            raise ValueError(f"{where}: unknown top-level field(s) {unknown}")
+        if "name" not in data:
+            raise ValueError(f"{where}: missing 'name'")
+        return cls(name=str(data["name"]), description=str(data.get("description", "")),
+                   model=ModelConfig.from_dict(data.get("model", {})),
+                   train=TrainConfig.from_dict(data.get("train", {})))
+
+
+def available_configs() -> list[str]:
+    """Names of the configs shipped in configs/model/."""
+    return sorted(p.stem for p in CONFIG_DIR.glob("*.json"))
+
+
+def load_config(name_or_path: str | Path) -> ExperimentConfig:
+    """Load a named config ("full", "tiny", ...) or a JSON file path."""
+    p = Path(name_or_path)
+    if not (p.suffix == ".json" and p.exists()):
+        p = CONFIG_DIR / f"{name_or_path}.json"
+    if not p.exists():
+        raise FileNotFoundError(f"no config {str(name_or_path)!r}: not a JSON file and not one of "
+                                f"{available_configs()} in {CONFIG_DIR}")
+    try:
+        data = json.loads(p.read_text())
+    except json.JSONDecodeError as e:
+        raise ValueError(f"{p}: invalid JSON ({e})") from None
+    return ExperimentConfig.from_dict(data, where=str(p))

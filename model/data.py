@@ -1,0 +1,140 @@
+"""Training / validation samples: K consecutive windows of T steps with ground truth at each
+window centre, read from scenes in the project's dataset layout (docs/CONTRACTS.md, Datasets).
+
+A scene is anything with SceneRecord's methods: .name, .num_steps, .height, .width, .gt_steps,
+.spikes(start, stop) -> bool (n, H, W), .ground_truth(step) -> float32 (H, W).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Protocol, Sequence
+
+import numpy as np
+import torch
+from torch.utils.data import Dataset
+
+
+class Scene(Protocol):
+    name: str
+    num_steps: int
+    height: int
+    width: int
+    gt_steps: Sequence[int]
+
+    def spikes(self, start: int, stop: int) -> np.ndarray: ...
+
+    def ground_truth(self, step: int) -> np.ndarray: ...
+
+
+def open_scenes(root: str | Path) -> list[Scene]:
+    """All scenes of a dataset root, through the lead's spikesim.dataset.open_dataset."""
+    try:
+        from spikesim.dataset import open_dataset
+    except ImportError as e:
+        raise RuntimeError(f"spikesim.dataset is not available to read {root}: {e}") from e
+    scenes = list(open_dataset(Path(root)))
+    if not scenes:
+        raise ValueError(f"dataset {root} has no scenes")
+    return scenes
+
+
+def sequence_starts(scene: Scene, window: int, num_windows: int, stride: int = 1) -> list[int]:
+    """First-window centres c such that windows centred at c, c+T, ..., c+(K-1)T all lie inside
+    the stream and all have ground truth; consecutive kept starts are at least `stride` apart."""
+    half = window // 2
+    gt = set(int(s) for s in scene.gt_steps)
+    starts: list[int] = []
+    for c in sorted(gt):
+        if c - half < 0 or c + (num_windows - 1) * window + half > scene.num_steps - 1:
+            continue
+        if all(c + i * window in gt for i in range(num_windows)) and (not starts or c - starts[-1] >= stride):
+            starts.append(c)
+    return starts
+
+
+def split_scenes(scenes: Sequence[Scene], val_fraction: float, val_names: Sequence[str] = (),
+                 seed: int = 0) -> tuple[list[Scene], list[Scene]]:
+    """(train, validation) split by scene, so no validation frame is seen in training."""
+    by_name = {s.name: s for s in scenes}
+    if val_names:
+        missing = sorted(set(val_names) - set(by_name))
+        if missing:
+            raise ValueError(f"validation scenes {missing} are not in the dataset ({sorted(by_name)})")
+        val = [by_name[n] for n in val_names]
+    else:
+        n_val = math.ceil(val_fraction * len(scenes)) if val_fraction > 0 and len(scenes) > 1 else 0
+        order = np.random.default_rng(seed).permutation(len(scenes))
+        val = [scenes[i] for i in sorted(order[:n_val])]
+    val_set = {s.name for s in val}
+    train = [s for s in scenes if s.name not in val_set]
+    if not train:
+        raise ValueError("no training scenes left after the validation split")
+    return train, val
+
+
+@dataclass(frozen=True)
+class SampleRef:
+    scene: int
+    first_centre: int
+
+
+class SequenceDataset(Dataset):
+    """Samples of K windows: {"spikes": uint8 (K, T, h, w), "gt": float32 (K, h, w), ...}.
+
+    Training (random_crop=True): each item draws its crop position from a generator seeded by
+    (seed, epoch, index), so a run is reproducible whatever the worker count; with
+    samples_per_epoch the sequence itself is drawn the same way. Validation (random_crop=False):
+    a centre crop (or the full frame when crop is None).
+    """
+
+    def __init__(self, scenes: Sequence[Scene], window: int, num_windows: int, crop: int | None,
+                 random_crop: bool = True, seed: int = 0, start_stride: int = 1,
+                 samples_per_epoch: int | None = None, max_per_scene: int | None = None) -> None:
+        self.scenes = list(scenes)
+        self.window, self.num_windows, self.crop = window, num_windows, crop
+        self.random_crop, self.seed, self.samples_per_epoch = random_crop, seed, samples_per_epoch
+        self.epoch = 0
+        refs: list[SampleRef] = []
+        for i, sc in enumerate(self.scenes):
+            if crop is not None and (crop > sc.height or crop > sc.width):
+                raise ValueError(f"crop {crop} is larger than scene {sc.name!r} ({sc.height}x{sc.width})")
+            starts = sequence_starts(sc, window, num_windows, start_stride)
+            if max_per_scene is not None and len(starts) > max_per_scene:
+                pick = np.linspace(0, len(starts) - 1, max_per_scene).round().astype(int)
+                starts = [starts[j] for j in pick]
+            refs += [SampleRef(i, c) for c in starts]
+        if not refs:
+            raise ValueError(f"no scene has {num_windows} consecutive windows of {window} steps with ground "
+                             f"truth at every centre (scenes: {[s.name for s in self.scenes]})")
+        self.refs = refs
+
+    def set_epoch(self, epoch: int) -> None:
+        self.epoch = epoch
+
+    def __len__(self) -> int:
+        return self.samples_per_epoch or len(self.refs)
+
+    def __getitem__(self, index: int) -> dict[str, Any]:
+        rng = np.random.default_rng([self.seed, self.epoch, index])
+        ref = self.refs[int(rng.integers(len(self.refs)))] if self.samples_per_epoch else self.refs[index]
+        sc = self.scenes[ref.scene]
+        t, k, half = self.window, self.num_windows, self.window // 2
+        h, w = sc.height, sc.width
+        ch, cw = (h, w) if self.crop is None else (self.crop, self.crop)
+        if self.random_crop:
+            y0, x0 = int(rng.integers(h - ch + 1)), int(rng.integers(w - cw + 1))
+        else:
+            y0, x0 = (h - ch) // 2, (w - cw) // 2
+        start = ref.first_centre - half
+        spikes = np.asarray(sc.spikes(start, start + k * t))
+        if spikes.shape != (k * t, h, w):
+            raise ValueError(f"scene {sc.name!r}: spikes({start}, {start + k * t}) gave {spikes.shape}, "
+                             f"expected {(k * t, h, w)}")
+        spikes = spikes[:, y0:y0 + ch, x0:x0 + cw].reshape(k, t, ch, cw)
+        gt = np.stack([np.asarray(sc.ground_truth(ref.first_centre + i * t), dtype=np.float32)[y0:y0 + ch, x0:x0 + cw]
+                       for i in range(k)])
+        return {"spikes": torch.from_numpy(spikes.astype(np.uint8)), "gt": torch.from_numpy(gt),
+                "scene": sc.name, "first_centre": ref.first_centre, "first_step": start,
+                "y0": y0, "x0": x0}

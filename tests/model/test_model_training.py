@@ -1,0 +1,148 @@
+"""Training loop, loss, data sampling and checkpoints, on tiny in-memory scenes."""
+from __future__ import annotations
+
+import csv
+
+import numpy as np
+import pytest
+import torch
+
+from model.checkpoint import atomic_torch_save, load_checkpoint, model_from_checkpoint, save_checkpoint
+from model.config import ExperimentConfig, ModelConfig, TrainConfig
+from model.data import SequenceDataset, sequence_starts, split_scenes
+from model.losses import build_loss
+from modeltest_fakes import make_scene
+from pipelines.train import run_training
+
+TINY_MODEL = ModelConfig(window=7, num_features=8, num_blocks=1, deform_groups=2)
+
+
+def tiny_experiment(**train) -> ExperimentConfig:
+    base = dict(num_windows=3, crop=16, batch_size=2, epochs=1000, lr=3e-3, lr_milestones=(999,),
+                samples_per_epoch=4, val_crop=16, val_max_samples=1, val_every=1000, seed=0)
+    base.update(train)
+    return ExperimentConfig("test", model=TINY_MODEL, train=TrainConfig(**base))
+
+
+@pytest.fixture(scope="module")
+def scenes():
+    return [make_scene(f"s{i}", 16, 20, 7 * 6, brightness=0.3, velocity=0.2, seed=i) for i in range(3)]
+
+
+def test_l1_sum_over_windows():
+    loss = build_loss("l1_sum")
+    pred = torch.zeros(2, 3, 4, 4)
+    target = torch.zeros(2, 3, 4, 4)
+    target[:, 1] = 0.5  # window 1 off by 0.5 everywhere, windows 0 and 2 exact
+    assert loss(pred, target).item() == pytest.approx(0.5)
+    target[:, 2] = 0.25
+    assert loss(pred, target).item() == pytest.approx(0.75)  # summed over windows, not averaged
+    # literal 1-norm: (16 * 0.5 + 16 * 0.25) per sample, averaged over the batch of 2
+    assert build_loss("l1_sum_pixels")(pred, target).item() == pytest.approx(12.0)
+    with pytest.raises(ValueError, match="differ in shape"):
+        loss(pred, target[:, :2])
+    with pytest.raises(KeyError, match="unknown loss"):
+        build_loss("l2")
+
+
+def test_sequence_starts_need_ground_truth_at_every_centre():
+    sc = make_scene("a", 8, 8, 7 * 5, gt_every=1)
+    # centres c, c+7, c+14 with c >= 3 and c + 14 + 3 <= 34
+    assert sequence_starts(sc, 7, 3) == list(range(3, 18))
+    assert sequence_starts(sc, 7, 3, stride=5) == [3, 8, 13]
+    every7 = make_scene("b", 8, 8, 7 * 5, gt_every=7)  # gt at 0, 7, 14, 21, 28
+    assert sequence_starts(every7, 7, 3) == [7, 14]
+    every2 = make_scene("c", 8, 8, 7 * 5, gt_every=2)  # c and c + 7 never both even
+    assert sequence_starts(every2, 7, 3) == []
+
+
+def test_dataset_samples_are_reproducible_and_aligned(scenes):
+    ds = SequenceDataset(scenes, 7, 3, crop=8, seed=5, samples_per_epoch=6)
+    a, b = ds[2], ds[2]
+    assert torch.equal(a["spikes"], b["spikes"]) and (a["y0"], a["x0"]) == (b["y0"], b["x0"])
+    assert a["spikes"].shape == (3, 7, 8, 8) and a["gt"].shape == (3, 8, 8)
+    sc = next(s for s in scenes if s.name == a["scene"])
+    c, y0, x0 = a["first_centre"], a["y0"], a["x0"]
+    np.testing.assert_array_equal(a["gt"][1].numpy(), sc.ground_truth(c + 7)[y0:y0 + 8, x0:x0 + 8])
+    np.testing.assert_array_equal(a["spikes"][0, 3].numpy(), sc.spikes(c, c + 1)[0, y0:y0 + 8, x0:x0 + 8])
+    ds.set_epoch(1)
+    assert any(ds[i]["y0"] != a["y0"] or ds[i]["x0"] != a["x0"] or ds[i]["scene"] != a["scene"] for i in range(6))
+    with pytest.raises(ValueError, match="larger than scene"):
+        SequenceDataset(scenes, 7, 3, crop=64)
+
+
+def test_split_by_scene(scenes):
+    train, val = split_scenes(scenes, 0.34, seed=0)
+    assert len(val) == 2 and len(train) == 1 and not {s.name for s in train} & {s.name for s in val}
+    train, val = split_scenes(scenes, 0.0, val_names=["s1"])
+    assert [s.name for s in val] == ["s1"]
+    with pytest.raises(ValueError, match="not in the dataset"):
+        split_scenes(scenes, 0.0, val_names=["nope"])
+
+
+def test_tiny_overfit_loss_falls(scenes, tmp_path):
+    exp = tiny_experiment(max_steps=40, samples_per_epoch=2, batch_size=2)
+    summary = run_training(exp, scenes[:1], [], tmp_path, device="cpu", progress=False)
+    rows = list(csv.DictReader((tmp_path / "train_log.csv").open()))
+    losses = [float(r["loss"]) for r in rows]
+    assert summary["steps"] == 40 and len(losses) == 40
+    assert np.mean(losses[-5:]) < 0.5 * np.mean(losses[:5]), losses
+
+
+def test_resume_continues_exactly(scenes, tmp_path):
+    straight = run_training(tiny_experiment(max_steps=4), scenes[:2], scenes[2:], tmp_path / "a",
+                            device="cpu", progress=False)
+    run_training(tiny_experiment(max_steps=2), scenes[:2], scenes[2:], tmp_path / "b", device="cpu", progress=False)
+    resumed = run_training(tiny_experiment(max_steps=4), scenes[:2], scenes[2:], tmp_path / "b", device="cpu",
+                           resume=True, progress=False)
+    assert straight["steps"] == resumed["steps"] == 4
+    a = load_checkpoint(tmp_path / "a" / "last.pt")["model_state"]
+    b = load_checkpoint(tmp_path / "b" / "last.pt")["model_state"]
+    for k in a:
+        torch.testing.assert_close(a[k], b[k], atol=1e-6, rtol=1e-5, msg=k)
+    assert (tmp_path / "b" / "best.pt").exists() and (tmp_path / "b" / "val_log.csv").exists()
+    with pytest.raises(FileExistsError, match="--resume"):
+        run_training(tiny_experiment(max_steps=4), scenes[:2], [], tmp_path / "a", device="cpu", progress=False)
+    with pytest.raises(FileNotFoundError, match="no checkpoint"):
+        run_training(tiny_experiment(), scenes[:2], [], tmp_path / "empty", device="cpu", resume=True)
+
+
+def test_checkpoint_round_trip(tmp_path):
+    exp = tiny_experiment()
+    from model.arch import build_model
+    torch.manual_seed(3)
+    model = build_model(exp.model).eval()
+    opt = torch.optim.Adam(model.parameters())
+    path = tmp_path / "ck" / "model.pt"
+    save_checkpoint(path, model, exp, opt, epoch=7, step=70)
+    again, exp2 = model_from_checkpoint(path)
+    assert exp2 == exp
+    s = torch.rand(1, 2, 7, 8, 8) < 0.3
+    with torch.no_grad():
+        assert torch.equal(model(s), again.eval()(s))
+    state = load_checkpoint(path)
+    assert (state["epoch"], state["step"]) == (7, 70)
+    assert [p.name for p in path.parent.iterdir()] == ["model.pt"]  # no temp file left behind
+
+
+def test_atomic_save_keeps_the_old_file_on_failure(tmp_path, monkeypatch):
+    path = tmp_path / "x.pt"
+    atomic_torch_save({"v": 1}, path)
+
+    def boom(*a, **k):
+        raise OSError("disk full")
+    monkeypatch.setattr(torch, "save", boom)
+    with pytest.raises(OSError, match="disk full"):
+        atomic_torch_save({"v": 2}, path)
+    monkeypatch.undo()
+    assert torch.load(path)["v"] == 1
+    assert [p.name for p in tmp_path.iterdir()] == ["x.pt"]
+
+
+def test_foreign_file_is_rejected(tmp_path):
+    p = tmp_path / "foreign.pt"
+    torch.save({"weights": 1}, p)
+    with pytest.raises(ValueError, match="not a checkpoint of this project"):
+        load_checkpoint(p)
+    with pytest.raises(FileNotFoundError):
+        load_checkpoint(tmp_path / "missing.pt")
