@@ -226,7 +226,9 @@ def run_job(job: SceneJob, root: str | Path, progress: Callable[[str, int, int],
     from spikesim.simulate import Simulator
     from spikesim.stream import DatWriter
 
-    if threads:
+    if threads and threads >= 2:
+        # Dr.Jit with a single worker thread deadlocks in Mitsuba's render (measured: a job with
+        # dr.set_thread_count(1) never finished), so one-core workers keep Dr.Jit's default pool.
         from spikesim._drjit import dr
         dr.set_thread_count(threads)
     root = Path(root)
