@@ -410,8 +410,12 @@ def run(args: argparse.Namespace) -> int:
         preset = dataclasses.replace(preset, height=args.height or preset.height, width=args.width or preset.width)
     if args.spp:
         preset = dataclasses.replace(preset, spp=args.spp)
-    if args.keyframe_every:
-        preset = dataclasses.replace(preset, keyframe_every=args.keyframe_every)
+    for arg, f in (("keyframe_every", "keyframe_every"), ("gt_spp", "gt_spp"), ("steps", "rllr_steps"),
+                   ("gt_stride", "rllr_gt_stride")):
+        if getattr(args, arg):
+            preset = dataclasses.replace(preset, **{f: getattr(args, arg)})
+    if args.windows and args.kind == "llr":
+        preset = dataclasses.replace(preset, llr_windows=args.windows)
     camera = SpikeCamera.from_file(args.camera) if args.camera else None
     if args.kind == "llr":
         jobs = plan_llr(preset, seed=args.seed, camera=camera, scenes=args.scenes)
@@ -423,8 +427,8 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError("generate scene needs --xml (and usually --motion, --lights, --light)")
         jobs = plan_user(args.xml, args.light, preset, num_windows=args.windows, seed=args.seed, motion=args.motion,
                          lights=args.lights, camera=camera, light_power_factor=args.light_power_factor)
-    if args.kind != "scene" and args.windows:
-        raise ValueError("--windows applies to `generate scene` only")
+    if args.kind == "rllr" and args.windows:
+        raise ValueError("--windows applies to llr and scene; RLLR takes --steps")
     report = generate(jobs, args.out, workers=args.workers, ray_address=args.ray,
                       info={"kind": args.kind, "preset": dataclasses.asdict(preset), "seed": args.seed},
                       overwrite_stale=args.overwrite, show_progress=not args.quiet)
@@ -459,7 +463,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--lights", help="lights file (default: lights.json beside the XML)")
     p.add_argument("--light", default="normal", help="lighting condition in the lights file")
     p.add_argument("--light-power-factor", type=float, default=1.0, help="scale every light's power")
-    p.add_argument("--windows", type=int, help="41-step windows (generate scene)")
+    p.add_argument("--windows", type=int, help="41-step windows per scene (llr, scene)")
+    p.add_argument("--steps", type=int, help="steps per RLLR scene (paper 1000)")
+    p.add_argument("--gt-stride", type=int, help="RLLR ground truth every this many steps (paper 1)")
+    p.add_argument("--gt-spp", type=int, help="samples per pixel of ground-truth renders")
     p.add_argument("--camera", help="camera config file")
     p.add_argument("--height", type=int)
     p.add_argument("--width", type=int)

@@ -7,9 +7,8 @@ from spikesim.camera import SpikeCamera
 from spikesim.patterns import constant_frames
 from spikesim.simulate import Simulator
 
-from sensor_testing import HAS_LLVM
+from sensor_testing import BACKENDS, FAST_BACKEND, requires_drjit
 
-BACKENDS = ["numpy"] + (["llvm"] if HAS_LLVM else [])
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
@@ -56,7 +55,7 @@ def test_bad_simulator_arguments():
         Simulator(cam, backend="numpy").run([np.zeros((4, 8))], keyframe_every=0)
 
 
-@pytest.mark.skipif(not HAS_LLVM, reason="needs the Dr.Jit LLVM backend")
+@requires_drjit
 @pytest.mark.parametrize("precision", ["float32", "float64"])
 def test_a_million_steps_do_not_drift(precision):
     # 10^6 steps of constant light via two identical keyframes 10^6 steps apart: the count is
@@ -65,23 +64,23 @@ def test_a_million_steps_do_not_drift(precision):
     n = 1_000_000
     cam = SpikeCamera.noiseless(height=1, width=32, precision=precision)
     e = np.linspace(1e-4, 0.95, 32).astype(np.float32)[None, :]
-    sim = Simulator(cam, backend="llvm", chunk_steps=1 << 16)
+    sim = Simulator(cam, backend=FAST_BACKEND, chunk_steps=1 << 16)
     s = sim.run([e, e], keyframe_every=n - 1)
     assert s.num_steps == n
     tol = 1 if precision == "float64" else 1 + n * 2.0 ** -24 * 2
     assert np.all(np.abs(s.counts()[0] - np.floor(n * e[0].astype(np.float64))) <= tol)
 
 
-@pytest.mark.skipif(not HAS_LLVM, reason="needs the Dr.Jit LLVM backend")
+@requires_drjit
 def test_step_counter_crosses_2_to_the_32():
     # Temporal noise is keyed by the absolute step; a chunk crossing 2^32 is split, not wrapped.
     cam = SpikeCamera.realistic(height=2, width=32)
-    sim = Simulator(cam, backend="llvm", seed=4)
+    sim = Simulator(cam, backend=FAST_BACKEND, seed=4)
     sim.steps_done = (1 << 32) - 5
     s = sim.run(constant_frames(0.3, 10, 2, 32))
     assert s.num_steps == 10 and sim.steps_done == (1 << 32) + 5
     # the same stream when simulated in small chunks around the boundary
-    chunked = Simulator(cam, backend="llvm", seed=4, chunk_steps=3)
+    chunked = Simulator(cam, backend=FAST_BACKEND, seed=4, chunk_steps=3)
     chunked.steps_done = (1 << 32) - 5
     assert chunked.run(constant_frames(0.3, 10, 2, 32)) == s
 

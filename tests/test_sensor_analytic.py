@@ -9,9 +9,8 @@ from spikesim.patterns import constant_frames
 from spikesim.simulate import Simulator
 from spikesim.stats import firing_rate, inter_spike_intervals
 
-from sensor_testing import HAS_LLVM
+from sensor_testing import BACKENDS, FAST_BACKEND, requires_drjit
 
-BACKENDS = ["numpy"] + (["llvm"] if HAS_LLVM else [])
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
@@ -86,7 +85,7 @@ def _shot_noise_count_variance(mean: float, var: float) -> float:
 
 
 @pytest.mark.parametrize("backend,model", [("numpy", "gaussian"), ("numpy", "poisson")]
-                         + ([("llvm", "gaussian")] if HAS_LLVM else []))
+                         + [(b, "gaussian") for b in BACKENDS[1:]])
 def test_shot_noise_count_mean_and_variance(backend, model):
     # Charge after T steps has mean yT and variance yT / N_e (Poisson electrons); with a uniform
     # initial phase the window count has mean yT and the variance above.

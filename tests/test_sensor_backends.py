@@ -7,9 +7,9 @@ from spikesim.camera import SpikeCamera
 from spikesim.simulate import Simulator
 from spikesim.stats import firing_rate
 
-from sensor_testing import drjit_backends, requires_llvm
+from sensor_testing import FAST_BACKEND, drjit_backends, requires_drjit
 
-pytestmark = requires_llvm
+pytestmark = requires_drjit
 
 H, W = 20, 44  # 880 pixels: not a multiple of 32, exercises the padded last lane
 
@@ -92,7 +92,7 @@ def test_interpolation_is_linear_between_keyframes():
 def test_kernel_is_compiled_once_per_configuration():
     from spikesim._drjit import dr
     cam = SpikeCamera.realistic(height=H, width=W)
-    sim = Simulator(cam, backend="llvm", seed=0, chunk_steps=64)
+    sim = Simulator(cam, backend=FAST_BACKEND, seed=0, chunk_steps=64)
     sim.run(frames(10))  # compile
     dr.set_flag(dr.JitFlag.KernelHistory, True)
     dr.kernel_history()  # clear
@@ -113,7 +113,7 @@ def test_backend_errors():
     with pytest.raises(ValueError, match="unknown backend"):
         Simulator(SpikeCamera.noiseless(height=4, width=4), backend="tpu")
     with pytest.raises(ValueError, match="poisson"):
-        Simulator(SpikeCamera.noiseless(height=4, width=4, shot_noise="poisson"), backend="llvm")
+        Simulator(SpikeCamera.noiseless(height=4, width=4, shot_noise="poisson"), backend=FAST_BACKEND)
 
 
 @pytest.mark.parametrize("backend", ["numpy"] + drjit_backends())

@@ -10,7 +10,7 @@ from spikesim.stats import (dark_count_rate_hz, dark_pixel_fraction, fano_factor
                             fixed_pattern_spread, inter_spike_intervals, isi_histogram, summary)
 from spikesim.stream import SpikeStream
 
-from sensor_testing import HAS_LLVM
+from sensor_testing import BACKENDS, FAST_BACKEND, requires_drjit
 
 
 def hand_stream():
@@ -46,7 +46,7 @@ def test_golden_file_is_consistent_with_its_config():
     assert dark["rate_cv"]["value"] == pytest.approx(0.39, abs=4 * dark["rate_cv"]["se"])
 
 
-@pytest.mark.parametrize("backend", ["numpy"] + (["llvm"] if HAS_LLVM else []))
+@pytest.mark.parametrize("backend", BACKENDS)
 def test_realistic_preset_matches_golden_statistics(backend):
     problems = golden_stats.compare(golden_stats.measure(backend), golden_stats.load_golden())
     assert not problems, "\n".join(problems)
