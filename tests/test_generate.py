@@ -142,3 +142,15 @@ def test_random_scenes_are_reproducible(tmp_path):
     for x, y in zip(a[:3], b[:3]):
         assert x.read_text() == y.read_text()
     assert build_random_scene(6, tmp_path / "c")[0].read_text() != a[0].read_text()
+
+
+@pytest.mark.timeout(300)
+def test_process_pool_renders_scenes(tmp_path):
+    # Two rendered scenes in two worker processes: guards against the Dr.Jit one-thread-pool
+    # deadlock (a worker with dr.set_thread_count(1) never finished a Mitsuba render).
+    import dataclasses
+    pytest.importorskip("mitsuba")
+    preset = dataclasses.replace(PRESETS["small"], height=16, width=24, rllr_steps=10, rllr_gt_stride=9, spp=1, gt_spp=2)
+    jobs = plan_rllr(preset, seed=4, count=2)
+    report = generate(jobs, tmp_path, workers=2, show_progress=False)
+    assert len(report["generated"]) == 2 and verify(tmp_path) == []
