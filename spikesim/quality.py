@@ -1,0 +1,275 @@
+"""One `quality` option (draft / balanced / reference) for the render + sensor knobs, and the rule
+that switches off noise terms a scene's light level cannot show.
+
+The presets were chosen from the measured speed/accuracy Pareto front of `spikesim tradeoff`
+(docs/tradeoff.md); the numbers that justify each choice are in PRESETS below. Every run records
+the settings it used (`QualitySettings.to_dict()`, plus the noise decisions) in its meta.json.
+"""
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+from dataclasses import dataclass
+from typing import Any, Iterable, Iterator
+
+import numpy as np
+
+from .camera import NOISE_TERMS, PRECISIONS, SpikeCamera
+
+log = logging.getLogger(__name__)
+
+KEYFRAME_POLICIES = ("every", "fixed", "adaptive")
+NOISE_POLICIES = ("all", "auto")
+VARIANTS = ("auto", "mono", "spectral")
+
+
+# ---- noise terms a light level cannot show ------------------------------------------------------
+@dataclass(frozen=True)
+class NoiseDecision:
+    """Whether one noise term is simulated, and why (for the log and meta.json)."""
+
+    term: str
+    effect: float | None
+    """Largest relative effect on a window's spike count over the given light levels (None: not
+    evaluated, the quality keeps every term)."""
+    keep: bool
+    reason: str
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+def noise_effect(camera: SpikeCamera, term: str, y: float, window: int = 41) -> float:
+    """Relative effect of one noise term on the spike count of a `window`-step window at light y.
+
+    With c = (y + d) W the expected count (d: dark thresholds per step; the long-run rate of an
+    integrate-and-fire pixel is y + d, DESIGN.md section 2), each term changes the count by:
+    - dark_current_hz: d W of c (additive dark charge)            -> d / (y + d)
+    - dark_current_spread: its pixel-to-pixel CV times that       -> cv d / (y + d)
+    - gain_spread (PRNU): rate g y + d, g ~ 1 +- sigma_g          -> sigma_g y / (y + d)
+    - threshold_mismatch / _offset: rate scales as 1 / theta      -> sigma
+    - comparator_noise: each comparison moves by sigma_c thresholds, so a window's count moves by
+      about sigma_c spikes at each of its two edges               -> sqrt(2) sigma_c / c
+    - shot_noise: Poisson charge in the window, (y + d) W N_e electrons (N_e per threshold)
+                                                                  -> 1 / sqrt(c N_e)
+    - reset_loss: a fraction r of the step after each spike, (y + d) of the steps -> r min(y + d, 1)
+    - random_initial_state: shifts the first window's count by up to one spike -> 1 / c
+    """
+    if term not in NOISE_TERMS:
+        raise ValueError(f"unknown noise term {term!r}; known: {sorted(NOISE_TERMS)}")
+    if not (isinstance(y, (int, float, np.floating)) and math.isfinite(y) and y >= 0):
+        raise ValueError(f"light level y={y!r} must be a finite number >= 0 (spikes per step)")
+    if getattr(camera, term) == NOISE_TERMS[term]:
+        return 0.0
+    d = camera.dark_per_step
+    rate = min(float(y) + d, 1.0)  # at most one spike per step (saturation)
+    if rate <= 0:
+        return 0.0  # no light, no dark current: nothing fires, nothing to perturb
+    count = rate * window
+    if term == "dark_current_hz":
+        return d / (y + d)
+    if term == "dark_current_spread":
+        return camera.dark_current_spread * d / (y + d)
+    if term == "gain_spread":
+        return camera.gain_spread * y / (y + d) if y + d > 0 else 0.0
+    if term in ("threshold_mismatch", "threshold_offset"):
+        return float(getattr(camera, term))
+    if term == "comparator_noise":
+        return math.sqrt(2.0) * camera.comparator_noise / count
+    if term == "shot_noise":
+        return 1.0 / math.sqrt(count * camera.threshold_electrons)
+    if term == "reset_loss":
+        return camera.reset_loss * rate
+    return 1.0 / count  # random_initial_state
+
+
+def decide_noise_terms(camera: SpikeCamera, y_levels: Iterable[float] | np.ndarray, tolerance: float,
+                       window: int = 41) -> list[NoiseDecision]:
+    """Keep each noise term whose effect (noise_effect) at any of `y_levels` reaches `tolerance`.
+
+    Pass the levels that matter for the scene (e.g. the 5th, 50th and 95th percentiles of a
+    rendered frame): a dark pixel makes shot noise and dark current matter. Terms already off in
+    `camera` stay off. The decisions are returned so they can be logged and recorded."""
+    if not (isinstance(tolerance, (int, float)) and math.isfinite(tolerance) and tolerance >= 0):
+        raise ValueError(f"tolerance={tolerance!r} must be a finite number >= 0")
+    if isinstance(window, bool) or not isinstance(window, int) or window < 1:
+        raise ValueError(f"window={window!r} must be a positive integer (steps)")
+    levels = np.asarray(list(y_levels) if not isinstance(y_levels, np.ndarray) else y_levels, dtype=np.float64).ravel()
+    if levels.size == 0:
+        raise ValueError("y_levels is empty: give the scene's light levels (spikes per step)")
+    if not np.all(np.isfinite(levels)) or levels.min() < 0:
+        raise ValueError(f"y_levels must be finite and >= 0, got min {levels.min()!r}, max {levels.max()!r}")
+    out = []
+    for term in NOISE_TERMS:
+        if getattr(camera, term) == NOISE_TERMS[term]:
+            out.append(NoiseDecision(term, 0.0, False, "off in the camera"))
+            continue
+        effect = max(noise_effect(camera, term, float(y), window) for y in levels)
+        keep = effect >= tolerance
+        why = (f"effect {effect:.3g} {'>=' if keep else '<'} tolerance {tolerance:g} at y in "
+               f"[{levels.min():.3g}, {levels.max():.3g}] over {window} steps")
+        out.append(NoiseDecision(term, float(effect), keep, why))
+    return out
+
+
+def apply_noise_decisions(camera: SpikeCamera, decisions: Iterable[NoiseDecision]) -> SpikeCamera:
+    """The camera with every term not kept switched off."""
+    off = [d.term for d in decisions if not d.keep and getattr(camera, d.term) != NOISE_TERMS[d.term]]
+    for t in off:
+        log.info("noise term %s switched off (%s)", t, next(d.reason for d in decisions if d.term == t))
+    return camera.without(*off) if off else camera
+
+
+# ---- the quality presets -----------------------------------------------------------------------
+@dataclass(frozen=True)
+class QualitySettings:
+    """Every render and sensor knob the speed/accuracy study measured, as one validated record."""
+
+    name: str
+    spp: int
+    """Samples per pixel of each frame render."""
+    gt_spp: int
+    """Samples per pixel of each ground-truth image."""
+    variant: str
+    """Renderer variant: "spectral", "mono" or "auto" (mono for one light spectrum)."""
+    keyframe_policy: str
+    """"every" (a render per step), "fixed" (every `keyframe_every` steps) or "adaptive"."""
+    keyframe_every: int = 1
+    max_px_per_keyframe: float = 0.5
+    """Adaptive: accumulated image motion allowed between keyframes (pixels)."""
+    max_interval: int = 1024
+    """Adaptive: longest keyframe interval (steps)."""
+    noise: str = "all"
+    """"all" (every term of the base camera) or "auto" (decide_noise_terms at `noise_tolerance`)."""
+    noise_tolerance: float = 0.01
+    precision: str = "float32"
+
+    def __post_init__(self) -> None:
+        for f in ("spp", "gt_spp", "keyframe_every", "max_interval"):
+            v = getattr(self, f)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                raise ValueError(f"quality {self.name!r}: {f}={v!r} must be a positive integer")
+        if self.variant not in VARIANTS:
+            raise ValueError(f"quality {self.name!r}: variant={self.variant!r}; expected one of {VARIANTS}")
+        if self.keyframe_policy not in KEYFRAME_POLICIES:
+            raise ValueError(f"quality {self.name!r}: keyframe_policy={self.keyframe_policy!r}; expected one of {KEYFRAME_POLICIES}")
+        if self.noise not in NOISE_POLICIES:
+            raise ValueError(f"quality {self.name!r}: noise={self.noise!r}; expected one of {NOISE_POLICIES}")
+        if self.precision not in PRECISIONS:
+            raise ValueError(f"quality {self.name!r}: precision={self.precision!r}; expected one of {PRECISIONS}")
+        if not (math.isfinite(self.max_px_per_keyframe) and self.max_px_per_keyframe > 0):
+            raise ValueError(f"quality {self.name!r}: max_px_per_keyframe={self.max_px_per_keyframe!r} must be > 0")
+        if not (math.isfinite(self.noise_tolerance) and self.noise_tolerance >= 0):
+            raise ValueError(f"quality {self.name!r}: noise_tolerance={self.noise_tolerance!r} must be >= 0")
+
+    @classmethod
+    def from_name(cls, name: str) -> "QualitySettings":
+        if name not in PRESETS:
+            raise ValueError(f"unknown quality {name!r}; expected one of {sorted(PRESETS)}")
+        return PRESETS[name]
+
+    def replace(self, **changes: Any) -> "QualitySettings":
+        return dataclasses.replace(self, **changes)
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    # ---- what the pipeline stages take ---------------------------------------------------------
+    def render_kwargs(self) -> dict[str, Any]:
+        """Keyword arguments for SceneRenderer (and RenderSettings)."""
+        return {"spp": self.spp, "gt_spp": self.gt_spp, "variant": self.variant}
+
+    def adaptive_policy(self) -> Any:
+        from .render.adaptive import AdaptivePolicy
+        return AdaptivePolicy(max_px_per_keyframe=self.max_px_per_keyframe, max_interval=self.max_interval)
+
+    def camera(self, base: SpikeCamera, y_levels: Iterable[float] | np.ndarray | None = None
+               ) -> tuple[SpikeCamera, list[NoiseDecision]]:
+        """The sensor for this quality: `base` at this precision, with the noise terms the light
+        levels cannot show switched off when noise="auto" (then y_levels is required)."""
+        cam = base.replace(precision=self.precision)
+        if self.noise == "all":
+            return cam, [NoiseDecision(t, None, getattr(cam, t) != v, "quality keeps every term")
+                         for t, v in NOISE_TERMS.items()]
+        if y_levels is None:
+            raise ValueError(f"quality {self.name!r} decides noise terms from the light: pass y_levels "
+                             "(e.g. percentiles of a rendered frame)")
+        decisions = decide_noise_terms(cam, y_levels, self.noise_tolerance)
+        return apply_noise_decisions(cam, decisions), decisions
+
+    def keyframes(self, renderer: Any, start: int, num_steps: int) -> Iterator[tuple[int, np.ndarray]]:
+        """(step, frame) keyframes covering steps start .. start + num_steps - 1 exactly, for
+        Simulator.stream_keyframes. `renderer` needs render_step(step, spp) and motion_px(step)."""
+        if isinstance(num_steps, bool) or not isinstance(num_steps, int) or num_steps < 1:
+            raise ValueError(f"num_steps={num_steps!r} must be a positive integer")
+        last = start + num_steps - 1
+        if self.keyframe_policy == "adaptive":
+            from .render.adaptive import AdaptiveKeyframes
+            yield from AdaptiveKeyframes(self.adaptive_policy(), spp=self.spp).keyframes(renderer, start, num_steps)
+            return
+        k = 1 if self.keyframe_policy == "every" else self.keyframe_every
+        steps = list(range(start, last + 1, k))
+        if steps[-1] != last:
+            steps.append(last)
+        for s in steps:
+            yield s, renderer.render_step(s, spp=self.spp)
+
+    def simulate(self, sim: Any, renderer: Any, start: int, num_steps: int) -> Iterator[Any]:
+        """Spike stream parts for exactly `num_steps` steps: a fixed spacing runs through
+        Simulator.stream (one kernel call per chunk), adaptive keyframes through stream_keyframes."""
+        if self.keyframe_policy == "adaptive":
+            # scene steps -> the simulator's own step count (its stream may start at step 0)
+            shift = sim.steps_done - start
+            yield from sim.stream_keyframes((s + shift, f) for s, f in self.keyframes(renderer, start, num_steps))
+            return
+        k = 1 if self.keyframe_policy == "every" else self.keyframe_every
+        n_keys = -(-(num_steps - 1) // k) + 1
+        frames = (renderer.render_step(start + j * k, spp=self.spp) for j in range(n_keys))
+        done = 0
+        for part in sim.stream(frames, keyframe_every=k, final=True):
+            take = min(part.num_steps, num_steps - done)
+            if take <= 0:
+                break
+            yield part.slice(0, take)
+            done += take
+
+    def record(self, decisions: Iterable[NoiseDecision] = ()) -> dict[str, Any]:
+        """What a run stores in meta.json: the preset, its knobs and the noise decisions."""
+        return {"quality": self.name, "settings": self.to_dict(),
+                "noise_decisions": [d.to_dict() for d in decisions]}
+
+
+#: Presets, chosen from the measured Pareto front (docs/tradeoff.md: the five LLR scenes under low
+#: and normal light, 50 x 80 pixels, 3 windows of 41 steps, 2 shared cores). "err/floor" is a
+#: run's per-pixel firing-rate error against the reference divided by the reference's own
+#: sensor-noise floor (the same error between two sensor seeds), the worst of the 10 scene-lights.
+#: - Every knob alone stays under 0.6 of the floor, but spp and keyframes compound: a keyframe's
+#:   Monte Carlo noise is held for its whole interval, so sparse keyframes need more samples
+#:   (spp 4 + adaptive 1 px: 1.61; spp 16 + adaptive 1 px: 0.81).
+#: - float32 gave bit-identical streams to float64 in all 10 (err 0): float32 below `reference`.
+#: - mono: err/floor <= 0.23, 0.5-1.1x the time at this size (spectral costs 1.0-1.5x mono at
+#:   400 x 250, docs/scenes.md): "auto" (mono when the lights share one spectrum) below `reference`.
+#: - noise terms: simulation is 1-2 % of the time, so no term's removal saved measurable time;
+#:   removing any but reset_loss (err/floor <= 0.04) and threshold_mismatch (<= 0.13) changed the
+#:   stream by 0.1-1.2 of the floor. So every term stays on, except that `draft` drops those whose
+#:   effect at the scene's light is under 1 % (decide_noise_terms; in practice those two).
+PRESETS: dict[str, QualitySettings] = {
+    # The study's reference: a spectral render per step at 64 spp, float64, every noise term.
+    "reference": QualitySettings("reference", spp=64, gt_spp=256, variant="spectral", keyframe_policy="every",
+                                 noise="all", precision="float64"),
+    # Fastest measured setting within half the noise floor everywhere: err/floor <= 0.43, speed-up
+    # 4.3-39x (geometric mean 12x) at 50 x 80 (spp 16 + adaptive 0.5 px: 0.61; spp 4 + 0.25 px: 0.85).
+    # (adaptive 1 px at 64 spectral spp ties at this size; fewer samples win at 400 x 250.)
+    "balanced": QualitySettings("balanced", spp=16, gt_spp=64, variant="auto", keyframe_policy="adaptive",
+                                max_px_per_keyframe=0.25, noise="all", precision="float32"),
+    # Fastest measured setting within the noise floor everywhere (never more different from the
+    # reference than a second recording): err/floor <= 0.81, speed-up 14-41x (geometric mean 26x)
+    # at 50 x 80 (spp 1 + adaptive 1 px: 3.1; spp 4 + adaptive 1 px: 1.6).
+    "draft": QualitySettings("draft", spp=16, gt_spp=16, variant="auto", keyframe_policy="adaptive",
+                             max_px_per_keyframe=1.0, noise="auto", noise_tolerance=0.01, precision="float32"),
+}
+QUALITIES = tuple(PRESETS)
+
+__all__ = ["QualitySettings", "PRESETS", "QUALITIES", "NoiseDecision", "decide_noise_terms", "noise_effect",
+           "apply_noise_decisions"]
