@@ -90,8 +90,14 @@ class SceneJob:
     seed: int = 0
     keyframe_every: int = 1
     flip: bool = True
+    quality: str | None = None
+    """A `spikesim.quality` preset (draft / balanced / reference) that sets the render and sensor
+    knobs (spp, variant, keyframe policy, noise terms, precision) instead of the fields above."""
 
     def __post_init__(self) -> None:
+        if self.quality is not None:
+            from spikesim.quality import QualitySettings
+            QualitySettings.from_name(self.quality)  # validates the name
         if self.num_steps < 1:
             raise ValueError(f"job {self.name}: num_steps must be >= 1")
         if not 0 < self.light_power_factor <= 1e6 or not np.isfinite(self.light_power_factor):
@@ -129,7 +135,7 @@ def _render_dict(preset: Preset, seed: int) -> dict[str, Any]:
 
 
 def plan_llr(preset: Preset, seed: int = 0, camera: Any | None = None, scenes: list[str] | None = None,
-             lights: tuple[str, ...] = ("normal", "low")) -> list[SceneJob]:
+             lights: tuple[str, ...] = ("normal", "low"), quality: str | None = None) -> list[SceneJob]:
     wins, centres = llr_windows(preset.llr_windows)
     jobs = []
     for i, scene in enumerate(scenes or preset.llr_scenes):
@@ -138,12 +144,12 @@ def plan_llr(preset: Preset, seed: int = 0, camera: Any | None = None, scenes: l
             jobs.append(SceneJob(name=f"{scene}_{light}", source={"type": "scene", "scene": scene, "light": light},
                                  camera=_camera_dict(preset, camera), render=_render_dict(preset, s),
                                  num_steps=wins[-1][1], gt_steps=centres, windows=wins, seed=s,
-                                 keyframe_every=preset.keyframe_every))
+                                 keyframe_every=preset.keyframe_every, quality=quality))
     return jobs
 
 
 def plan_rllr(preset: Preset, seed: int = 0, camera: Any | None = None, count: int | None = None,
-              source: str = "random") -> list[SceneJob]:
+              source: str = "random", quality: str | None = None) -> list[SceneJob]:
     """RLLR: random scenes, each darkened by a random factor in (0, 1) (paper, "RLLR")."""
     rng = np.random.default_rng(np.random.SeedSequence([seed, 7]))
     n = preset.rllr_scenes if count is None else count
@@ -157,19 +163,21 @@ def plan_rllr(preset: Preset, seed: int = 0, camera: Any | None = None, count: i
         src = {"type": "random", "index": i, "scene_seed": s} if source == "random" else {"type": "pattern", "peak_y": 0.3, "pattern_seed": s}
         jobs.append(SceneJob(name=f"rllr_{i:04d}", source=src, camera=_camera_dict(preset, camera),
                              render=_render_dict(preset, s), num_steps=preset.rllr_steps, gt_steps=gt,
-                             light_power_factor=factor, seed=s, keyframe_every=preset.keyframe_every))
+                             light_power_factor=factor, seed=s, keyframe_every=preset.keyframe_every,
+                             quality=quality if source == "random" else None))
     return jobs
 
 
 def plan_user(xml: str, light: str, preset: Preset, num_windows: int | None = None, seed: int = 0,
               motion: str | None = None, lights: str | None = None, camera: Any | None = None,
-              light_power_factor: float = 1.0, name: str | None = None) -> list[SceneJob]:
+              light_power_factor: float = 1.0, name: str | None = None, quality: str | None = None) -> list[SceneJob]:
     wins, centres = llr_windows(num_windows or preset.llr_windows)
     src = {"type": "scene", "scene": str(Path(xml).resolve()), "light": light,
            "motion": str(Path(motion).resolve()) if motion else None, "lights": str(Path(lights).resolve()) if lights else None}
     return [SceneJob(name=name or f"{Path(xml).parent.name}_{light}", source=src, camera=_camera_dict(preset, camera),
                      render=_render_dict(preset, seed), num_steps=wins[-1][1], gt_steps=centres, windows=wins,
-                     light_power_factor=light_power_factor, seed=seed, keyframe_every=preset.keyframe_every)]
+                     light_power_factor=light_power_factor, seed=seed, keyframe_every=preset.keyframe_every,
+                     quality=quality)]
 
 
 # ---- running one job ------------------------------------------------------------------------------
@@ -196,9 +204,21 @@ class _FrameSource:
                 scene, motion, lights, light = src["scene"], src.get("motion"), src.get("lights"), src["light"]
             render = {k: v for k, v in job.render.items()}
             render["resolution"] = tuple(render["resolution"])
+            if job.quality is not None:
+                from spikesim.quality import QualitySettings
+                render.update(QualitySettings.from_name(job.quality).render_kwargs())
             self._renderer = SceneRenderer(scene, light=light, motion=motion, lights=lights,
                                            camera=SpikeCamera.from_dict(job.camera), **render)
             self._pattern = None
+
+    @property
+    def renderer(self) -> Any:
+        return self._renderer
+
+    def scaled(self) -> Any:
+        """The renderer as the quality presets call it (render_step, motion_px), with the light
+        power factor applied."""
+        return _ScaledRenderer(self._renderer, self.scale)
 
     def frames(self, start: int, n: int, k: int) -> Iterator[np.ndarray]:
         if self._renderer is not None:
@@ -216,6 +236,20 @@ class _FrameSource:
         if self._renderer is not None:
             return self._renderer.describe()
         return {"pattern": dataclasses.asdict(self._pattern)}
+
+
+class _ScaledRenderer:
+    """A renderer whose frames are multiplied by the job's light power factor."""
+
+    def __init__(self, renderer: Any, scale: float):
+        self._r, self._scale = renderer, np.float32(scale)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._r, name)
+
+    def render_step(self, step: int, spp: int | None = None) -> np.ndarray:
+        y = self._r.render_step(step, spp=spp)
+        return y * self._scale if self._scale != 1 else y
 
 
 def run_job(job: SceneJob, root: str | Path, progress: Callable[[str, int, int], None] | None = None,
@@ -240,13 +274,27 @@ def run_job(job: SceneJob, root: str | Path, progress: Callable[[str, int, int],
     try:
         source = _FrameSource(job, work)
         cam = SpikeCamera.from_dict(job.camera)
+        quality_record = None
+        if job.quality is not None and source.renderer is not None:
+            from spikesim.quality import QualitySettings
+            q = QualitySettings.from_name(job.quality)
+            y_levels = None
+            if q.noise == "auto":  # the light levels decide which noise terms can show
+                y_levels = np.percentile(source.renderer.render_step(0) * np.float32(source.scale), [5, 50, 95])
+            cam, decisions = q.camera(cam, y_levels)
+            for d in decisions:
+                log.debug("%s: noise %s", job.name, d.to_dict())
+            quality_record = q.record(decisions)
         sim = Simulator(cam, backend=backend, seed=job.seed)
         dat = work / "spikes.dat"
-        t_sim = 0.0
         written = 0
         with DatWriter(dat, cam.height, cam.width, flip=job.flip) as writer:
-            frames = source.frames(0, job.num_steps, job.keyframe_every)
-            for part in sim.stream(frames, keyframe_every=job.keyframe_every, final=True):
+            if quality_record is not None:
+                parts = q.simulate(sim, source.scaled(), 0, job.num_steps)
+            else:
+                frames = source.frames(0, job.num_steps, job.keyframe_every)
+                parts = sim.stream(frames, keyframe_every=job.keyframe_every, final=True)
+            for part in parts:
                 take = min(part.num_steps, job.num_steps - written)
                 if take <= 0:
                     break
@@ -263,7 +311,8 @@ def run_job(job: SceneJob, root: str | Path, progress: Callable[[str, int, int],
         meta = {"job": job.to_dict(), "job_digest": job.digest, "camera": job.camera, "seed": job.seed,
                 "height": cam.height, "width": cam.width,
                 "windows": [list(w) for w in job.windows], "light_power_factor": job.light_power_factor,
-                "source": source.describe(), "simulator": sim.describe(num_steps=written)}
+                "source": source.describe(), "simulator": sim.describe(num_steps=written),
+                "quality": quality_record}
         write_scene(root, job.name, dat, ground_truth(), meta, flip=job.flip)
     finally:
         shutil.rmtree(work, ignore_errors=True)
@@ -418,15 +467,16 @@ def run(args: argparse.Namespace) -> int:
         preset = dataclasses.replace(preset, llr_windows=args.windows)
     camera = SpikeCamera.from_file(args.camera) if args.camera else None
     if args.kind == "llr":
-        jobs = plan_llr(preset, seed=args.seed, camera=camera, scenes=args.scenes)
+        jobs = plan_llr(preset, seed=args.seed, camera=camera, scenes=args.scenes, quality=args.quality)
     elif args.kind == "rllr":
         jobs = plan_rllr(preset, seed=args.seed, camera=camera, count=args.count,
-                         source="pattern" if args.pattern else "random")
+                         source="pattern" if args.pattern else "random", quality=args.quality)
     else:
         if not args.xml:
             raise ValueError("generate scene needs --xml (and usually --motion, --lights, --light)")
         jobs = plan_user(args.xml, args.light, preset, num_windows=args.windows, seed=args.seed, motion=args.motion,
-                         lights=args.lights, camera=camera, light_power_factor=args.light_power_factor)
+                         lights=args.lights, camera=camera, light_power_factor=args.light_power_factor,
+                         quality=args.quality)
     if args.kind == "rllr" and args.windows:
         raise ValueError("--windows applies to llr and scene; RLLR takes --steps")
     report = generate(jobs, args.out, workers=args.workers, ray_address=args.ray,
@@ -472,6 +522,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--width", type=int)
     p.add_argument("--spp", type=int)
     p.add_argument("--keyframe-every", type=int)
+    p.add_argument("--quality", choices=["draft", "balanced", "reference"],
+                   help="render/sensor knobs from spikesim.quality (measured presets; docs/tradeoff.md); "
+                        "overrides --spp/--keyframe-every and the variant")
     p.add_argument("--workers", type=int, help="local processes (default: one per core)")
     p.add_argument("--ray", metavar="ADDRESS", help="run on a Ray cluster ('auto', an address, or 'local')")
     p.add_argument("--overwrite", action="store_true", help="rebuild scenes generated with other parameters")

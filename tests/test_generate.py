@@ -154,3 +154,20 @@ def test_process_pool_renders_scenes(tmp_path):
     jobs = plan_rllr(preset, seed=4, count=2)
     report = generate(jobs, tmp_path, workers=2, show_progress=False)
     assert len(report["generated"]) == 2 and verify(tmp_path) == []
+
+
+def test_quality_preset_is_applied_and_recorded(tmp_path):
+    import dataclasses
+    pytest.importorskip("mitsuba")
+    preset = dataclasses.replace(PRESETS["small"], height=16, width=24, llr_windows=1)
+    from pipelines.generate import plan_llr
+    jobs = plan_llr(preset, scenes=["rotate"], lights=("low",), quality="draft")
+    assert jobs[0].digest != plan_llr(preset, scenes=["rotate"], lights=("low",))[0].digest
+    generate(jobs, tmp_path, workers=1, show_progress=False)
+    (s,) = open_dataset(tmp_path)
+    q = s.meta["quality"]
+    assert q["quality"] == "draft" and q["settings"]["keyframe_policy"] == "adaptive"
+    assert {d["term"] for d in q["noise_decisions"]} and s.num_steps == 41
+    assert s.meta["simulator"]["camera"]["precision"] == "float32"
+    with pytest.raises(ValueError, match="unknown quality"):
+        SceneJob(**{**jobs[0].__dict__, "quality": "ultra"})
