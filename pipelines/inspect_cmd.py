@@ -5,7 +5,6 @@ import argparse
 import json
 from pathlib import Path
 
-import numpy as np
 
 from spikesim.stream import DatReader, read_sidecar
 

@@ -177,23 +177,8 @@ class SpikeCamera:
     @classmethod
     def from_file(cls, path: str | Path) -> "SpikeCamera":
         """Load a camera from JSON (or TOML); unknown keys are an error naming the file."""
-        path = Path(path)
-        try:
-            text = path.read_text()
-        except OSError as exc:
-            raise FileNotFoundError(f"camera config {path}: {exc.strerror}") from exc
-        try:
-            if path.suffix == ".toml":
-                import tomllib
-                data = tomllib.loads(text)
-            else:
-                data = json.loads(text)
-        except ValueError as exc:
-            raise ValueError(f"camera config {path} is not valid {path.suffix or 'JSON'}: {exc}") from exc
-        try:
-            return cls.from_dict(data)
-        except (TypeError, ValueError) as exc:
-            raise ValueError(f"camera config {path}: {exc}") from exc
+        from .config_io import load_config_file
+        return load_config_file(path, cls.from_dict)
 
     def save(self, path: str | Path) -> None:
         Path(path).write_text(json.dumps(self.to_dict(), indent=2) + "\n")

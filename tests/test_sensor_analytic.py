@@ -9,7 +9,7 @@ from spikesim.patterns import constant_frames
 from spikesim.simulate import Simulator
 from spikesim.stats import firing_rate, inter_spike_intervals
 
-from sensor_testing import BACKENDS, FAST_BACKEND, requires_drjit
+from sensor_testing import BACKENDS
 
 
 

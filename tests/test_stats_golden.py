@@ -10,7 +10,7 @@ from spikesim.stats import (dark_count_rate_hz, dark_pixel_fraction, fano_factor
                             fixed_pattern_spread, inter_spike_intervals, isi_histogram, summary)
 from spikesim.stream import SpikeStream
 
-from sensor_testing import BACKENDS, FAST_BACKEND, requires_drjit
+from sensor_testing import BACKENDS
 
 
 def hand_stream():

@@ -21,7 +21,6 @@ y ~ 0.29 (0.18-0.41 across the CIE lamps), and 1 lx gives 1/100 of that (`white_
 """
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
@@ -180,11 +179,8 @@ class Exposure:
 
     @classmethod
     def from_file(cls, path: str | Path) -> "Exposure":
-        path = Path(path)
-        try:
-            return cls.from_dict(json.loads(path.read_text()))
-        except (ValueError, TypeError) as exc:
-            raise ValueError(f"{path}: {exc}") from exc
+        from ..config_io import load_config_file
+        return load_config_file(path, cls.from_dict)
 
 
 __all__ = ["Optics", "PixelResponse", "Exposure"]

@@ -12,7 +12,6 @@ same quantity rendered with many more samples.
 """
 from __future__ import annotations
 
-import json
 import math
 import time
 from dataclasses import asdict, dataclass, fields
@@ -99,11 +98,8 @@ class RenderSettings:
 
     @classmethod
     def from_file(cls, path: str | Path) -> "RenderSettings":
-        path = Path(path)
-        try:
-            return cls.from_dict(json.loads(path.read_text()))
-        except (ValueError, TypeError) as exc:
-            raise ValueError(f"{path}: {exc}") from exc
+        from ..config_io import load_config_file
+        return load_config_file(path, cls.from_dict)
 
 
 def _seed(*parts: int) -> int:

@@ -1,0 +1,43 @@
+"""Configuration files: one loader for every config dataclass (camera, exposure, render settings).
+
+JSON or TOML by suffix; every error names the file, so a typo in a config never surfaces as a
+bare KeyError deep inside a pipeline.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any, Callable, TypeVar
+
+T = TypeVar("T")
+
+
+def read_config_file(path: str | Path) -> dict[str, Any]:
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise FileNotFoundError(f"config {path}: {exc.strerror}") from exc
+    try:
+        if path.suffix == ".toml":
+            import tomllib
+            data = tomllib.loads(text)
+        else:
+            data = json.loads(text)
+    except ValueError as exc:
+        raise ValueError(f"config {path} is not valid {path.suffix.lstrip('.').upper() or 'JSON'}: {exc}") from exc
+    if not isinstance(data, dict):
+        raise ValueError(f"config {path}: expected a table/object at the top level, got {type(data).__name__}")
+    return data
+
+
+def load_config_file(path: str | Path, from_dict: Callable[[dict[str, Any]], T]) -> T:
+    """Read `path` and build the config with `from_dict`; its errors are re-raised naming the file."""
+    data = read_config_file(path)
+    try:
+        return from_dict(data)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"config {path}: {exc}") from exc
+
+
+__all__ = ["read_config_file", "load_config_file"]
