@@ -185,11 +185,8 @@ class SpikeCamera:
 
 
 def _known_fields(cls: type, data: dict[str, Any]) -> dict[str, Any]:
-    names = {f.name for f in dataclasses.fields(cls)}
-    unknown = sorted(set(data) - names)
-    if unknown:
-        raise ValueError(f"unknown camera parameter(s) {unknown}; known: {sorted(names)}")
-    return data
+    from .config_io import check_known_fields
+    return check_known_fields(cls, data, "camera parameter(s)")
 
 
 def _check_int(name: str, value: Any) -> None:

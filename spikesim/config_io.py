@@ -40,4 +40,14 @@ def load_config_file(path: str | Path, from_dict: Callable[[dict[str, Any]], T])
         raise ValueError(f"config {path}: {exc}") from exc
 
 
-__all__ = ["read_config_file", "load_config_file"]
+def check_known_fields(cls: type, data: dict[str, Any], what: str) -> dict[str, Any]:
+    """`data` unchanged if every key is a field of dataclass `cls`, else a ValueError naming them."""
+    import dataclasses
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - names)
+    if unknown:
+        raise ValueError(f"unknown {what} {unknown}; known: {sorted(names)}")
+    return data
+
+
+__all__ = ["read_config_file", "load_config_file", "check_known_fields"]

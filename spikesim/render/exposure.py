@@ -22,7 +22,7 @@ y ~ 0.29 (0.18-0.41 across the CIE lamps), and 1 lx gives 1/100 of that (`white_
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -167,9 +167,8 @@ class Exposure:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> "Exposure":
-        unknown = set(data) - {f.name for f in fields(cls)}
-        if unknown:
-            raise ValueError(f"unknown exposure keys {sorted(unknown)}")
+        from ..config_io import check_known_fields
+        check_known_fields(cls, data, "exposure keys")
         kw = dict(data)
         if "optics" in kw:
             kw["optics"] = Optics(**kw["optics"])

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Iterator
 
@@ -88,9 +88,8 @@ class RenderSettings:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> "RenderSettings":
-        unknown = set(data) - {f.name for f in fields(cls)}
-        if unknown:
-            raise ValueError(f"unknown render settings {sorted(unknown)}")
+        from ..config_io import check_known_fields
+        check_known_fields(cls, data, "render settings")
         d = dict(data)
         if d.get("resolution") is not None:
             d["resolution"] = tuple(d["resolution"])
