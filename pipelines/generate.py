@@ -238,6 +238,18 @@ class _FrameSource:
         return {"pattern": dataclasses.asdict(self._pattern)}
 
 
+def _without_prefix(obj: Any, prefix: str, replacement: str) -> Any:
+    """`obj` with `prefix` replaced in every string: a random scene is built in a temporary
+    folder, whose path would otherwise make meta.json differ between runs of the same job."""
+    if isinstance(obj, str):
+        return obj.replace(prefix, replacement)
+    if isinstance(obj, dict):
+        return {k: _without_prefix(v, prefix, replacement) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_without_prefix(v, prefix, replacement) for v in obj]
+    return obj
+
+
 class _ScaledRenderer:
     """A renderer whose frames are multiplied by the job's light power factor."""
 
@@ -311,7 +323,8 @@ def run_job(job: SceneJob, root: str | Path, progress: Callable[[str, int, int],
         meta = {"job": job.to_dict(), "job_digest": job.digest, "camera": job.camera, "seed": job.seed,
                 "height": cam.height, "width": cam.width,
                 "windows": [list(w) for w in job.windows], "light_power_factor": job.light_power_factor,
-                "source": source.describe(), "simulator": sim.describe(num_steps=written),
+                "source": _without_prefix(source.describe(), str(work), "<built from the job's seed>"),
+                "simulator": sim.describe(num_steps=written),
                 "quality": quality_record}
         write_scene(root, job.name, dat, ground_truth(), meta, flip=job.flip)
     finally:

@@ -133,6 +133,10 @@ def test_rllr_random_scene_end_to_end(tmp_path):
     assert gt.shape == (20, 32) and np.isfinite(gt).all() and gt.max() > 0
     assert s.meta["source"]["scene"] and 0 < s.meta["light_power_factor"] < 1
     assert verify(tmp_path) == []
+    # the random scene's temporary folder does not leak into meta.json: same job, same bytes
+    generate(jobs, tmp_path / "again", workers=1, show_progress=False)
+    for f in ("meta.json", "spikes.dat", "gt/step_000041.exr"):
+        assert (tmp_path / "rllr_0000" / f).read_bytes() == (tmp_path / "again" / "rllr_0000" / f).read_bytes(), f
 
 
 def test_random_scenes_are_reproducible(tmp_path):
