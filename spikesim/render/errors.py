@@ -24,4 +24,17 @@ class LightError(SceneError):
     """A light file with an unknown spectrum, a non-physical power or a malformed emitter."""
 
 
-__all__ = ["SceneError", "MotionError", "LightError"]
+def read_json(path: str | Path, error: type[SceneError], what: str) -> object:
+    """Parse a scene's JSON side file (motion, lights), or raise `error` naming the file."""
+    import json
+
+    path = Path(path)
+    if not path.is_file():
+        raise error(path, f"{what} does not exist")
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise error(path, f"not valid JSON: {exc}") from None
+
+
+__all__ = ["SceneError", "MotionError", "LightError", "read_json"]

@@ -13,7 +13,6 @@ E = I cos(theta) / d^2 (inverse-square law).
 """
 from __future__ import annotations
 
-import json
 import math
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
@@ -23,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from . import spectra
-from .errors import LightError
+from .errors import LightError, read_json
 from .exposure import PixelResponse
 
 EMITTER_TYPES = ("point", "spot", "rectangle", "directional", "sky")
@@ -413,12 +412,7 @@ class LightingCondition:
 def load_lights(path: str | Path) -> dict[str, LightingCondition]:
     """Read and validate a light file: {condition: {description, reference, subject, emitters}}."""
     path = Path(path)
-    if not path.is_file():
-        raise LightError(path, "light file does not exist")
-    try:
-        data = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise LightError(path, f"not valid JSON: {exc}") from None
+    data = read_json(path, LightError, "light file")
     if not isinstance(data, dict) or not data:
         raise LightError(path, "must be an object mapping condition names (e.g. 'normal', 'low') to lightings")
     out = {}

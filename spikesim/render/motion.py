@@ -11,7 +11,6 @@ the renderer can ask where an object is at any time (projection tests, sub-step 
 """
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,7 +18,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from .errors import MotionError
+from .errors import MotionError, read_json
 
 MOTION_TYPES = ("rotation", "translation", "ballistic", "keyframes", "trajectory")
 INTERPOLATIONS = ("step", "linear", "catmull_rom")
@@ -374,12 +373,7 @@ def parse_motion(data: Any, path: str | Path = "<motion>") -> MotionSpec:
 def load_motion(path: str | Path) -> MotionSpec:
     """Read and validate a motion file."""
     path = Path(path)
-    if not path.is_file():
-        raise MotionError(path, "motion file does not exist")
-    try:
-        data = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise MotionError(path, f"not valid JSON: {exc}") from None
+    data = read_json(path, MotionError, "motion file")
     return parse_motion(data, path)
 
 
