@@ -6,6 +6,8 @@ import importlib
 import logging
 import sys
 
+from spikesim.errors import UnavailableError
+
 # (module, what it adds); a module whose optional dependencies are missing is skipped with a note.
 _SUBCOMMANDS = (
     "pipelines.demo",
@@ -57,12 +59,21 @@ def main(argv: list[str] | None = None) -> int:
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s", datefmt="%H:%M:%S")
     try:
         return int(args.func(args) or 0)
-    except (ValueError, FileNotFoundError, FileExistsError, KeyError) as exc:
-        # Bad input: one clear line, no traceback (use -v for one).
+    except (ValueError, KeyError, OSError, UnavailableError) as exc:
+        # Bad input or a missing resource: one clear line, no traceback (use -v for one).
         if args.verbose:
             raise
-        print(f"spikesim {args.command}: error: {exc}", file=sys.stderr)
+        print(f"spikesim {args.command}: error: {_one_line(exc)}", file=sys.stderr)
         return 2
+
+
+def _one_line(exc: BaseException) -> str:
+    """The message of an expected failure, naming the file for OS errors (permission, a directory
+    where a file was expected, a full disk)."""
+    if isinstance(exc, OSError) and exc.filename is not None:
+        return f"{exc.filename}: {exc.strerror or exc}"
+    text = str(exc.args[0]) if isinstance(exc, KeyError) and exc.args else str(exc)
+    return " ".join(text.split()) or type(exc).__name__
 
 
 if __name__ == "__main__":

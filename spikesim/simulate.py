@@ -43,7 +43,9 @@ def resolve_backend(backend: str) -> str:
                     log.warning("no Dr.Jit backend available (libLLVM >= 17 missing?); using the NumPy reference")
                 return b
     if backend not in avail:
-        raise RuntimeError(f"backend {backend!r} is not available on this machine (available: {avail})")
+        from .errors import UnavailableError
+        hint = " (no CUDA GPU or driver found)" if backend == "cuda" else " (libLLVM >= 17 missing?)"
+        raise UnavailableError(f"backend {backend!r} is not available on this machine{hint}; available: {avail}")
     return backend
 
 
