@@ -17,6 +17,13 @@ from pathlib import Path
 from typing import Any
 
 SHOT_NOISE_MODELS = ("off", "gaussian", "poisson")
+
+#: Irradiance above this many expected spikes per step is bounded to it at the sensor's input.
+#: A pixel saturates at one spike per step, so any y above ~2 already fires at every step (the
+#: accumulator is clamped to [-threshold, 2 threshold]); the bound only keeps gain, shot noise and
+#: the accumulator finite for renderer fireflies and absurd inputs (y = 3.4e38 gave NaN
+#: accumulators and dead pixels before it).
+Y_MAX = 1000.0
 PRECISIONS = ("float32", "float64")
 
 #: Noise terms and the value that switches each off.
@@ -204,4 +211,4 @@ def _check_nonnegative(name: str, value: Any) -> None:
         raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
 
 
-__all__ = ["SpikeCamera", "NOISE_TERMS", "SHOT_NOISE_MODELS", "PRECISIONS"]
+__all__ = ["SpikeCamera", "NOISE_TERMS", "SHOT_NOISE_MODELS", "PRECISIONS", "Y_MAX"]

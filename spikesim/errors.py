@@ -8,4 +8,9 @@ class UnavailableError(RuntimeError):
     package. The message says what was asked for and what is available instead."""
 
 
-__all__ = ["UnavailableError"]
+class InvalidFrames(ValueError):
+    """A sensor backend found NaN, infinite or negative irradiance in the frames of a call; it
+    raises before any state changes, and the Simulator then names the frame."""
+
+
+__all__ = ["UnavailableError", "InvalidFrames"]

@@ -4,13 +4,20 @@ Every backend implements exactly this update, in this order of floating-point op
 pixel x at step n (accumulator A and threshold theta in units of the nominal threshold):
 
     y      = Y_j (1 - w) + Y_{j+1} w        keyframe interpolation, w = (n mod k) / k; y = Y_j if k = 1
-    e      = y g + d                        gain (PRNU) and dark current, DESIGN.md section 2
+    y      = min(y, Y_MAX)                  bound far above saturation (camera.Y_MAX)
+    e      = y g + d                        gain (PRNU) and dark current, docs/sensor.md
     e      = e + sqrt(e / N_e) z1           shot noise (gaussian; or Poisson(e N_e) / N_e)
     e      = e (1 - r)   if x fired at n-1  reset/readout loss
-    A      = A + e                          integrate (paper eq. 1)
+    u      = e - c;  t = A + u              integrate (paper eq. 1), compensated (Kahan):
+    c      = (t - A) - u;  A = t            c carries the low bits float32 drops
     fire   = A >= theta + sigma_c z2        comparator with temporal noise
     A      = A - theta   if fire            reset by subtraction: A mod theta (paper eq. 1)
     A      = min(max(A, -theta), 2 theta)   saturation: at most one spike per readout
+
+Compensation: a plain float32 sum stalls when y is below half an ulp of A (at y = 1e-8 the
+accumulator stayed at 0.25 forever) and drifts for small y (at y = 1e-4 one interval in two was
+9999 steps instead of 10000-10001). With the compensation term the sum of e over any number of
+steps is exact to float32 rounding of the total, so rates and intervals hold for any y > 0.
 
 The bounds leave room for comparator noise: a comparator that fires early leaves a negative
 residual and one that fires late a residual above theta, and both are kept, so charge is
@@ -22,7 +29,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .camera import SpikeCamera
+from .camera import Y_MAX, SpikeCamera
 from .fixed_pattern import PixelParameters
 
 
@@ -36,6 +43,7 @@ class NumpySensor:
         self.params = params
         self.dtype = params.dtype
         self.accumulator = params.initial_accumulator.copy()
+        self.compensation = np.zeros_like(self.accumulator)
         self.fired = np.zeros(camera.num_pixels, dtype=bool)
         # Temporal noise: a sequential generator, so chunked calls draw what one call would.
         self._rng = np.random.Generator(np.random.Philox(np.random.SeedSequence([int(seed), 2])))
@@ -55,7 +63,8 @@ class NumpySensor:
         retain = dt.type(1.0 - cam.reset_loss)
         sigma_c = dt.type(cam.comparator_noise)
         threshold = p.threshold if p.threshold is not None else one
-        A = self.accumulator
+        y_max = dt.type(Y_MAX)
+        A, c = self.accumulator, self.compensation
         for s in range(num_steps):
             t = phase + s
             j, r = divmod(t, k)
@@ -63,6 +72,7 @@ class NumpySensor:
             if r:
                 w = dt.type(r) / dt.type(k)
                 y = y * (one - w) + keyframes[j + 1].astype(dt, copy=False) * w
+            y = np.minimum(y, y_max)
             e = y * p.gain if p.gain is not None else y
             if p.dark_per_step is not None:
                 e = e + p.dark_per_step
@@ -72,7 +82,10 @@ class NumpySensor:
                 e = (self._rng.poisson(e.astype(np.float64) * cam.threshold_electrons) * (1.0 / cam.threshold_electrons)).astype(dt)
             if cam.reset_loss > 0:
                 e = np.where(self.fired, e * retain, e)
-            A = A + e
+            u = e - c
+            total = A + u
+            c = (total - A) - u
+            A = total
             if cam.comparator_noise > 0:
                 fire = A >= threshold + sigma_c * self._rng.standard_normal(A.shape, dtype=dt)
             else:
@@ -82,15 +95,13 @@ class NumpySensor:
             self.fired = fire
             out[s] = np.packbits(fire, bitorder="little")
         self.accumulator = A.astype(dt, copy=False)
+        self.compensation = c.astype(dt, copy=False)
         return out
 
     # state access shared with the Dr.Jit backend
     def get_state(self) -> dict[str, np.ndarray]:
-        return {"accumulator": self.accumulator.copy(), "fired": self.fired.copy()}
-
-    def set_state(self, state: dict[str, np.ndarray]) -> None:
-        self.accumulator = np.asarray(state["accumulator"], dtype=self.dtype).copy()
-        self.fired = np.asarray(state["fired"], dtype=bool).copy()
+        return {"accumulator": self.accumulator.copy(), "compensation": self.compensation.copy(),
+                "fired": self.fired.copy()}
 
 
 __all__ = ["NumpySensor"]
