@@ -337,6 +337,18 @@ def recorded_geometry(dat_path: str | Path) -> dict[str, Any] | None:
     return {**geometry, "flip": None if flip is None else bool(flip), "source": source}
 
 
+def stream_geometry(dat_path: str | Path, height: int | None = None, width: int | None = None,
+                    flip: bool | None = None) -> tuple[int, int, bool]:
+    """(height, width, flip) to read a stream with: what is given, else what is recorded beside it
+    (`recorded_geometry`), else the PKU camera's 250 x 400 with rows bottom-up."""
+    rec = recorded_geometry(dat_path) or {}
+    height = height or rec.get("height") or 250
+    width = width or rec.get("width") or 400
+    if flip is None:
+        flip = True if rec.get("flip") is None else rec["flip"]
+    return height, width, flip
+
+
 def detect_header_columns(path: str | Path, height: int, width: int) -> int:
     """Header columns per row of a stream of `width`-column images: 0 or 16 (416-wide recordings).
 
@@ -412,4 +424,4 @@ def _dispersion(frames: np.ndarray, pixels: int, chunk_bits: int = 1 << 22) -> f
 
 __all__ = ["SpikeStream", "DatWriter", "DatReader", "write_dat", "read_dat", "pack_frames", "unpack_frames",
            "frame_bytes", "write_sidecar", "read_sidecar", "sidecar_path", "recorded_geometry",
-           "detect_header_columns", "header_columns_from_content", "open_temp_beside", "HEADER_COLUMNS"]
+           "stream_geometry", "detect_header_columns", "header_columns_from_content", "open_temp_beside", "HEADER_COLUMNS"]
