@@ -69,7 +69,10 @@ def config_file(tmp_path_factory):
 
 def run_cli(argv, capsys):
     capsys.readouterr()
-    rc = main([str(a) for a in argv])
+    try:
+        rc = main([str(a) for a in argv])
+    except SystemExit as exc:  # argparse refusing a value
+        rc = exc.code
     return rc, capsys.readouterr().err
 
 
