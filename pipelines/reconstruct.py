@@ -29,6 +29,7 @@ import torch
 from model.methods import method_from_spec
 from model.streaming import StepWindows
 from pipelines.argtypes import nonnegative_int, positive_float, positive_int
+from pipelines.inspect_cmd import header_columns_arg
 from spikesim.stream import HEADER_COLUMNS as PKU_HEADER
 from spikesim.stream import detect_header_columns, stream_geometry
 
@@ -36,11 +37,6 @@ PKU_HEIGHT, PKU_WIDTH = 250, 400
 # What a run writes in --out: a rerun replaces exactly these (reconstruct.json last).
 OUTPUT_FILES = ("frames.gif", "frames.mp4", "frames.npy", "reconstruct.json")
 PNG_DIR, PNG_PATTERN = "png", "step_*.png"
-
-
-def header_columns_arg(text: str) -> str | int:
-    """--header-columns: "auto" or a number of columns >= 0."""
-    return "auto" if text == "auto" else nonnegative_int(text)
 
 
 def percentage(text: str) -> float:

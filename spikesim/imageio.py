@@ -56,6 +56,12 @@ def to_display(y: np.ndarray, gamma: float = 2.2, scale: float | None = None, pe
     `scale` defaults to 1 (y = 1 is white: one spike per step); `percentile` instead maps that
     percentile of the image to white, the display enhancement used for very dark results.
     """
+    if not (np.isfinite(gamma) and gamma > 0):
+        raise ValueError(f"gamma must be a finite number > 0, got {gamma}")
+    if scale is not None and not (np.isfinite(scale) and scale >= 0):
+        raise ValueError(f"scale must be a finite number >= 0, got {scale}")
+    if percentile is not None and not 0 <= percentile <= 100:
+        raise ValueError(f"percentile must be in [0, 100], got {percentile}")
     y = np.asarray(y, dtype=np.float64)
     if percentile is not None:
         ref = np.percentile(y, percentile)

@@ -349,12 +349,13 @@ def stream_geometry(dat_path: str | Path, height: int | None = None, width: int 
     return height, width, flip
 
 
-def detect_header_columns(path: str | Path, height: int, width: int) -> int:
+def detect_header_columns(path: str | Path, height: int, width: int, drop_partial: bool = False) -> int:
     """Header columns per row of a stream of `width`-column images: 0 or 16 (416-wide recordings).
 
     In order: what the sidecar or dataset meta.json records; the file size when only one reading
     gives whole frames; else (a 416-wide file whose frame count is a multiple of 25 is also whole
     400-wide frames) the content, or an error naming both readings when the content cannot tell.
+    With `drop_partial` a partial last frame is allowed, so only the content can decide.
     """
     path = Path(path)
     rec = recorded_geometry(path)
@@ -367,16 +368,19 @@ def detect_header_columns(path: str | Path, height: int, width: int) -> int:
     size = _stream_size(path)
     plain, wide = frame_bytes(height, width), frame_bytes(height, width + HEADER_COLUMNS)
     fits_plain, fits_wide = size % plain == 0, size % wide == 0
+    if drop_partial:
+        fits_plain = fits_wide = True  # a partial last frame is ignored whichever the reading
     if not (fits_plain or fits_wide):
-        raise ValueError(f"{path}: {size} bytes is neither whole {width}x{height} frames ({plain} bytes) nor "
-                         f"whole {width + HEADER_COLUMNS}x{height} frames ({wide} bytes); check --height/--width")
+        raise ValueError(f"{path}: {size} bytes is not a whole number of {width}x{height} frames ({plain} bytes "
+                         f"each), nor of {width + HEADER_COLUMNS}x{height} frames ({wide} bytes each): the file "
+                         "is truncated or --height/--width are wrong")
     if size == 0 or not fits_wide:
         return 0
     if not fits_plain:
         return HEADER_COLUMNS
     decided = header_columns_from_content(path, height, width)
     if decided is None:
-        raise ValueError(f"{path}: {size} bytes is either {size // plain} frames of {width}x{height} (no header "
+        raise ValueError(f"{path}: {size} bytes {'holds' if drop_partial else 'is'} either {size // plain} frames of {width}x{height} (no header "
                          f"columns) or {size // wide} frames of {width + HEADER_COLUMNS}x{height} ({HEADER_COLUMNS} "
                          "header columns per row), and its content does not tell which; pass --header-columns "
                          f"0 or {HEADER_COLUMNS}")

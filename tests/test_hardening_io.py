@@ -165,5 +165,15 @@ def test_auto_unambiguous_sizes(tmp_path):
     (tmp_path / "wide.dat").write_bytes(b"\0" * 13000)  # one 416 x 250 frame, not whole 400 x 250 ones
     assert detect_header_columns(tmp_path / "wide.dat", 250, 400) == 16
     (tmp_path / "b.dat").write_bytes(b"\0" * 7)
-    with pytest.raises(ValueError, match="neither whole"):
+    with pytest.raises(ValueError, match="not a whole number"):
         detect_header_columns(tmp_path / "b.dat", 6, 16)
+
+
+# ---- display ------------------------------------------------------------------------------------
+@pytest.mark.parametrize("kwargs, word", [({"gamma": 0}, "gamma"), ({"gamma": -2}, "gamma"),
+                                          ({"gamma": float("nan")}, "gamma"), ({"scale": -1}, "scale"),
+                                          ({"percentile": 120}, "percentile")])
+def test_display_refuses_impossible_settings(kwargs, word):
+    from spikesim.imageio import to_display
+    with pytest.raises(ValueError, match=word):
+        to_display(np.full((2, 2), 0.5), **kwargs)

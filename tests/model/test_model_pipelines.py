@@ -137,7 +137,7 @@ def test_reconstruct_drops_header_columns(tmp_path):
     want = tfp_windows(torch.from_numpy(sc.spike_array).reshape(4, 7, 16, 24)).numpy()
     np.testing.assert_allclose(np.load(tmp_path / "o" / "frames.npy"), want)
     (tmp_path / "bad.dat").write_bytes(b"\0" * 7)
-    with pytest.raises(ValueError, match="neither whole"):
+    with pytest.raises(ValueError, match="not a whole number"):
         rc.detect_header_columns(tmp_path / "bad.dat", 16, 24)
 
 
