@@ -98,14 +98,19 @@ def _checked_state(path: Path, state: Any) -> dict[str, Any]:
 def _refusal(exc: pickle.UnpicklingError) -> str:
     """What the weights-only unpickler refused, in one line (e.g. "Unsupported global: GLOBAL
     posix.system"): the file holds code or objects that only full unpickling would build."""
-    m = re.search(r"WeightsUnpickler error: (.*?)(?: was not an allowed| \(|\n|$)", str(exc))
-    what = m.group(1).strip() if m else "not a torch file"
-    return f"weights-only loading refused it ({what}); it was not loaded"
+    m = re.search(r"WeightsUnpickler error:\s*(.*?)(?: was not an allowed|\n|$)", str(exc))
+    what = m.group(1).strip() if m else ""
+    if not what or what.startswith("Unsupported operand"):
+        return "not a torch checkpoint file"
+    return f"weights-only loading refused it ({what}); nothing in it was run"
 
 
-def _first_line(exc: BaseException) -> str:
-    text = str(exc).strip().splitlines()
-    return text[0] if text else type(exc).__name__
+def _first_line(exc: BaseException, limit: int = 160) -> str:
+    """The gist of a library error: its first sentence or two lines, cut to `limit` characters."""
+    lines = [line.strip() for line in str(exc).strip().splitlines() if line.strip()]
+    text = " ".join(lines[:2]) if lines else type(exc).__name__
+    text = text.split(". ")[0]
+    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 def model_from_checkpoint(path: str | Path, map_location: str | torch.device = "cpu"
