@@ -24,8 +24,7 @@ def write_exr(path: str | Path, y: np.ndarray) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.part")
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-    OpenEXR.File(header, {CHANNEL: y}).write(str(tmp))
-    os.replace(tmp, path)
+    _write_then_rename(lambda: OpenEXR.File(header, {CHANNEL: y}).write(str(tmp)), tmp, path)
     return path
 
 
@@ -79,9 +78,19 @@ def write_png(path: str | Path, y: np.ndarray, gamma: float = 2.2, scale: float 
     path.parent.mkdir(parents=True, exist_ok=True)
     img = to_display(y, gamma=gamma, scale=scale, percentile=percentile)
     tmp = path.with_name(f".{path.name}.part")
-    Image.fromarray(img).save(tmp, format="PNG")
-    os.replace(tmp, path)
+    _write_then_rename(lambda: Image.fromarray(img).save(tmp, format="PNG"), tmp, path)
     return path
+
+
+def _write_then_rename(write, tmp: Path, path: Path) -> None:
+    """Run `write` (which creates `tmp`), then rename `tmp` to `path`; on any failure remove
+    `tmp`, so a failed write leaves neither a partial image nor a temporary file."""
+    try:
+        write()
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 __all__ = ["write_exr", "read_exr", "write_png", "to_display"]

@@ -380,10 +380,11 @@ def detect_header_columns(path: str | Path, height: int, width: int, drop_partia
         return HEADER_COLUMNS
     decided = header_columns_from_content(path, height, width)
     if decided is None:
-        raise ValueError(f"{path}: {size} bytes {'holds' if drop_partial else 'is'} either {size // plain} frames of {width}x{height} (no header "
-                         f"columns) or {size // wide} frames of {width + HEADER_COLUMNS}x{height} ({HEADER_COLUMNS} "
-                         "header columns per row), and its content does not tell which; pass --header-columns "
-                         f"0 or {HEADER_COLUMNS}")
+        verb = "holds" if drop_partial else "is"
+        raise ValueError(f"{path}: {size} bytes {verb} either {size // plain} frames of {width}x{height} (no "
+                         f"header columns) or {size // wide} frames of {width + HEADER_COLUMNS}x{height} "
+                         f"({HEADER_COLUMNS} header columns per row), and its content does not tell which; "
+                         f"pass --header-columns 0 or {HEADER_COLUMNS}")
     return decided
 
 
@@ -428,4 +429,5 @@ def _dispersion(frames: np.ndarray, pixels: int, chunk_bits: int = 1 << 22) -> f
 
 __all__ = ["SpikeStream", "DatWriter", "DatReader", "write_dat", "read_dat", "pack_frames", "unpack_frames",
            "frame_bytes", "write_sidecar", "read_sidecar", "sidecar_path", "recorded_geometry",
-           "stream_geometry", "detect_header_columns", "header_columns_from_content", "open_temp_beside", "HEADER_COLUMNS"]
+           "stream_geometry", "detect_header_columns", "header_columns_from_content", "open_temp_beside",
+           "HEADER_COLUMNS"]

@@ -177,3 +177,17 @@ def test_display_refuses_impossible_settings(kwargs, word):
     from spikesim.imageio import to_display
     with pytest.raises(ValueError, match=word):
         to_display(np.full((2, 2), 0.5), **kwargs)
+
+
+def test_failed_png_write_leaves_no_part_file(tmp_path, monkeypatch):
+    from PIL import Image
+
+    from spikesim.imageio import write_png
+
+    def full_disk(self, fp, *a, **k):
+        open(fp, "wb").write(b"\x89PNG")
+        raise OSError(28, "No space left on device", str(fp))
+    monkeypatch.setattr(Image.Image, "save", full_disk)
+    with pytest.raises(OSError, match="No space"):
+        write_png(tmp_path / "p.png", np.zeros((4, 4)))
+    assert list(tmp_path.iterdir()) == []
