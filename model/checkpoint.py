@@ -1,35 +1,44 @@
-"""Checkpoints: atomic writes (temp file in the same folder, then rename) and self-describing
-contents (the configs travel with the weights, so a checkpoint alone rebuilds its network)."""
+"""Checkpoints: atomic writes (temp file in the same folder, then rename, with the user's umask)
+and self-describing contents (the configs travel with the weights, as plain JSON-like types, so a
+checkpoint alone rebuilds its network).
+
+Loading is weights-only (`torch.load(weights_only=True)`): a checkpoint is data, and unpickling
+anything beyond tensors, numbers, strings and containers (the allow-list of torch's weights-only
+unpickler) is refused instead of run. Everything `save_checkpoint` stores is on that list, also in
+checkpoints written before loading became weights-only, so those still load.
+"""
 from __future__ import annotations
 
+import errno
 import os
-import tempfile
+import pickle
+import re
 from pathlib import Path
 from typing import Any
 
 import torch
 
+from spikesim.stream import open_temp_beside
+
 from .arch import build_model
 from .config import ExperimentConfig
 
 FORMAT_VERSION = 1
+_STATE_KEYS = ("experiment", "model_state")
 
 
 def atomic_torch_save(obj: Any, path: str | Path) -> None:
     """torch.save to a temp file beside `path`, fsync, then os.replace: a crash mid-write never
     leaves a truncated checkpoint under the final name."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    f, tmp = open_temp_beside(path, suffix=".tmp")
     try:
-        with os.fdopen(fd, "wb") as f:
+        with f:
             torch.save(obj, f)
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)
     except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+        tmp.unlink(missing_ok=True)
         raise
 
 
@@ -54,23 +63,68 @@ def save_checkpoint(path: str | Path, model: torch.nn.Module, experiment: Experi
 
 
 def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") -> dict[str, Any]:
+    """The contents of a checkpoint written by `save_checkpoint`, loaded weights-only.
+
+    A file that is missing, a directory, empty, corrupt, needs code to unpickle, or is not one of
+    this project's checkpoints is an error naming the file (ValueError or OSError).
+    """
     path = Path(path)
+    if path.is_dir():
+        raise IsADirectoryError(errno.EISDIR, "is a directory, expected a checkpoint file", str(path))
     if not path.is_file():
-        raise FileNotFoundError(f"checkpoint not found: {path}")
-    state = torch.load(path, map_location=map_location, weights_only=False)
-    if not isinstance(state, dict) or state.get("format_version") != FORMAT_VERSION:
-        raise ValueError(f"{path}: not a checkpoint of this project (format_version "
-                         f"{state.get('format_version') if isinstance(state, dict) else None!r}, "
+        raise FileNotFoundError(errno.ENOENT, "checkpoint not found", str(path))
+    try:
+        state = torch.load(path, map_location=map_location, weights_only=True)
+    except pickle.UnpicklingError as exc:
+        raise ValueError(f"{path}: not a checkpoint of this project: {_refusal(exc)}") from None
+    except (RuntimeError, EOFError, ValueError, TypeError, AttributeError, KeyError, IndexError) as exc:
+        reason = "the file is empty" if path.stat().st_size == 0 else f"unreadable ({_first_line(exc)})"
+        raise ValueError(f"{path}: not a checkpoint of this project: {reason}") from None
+    return _checked_state(path, state)
+
+
+def _checked_state(path: Path, state: Any) -> dict[str, Any]:
+    """`state` when it has this project's layout, else an error naming the file."""
+    version = state.get("format_version") if isinstance(state, dict) else None
+    if version != FORMAT_VERSION:
+        raise ValueError(f"{path}: not a checkpoint of this project (format_version {version!r}, "
                          f"expected {FORMAT_VERSION})")
+    missing = [k for k in _STATE_KEYS if not isinstance(state.get(k), dict)]
+    if missing:
+        raise ValueError(f"{path}: not a checkpoint of this project (no {' or '.join(missing)} mapping)")
     return state
+
+
+def _refusal(exc: pickle.UnpicklingError) -> str:
+    """What the weights-only unpickler refused, in one line (e.g. "Unsupported global: GLOBAL
+    posix.system"): the file holds code or objects that only full unpickling would build."""
+    m = re.search(r"WeightsUnpickler error:\s*(.*?)(?: was not an allowed|\n|$)", str(exc))
+    what = m.group(1).strip() if m else ""
+    if not what or what.startswith("Unsupported operand"):
+        return "not a torch checkpoint file"
+    return f"weights-only loading refused it ({what}); nothing in it was run"
+
+
+def _first_line(exc: BaseException, limit: int = 160) -> str:
+    """The gist of a library error: its first sentence or two lines, cut to `limit` characters."""
+    lines = [line.strip() for line in str(exc).strip().splitlines() if line.strip()]
+    text = " ".join(lines[:2]) if lines else type(exc).__name__
+    text = text.split(". ")[0]
+    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 def model_from_checkpoint(path: str | Path, map_location: str | torch.device = "cpu"
                           ) -> tuple[torch.nn.Module, ExperimentConfig]:
     """Rebuild the network a checkpoint describes and load its weights (strict)."""
     state = load_checkpoint(path, map_location)
-    experiment = ExperimentConfig.from_dict(state["experiment"], where=f"{path} experiment")
+    try:
+        experiment = ExperimentConfig.from_dict(state["experiment"], where=f"{path} experiment")
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{path}: its config is not valid: {_first_line(exc)}") from None
     model = build_model(experiment.model)
-    model.load_state_dict(state["model_state"])
+    try:
+        model.load_state_dict(state["model_state"])
+    except (RuntimeError, TypeError, KeyError) as exc:
+        raise ValueError(f"{path}: its weights do not fit the network its config describes "
+                         f"({_first_line(exc)})") from None
     return model.to(map_location), experiment
-

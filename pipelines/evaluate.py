@@ -22,6 +22,7 @@ from model.data import Scene, open_scenes
 from model.methods import Method, method_from_spec
 from model.metrics import METRIC_CONVENTION, psnr, ssim
 from model.streaming import StepWindows
+from pipelines.argtypes import nonnegative_int, positive_int
 
 ALL = "ALL"
 
@@ -127,17 +128,18 @@ def write_results(rows: Sequence[Score], methods: Sequence[str], out: Path) -> t
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
     from pipelines.train import resolve_device
+    device = str(resolve_device(args.device))
     if args.threads:
         torch.set_num_threads(args.threads)
-    device = str(resolve_device(args.device))
+    methods = [method_from_spec(s, args.window, args.chunk, device) for s in args.methods]
     scenes = open_scenes(args.data)
     if args.scenes:
         wanted = set(args.scenes)
         missing = sorted(wanted - {s.name for s in scenes})
         if missing:
-            raise SystemExit(f"evaluate: scenes {missing} are not in {args.data}")
+            raise ValueError(f"--scenes: {', '.join(missing)} not in {args.data} (it has "
+                             f"{', '.join(s.name for s in scenes)})")
         scenes = [s for s in scenes if s.name in wanted]
-    methods = [method_from_spec(s, args.window, args.chunk, device) for s in args.methods]
     rows = evaluate(scenes, methods, args.window, progress=not args.quiet)
     names = [m.name for m in methods]
     csv_path, md_path = write_results(rows, names, Path(args.out))
@@ -155,10 +157,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                    help="tfp, tfi, or checkpoint paths; 'label=spec' names a column (default: tfp tfi)")
     p.add_argument("--scenes", nargs="+", help="only these scenes")
     p.add_argument("--out", default="results/evaluate", help="folder for metrics.csv and metrics.md")
-    p.add_argument("--window", type=int, default=41, help="steps per window (default 41)")
-    p.add_argument("--chunk", type=int, default=8, help="windows held in memory by a network (default 8)")
-    p.add_argument("--device", default="auto")
-    p.add_argument("--threads", type=int, default=0)
+    p.add_argument("--window", type=positive_int, default=41, help="steps per window (default 41)")
+    p.add_argument("--chunk", type=positive_int, default=8, help="windows held in memory by a network (default 8)")
+    p.add_argument("--device", default="auto", help="auto (CUDA when present), cpu, cuda, cuda:N or mps")
+    p.add_argument("--threads", type=nonnegative_int, default=0, help="torch CPU threads (0: torch's default)")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=cmd_evaluate)
     return p

@@ -1,49 +1,201 @@
-"""`spikesim inspect`: shape, duration, firing rate, dark pixels and ISIs of a `.dat` stream."""
+"""`spikesim inspect`: shape, duration, firing rate, dark pixels and ISIs of a `.dat` stream.
+
+The stream is read in chunks of about a million pixel-steps and summarised as it goes, so memory
+stays a few MB plus a handful of numbers per pixel, whatever the stream's length. The figures
+are those of `spikesim.stats.summary` (which needs the whole stream in memory), over every
+interval of the stream; ISI percentiles above 65,536 steps are resolved to 1/64 of an octave.
+"""
 from __future__ import annotations
 
 import argparse
 import json
 from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pipelines.argtypes import nonnegative_int, positive_float, positive_int
+from spikesim.stream import DatReader, detect_header_columns, read_sidecar, stream_geometry
+
+CHUNK_PIXEL_STEPS = 1 << 20  # pixels x steps unpacked at a time (1 MB of bits)
 
 
-from spikesim.stream import DatReader, read_sidecar
+class IsiHistogram:
+    """Counts of inter-spike intervals: one bin per step below EXACT, 1/PER_OCTAVE-octave bins
+    above, so its size never depends on the stream's length; count, sum, min and max are exact."""
+
+    EXACT, PER_OCTAVE, OCTAVES = 1 << 16, 64, 48
+
+    def __init__(self) -> None:
+        self.exact = np.zeros(self.EXACT, dtype=np.int64)
+        self.log = np.zeros(self.PER_OCTAVE * self.OCTAVES, dtype=np.int64)
+        self.count, self.total, self.min, self.max = 0, 0, None, None
+
+    def add(self, isi: np.ndarray) -> None:
+        if isi.size == 0:
+            return
+        self.count += int(isi.size)
+        self.total += int(isi.sum())
+        lo, hi = int(isi.min()), int(isi.max())
+        self.min = lo if self.min is None else min(self.min, lo)
+        self.max = hi if self.max is None else max(self.max, hi)
+        small = isi < self.EXACT
+        self.exact += np.bincount(isi[small], minlength=self.EXACT)
+        if not small.all():
+            k = np.floor(np.log2(isi[~small] / self.EXACT) * self.PER_OCTAVE).astype(np.int64)
+            np.add.at(self.log, np.minimum(k, self.log.size - 1), 1)
+
+    def percentile(self, q: float) -> float:
+        """As np.percentile (linear interpolation between the two nearest ranks)."""
+        values = np.concatenate([np.arange(self.EXACT, dtype=np.float64),
+                                 np.ceil(self.EXACT * 2.0 ** (np.arange(self.log.size) / self.PER_OCTAVE))])
+        cum = np.cumsum(np.concatenate([self.exact, self.log]))
+        rank = (self.count - 1) * q / 100.0
+        lo = int(np.floor(rank))
+        at = np.searchsorted(cum, [lo, min(lo + 1, self.count - 1)], side="right")
+        a, b = values[at[0]], values[at[1]]
+        return float(a + (rank - lo) * (b - a))
+
+
+class StreamSummary:
+    """Per-pixel counts, ISIs and per-window dark fractions of a stream fed in consecutive chunks."""
+
+    def __init__(self, height: int, width: int, window: int) -> None:
+        pixels = height * width
+        self.height, self.width, self.window = height, width, window
+        self.steps = 0
+        self.counts = np.zeros(pixels, dtype=np.int64)
+        self.last_spike = np.full(pixels, -1, dtype=np.int64)
+        self.isi = IsiHistogram()
+        self.window_counts = np.zeros(pixels, dtype=np.int64)
+        self.window_fill, self.windows, self.dark_sum = 0, 0, 0.0
+
+    def add(self, bits: np.ndarray) -> None:
+        """The next steps, bool (n, pixels)."""
+        self.counts += bits.sum(axis=0, dtype=np.int64)
+        self._add_intervals(bits)
+        self._add_windows(bits)
+        self.steps += bits.shape[0]
+
+    def _add_intervals(self, bits: np.ndarray) -> None:
+        pixel, step = np.nonzero(bits.T)  # ordered by pixel, then step
+        if pixel.size == 0:
+            return
+        step = step + self.steps
+        first = np.empty(pixel.size, dtype=bool)
+        first[0] = True
+        np.not_equal(pixel[1:], pixel[:-1], out=first[1:])
+        prev = np.empty_like(step)
+        prev[1:] = step[:-1]
+        prev[first] = self.last_spike[pixel[first]]
+        self.isi.add((step - prev)[prev >= 0])
+        last = np.empty(pixel.size, dtype=bool)
+        last[-1] = True
+        last[:-1] = first[1:]
+        self.last_spike[pixel[last]] = step[last]
+
+    def _add_windows(self, bits: np.ndarray) -> None:
+        a = 0
+        while a < bits.shape[0]:
+            take = min(bits.shape[0] - a, self.window - self.window_fill)
+            self.window_counts += bits[a:a + take].sum(axis=0, dtype=np.int64)
+            self.window_fill += take
+            a += take
+            if self.window_fill == self.window:
+                self.dark_sum += float((self.window_counts == 0).mean())
+                self.windows += 1
+                self.window_counts[:] = 0
+                self.window_fill = 0
+
+    def result(self, readout_period_s: float) -> dict[str, Any]:
+        """The keys and values of `spikesim.stats.summary`."""
+        rate = self.counts / self.steps
+        out: dict[str, Any] = {
+            "num_steps": self.steps, "height": self.height, "width": self.width,
+            "duration_s": self.steps * readout_period_s,
+            "spikes": int(self.counts.sum()),
+            "mean_rate_per_step": float(rate.mean()),
+            "mean_rate_hz": float(rate.mean() / readout_period_s),
+            "rate_percentiles_per_step": {p: float(np.percentile(rate, p)) for p in (1, 50, 99)},
+            "dark_pixel_fraction": float((self.counts == 0).mean()),
+        }
+        if self.windows:
+            out[f"dark_pixel_fraction_{self.window}_step_window"] = self.dark_sum / self.windows
+        h = self.isi
+        out["isi_steps"] = {"count": 0} if h.count == 0 else {
+            "count": h.count, "mean": h.total / h.count, "min": h.min, "median": h.percentile(50),
+            "p99": h.percentile(99), "max": h.max}
+        return out
+
+
+def summarize(reader: DatReader, start: int, stop: int, readout_period_s: float, window: int,
+              chunk: int | None = None) -> dict[str, Any]:
+    """`spikesim.stats.summary` of steps [start, stop) of a file, read `chunk` steps at a time."""
+    pixels = reader.height * reader.width
+    chunk = chunk or max(1, CHUNK_PIXEL_STEPS // pixels)
+    acc = StreamSummary(reader.height, reader.width, window)
+    for a in range(start, stop, chunk):
+        b = min(stop, a + chunk)
+        acc.add(reader.read(a, b).unpack().reshape(b - a, pixels))
+    return acc.result(readout_period_s)
+
+
+def step_range(path: Path, num_steps: int, start: int, stop: int | None) -> tuple[int, int]:
+    """[start, stop) inside the stream, --stop clipped to its end; a range with no step is an
+    error naming the flag."""
+    if num_steps == 0:
+        raise ValueError(f"{path}: the stream holds no frames")
+    if start >= num_steps:
+        raise ValueError(f"--start {start} is at or past the end of {path} ({num_steps} frames)")
+    stop = num_steps if stop is None else min(stop, num_steps)
+    if stop <= start:
+        raise ValueError(f"--stop {stop} must be greater than --start {start}")
+    return start, stop
+
+
+def _readout_period(args: argparse.Namespace, side: dict[str, Any]) -> float:
+    cam = side.get("camera")
+    recorded = cam.get("readout_period_s") if isinstance(cam, dict) else None
+    return args.readout_period_s or recorded or 25e-6
 
 
 def run(args: argparse.Namespace) -> int:
-    from spikesim.stats import summary
-
-    side = read_sidecar(args.path) or {}
-    cam = side.get("camera", {})
-    height = args.height or side.get("height") or 250
-    width = args.width or side.get("width") or 400
-    flip = side.get("flip", True) if args.flip is None else args.flip
-    period = args.readout_period_s or cam.get("readout_period_s") or 25e-6
-    reader = DatReader(args.path, height, width, flip=flip, header_columns=args.header_columns,
+    height, width, flip = stream_geometry(args.path, args.height, args.width, args.flip)
+    header = (detect_header_columns(args.path, height, width, args.drop_partial)
+              if args.header_columns == "auto" else args.header_columns)
+    reader = DatReader(args.path, height, width, flip=flip, header_columns=header,
                        drop_partial=args.drop_partial)
-    stop = len(reader) if args.stop is None else min(args.stop, len(reader))
-    stream = reader.read(args.start, stop)
-    s = summary(stream, period, window=args.window)
-    s.update({"path": str(args.path), "flip": flip, "readout_period_s": period, "start": args.start})
+    start, stop = step_range(args.path, len(reader), args.start, args.stop)
+    side = read_sidecar(args.path) or {}
+    period = _readout_period(args, side)
+    s = summarize(reader, start, stop, period, args.window)
+    s.update({"path": str(args.path), "flip": flip, "header_columns": header, "readout_period_s": period,
+              "start": start})
     if side:
         s["sidecar"] = {k: side[k] for k in ("seed", "backend", "keyframe_every", "irradiance") if k in side}
     if args.preview:
         from spikesim.imageio import write_png
-        a = max(args.start, (args.start + stop) // 2 - args.window // 2)
-        tfp = stream.unpack(a - args.start, a - args.start + args.window).mean(axis=0)
+        a = max(start, (start + stop) // 2 - args.window // 2)
+        tfp = reader.read(a, min(stop, a + args.window)).unpack().mean(axis=0)
         write_png(args.preview, tfp, percentile=99.5 if args.enhance else None)
         s["preview"] = str(args.preview)
     if args.json:
         print(json.dumps(s, indent=2))
         return 0
+    _print_summary(args, s, flip, period)
+    return 0
+
+
+def _print_summary(args: argparse.Namespace, s: dict[str, Any], flip: bool, period: float) -> None:
     print(f"{args.path}")
     print(f"  frames       {s['num_steps']} x {s['height']} x {s['width']} (flip={flip}), "
           f"{s['duration_s'] * 1e3:.3f} ms at {1 / period:.0f} Hz")
     print(f"  spikes       {s['spikes']}  mean rate {s['mean_rate_per_step']:.5f}/step = {s['mean_rate_hz']:.1f} Hz")
     pr = s["rate_percentiles_per_step"]
     print(f"  rate p1/p50/p99  {pr[1]:.5f} / {pr[50]:.5f} / {pr[99]:.5f} per step")
+    key = f"dark_pixel_fraction_{args.window}_step_window"
     print(f"  dark pixels  {s['dark_pixel_fraction']:.2%} over the stream"
-          + (f", {s[f'dark_pixel_fraction_{args.window}_step_window']:.2%} per {args.window}-step window"
-             if f"dark_pixel_fraction_{args.window}_step_window" in s else ""))
+          + (f", {s[key]:.2%} per {args.window}-step window" if key in s else ""))
     isi = s["isi_steps"]
     if isi["count"]:
         print(f"  ISI (steps)  n={isi['count']} mean {isi['mean']:.2f} min {isi['min']} median {isi['median']:.0f} "
@@ -52,23 +204,31 @@ def run(args: argparse.Namespace) -> int:
         print("  ISI          no pixel fired twice")
     if args.preview:
         print(f"  TFP preview  {args.preview}")
-    return 0
+
+
+def header_columns_arg(text: str) -> str | int:
+    """--header-columns: "auto" or a number of columns >= 0."""
+    return "auto" if text == "auto" else nonnegative_int(text)
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("inspect", help="statistics of a .dat spike stream (and a TFP preview)")
     p.add_argument("path", type=Path)
-    p.add_argument("--height", type=int, help="rows (default: sidecar, else 250)")
-    p.add_argument("--width", type=int, help="image columns without header (default: sidecar, else 400)")
-    p.add_argument("--header-columns", type=int, default=0, help="header columns per row to drop (16 for 416-wide recordings)")
+    p.add_argument("--height", type=positive_int, help="rows (default: as recorded beside the file, else 250)")
+    p.add_argument("--width", type=positive_int,
+                   help="image columns without header (default: as recorded beside the file, else 400)")
+    p.add_argument("--header-columns", type=header_columns_arg, default="auto",
+                   help="columns to drop at the end of each row: auto (default: as recorded; else 0, or 16 for "
+                        "416-wide files, deciding by content when the size fits both) or a number")
     flip = p.add_mutually_exclusive_group()
     flip.add_argument("--flip", dest="flip", action="store_true", default=None, help="rows stored bottom-up (real cameras)")
     flip.add_argument("--no-flip", dest="flip", action="store_false", help="rows stored top-down (SPCS/SCSim)")
     p.add_argument("--drop-partial", action="store_true", help="ignore a partial last frame instead of failing")
-    p.add_argument("--start", type=int, default=0)
-    p.add_argument("--stop", type=int)
-    p.add_argument("--window", type=int, default=41, help="window for TFP preview and per-window dark fraction")
-    p.add_argument("--readout-period-s", type=float)
+    p.add_argument("--start", type=nonnegative_int, default=0, help="first step (default 0)")
+    p.add_argument("--stop", type=positive_int, help="step after the last (default: the end; clipped to it)")
+    p.add_argument("--window", type=positive_int, default=41,
+                   help="window for TFP preview and per-window dark fraction")
+    p.add_argument("--readout-period-s", type=positive_float)
     p.add_argument("--preview", type=Path, help="save a TFP preview PNG of the middle window")
     p.add_argument("--enhance", action="store_true", help="stretch a dark preview (display only)")
     p.add_argument("--json", action="store_true", help="print JSON")

@@ -6,12 +6,21 @@ at its centre step. Methods: tfp, tfi, or a trained checkpoint (exact chunked in
 bounded by --chunk). Display: y * scale, clipped, 1/gamma encoded; --enhance stretch maps a
 percentile of each frame to white for very dark results (as the paper does for display). The
 enhancement touches only the pictures: --save-npy keeps the linear frames for metrics.
+
+Geometry (--height, --width, row order) defaults to what the stream's sidecar or dataset
+meta.json records, else 250 x 400 bottom-up. A rerun into the same --out replaces the previous
+run's outputs (png/step_*.png, frames.gif/.mp4/.npy, reconstruct.json), so the folder and its JSON
+describe exactly the last run; other files there are left alone. Outputs are built in a hidden
+folder inside --out and moved into place only when the run succeeds.
 """
 from __future__ import annotations
 
 import argparse
 import json
+import os
+import shutil
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -19,22 +28,23 @@ import torch
 
 from model.methods import method_from_spec
 from model.streaming import StepWindows
+from pipelines.argtypes import nonnegative_int, positive_float, positive_int
+from pipelines.inspect_cmd import header_columns_arg
+from spikesim.stream import HEADER_COLUMNS as PKU_HEADER
+from spikesim.stream import detect_header_columns, stream_geometry
 
-PKU_HEIGHT, PKU_WIDTH, PKU_HEADER = 250, 400, 16
+PKU_HEIGHT, PKU_WIDTH = 250, 400
+# What a run writes in --out: a rerun replaces exactly these (reconstruct.json last).
+OUTPUT_FILES = ("frames.gif", "frames.mp4", "frames.npy", "reconstruct.json")
+PNG_DIR, PNG_PATTERN = "png", "step_*.png"
 
 
-def detect_header_columns(path: Path, height: int, width: int) -> int:
-    """0 when the file is whole frames of `width` columns, else 16 when it is whole frames of
-    width + 16 (real recordings with a header); an error naming both sizes otherwise."""
-    size = path.stat().st_size
-    plain = (height * width + 7) // 8
-    wide = (height * (width + PKU_HEADER) + 7) // 8
-    if size % plain == 0:
-        return 0
-    if size % wide == 0:
-        return PKU_HEADER
-    raise ValueError(f"{path}: {size} bytes is neither whole {height}x{width} frames ({plain} bytes) nor "
-                     f"whole {height}x{width + PKU_HEADER} frames ({wide} bytes); check --height/--width")
+def percentage(text: str) -> float:
+    """A percentile in (0, 100]."""
+    v = positive_float(text)
+    if v > 100:
+        raise argparse.ArgumentTypeError(f"must be in (0, 100], got {text}")
+    return v
 
 
 def display_frame(y: np.ndarray, enhance: str, gamma: float, scale: float, percentile: float) -> np.ndarray:
@@ -76,17 +86,21 @@ class _Video:
             w.close()
 
 
-def reconstruct_file(path: Path, out: Path, method_spec: str = "tfp", height: int = PKU_HEIGHT,
-                     width: int = PKU_WIDTH, header_columns: int | None = None, flip: bool = True,
+def reconstruct_file(path: Path, out: Path, method_spec: str = "tfp", height: int | None = None,
+                     width: int | None = None, header_columns: int | None = None, flip: bool | None = None,
                      start: int = 0, num_windows: int | None = None, window: int = 41, chunk: int = 8,
                      device: str = "cpu", enhance: str = "gamma", gamma: float = 2.2, scale: float = 1.0,
                      percentile: float = 99.5, fps: float = 10.0, gif: bool = True, mp4: bool = True,
                      save_npy: bool = False, progress: bool = True) -> dict:
-    """Reconstruct `path` into `out`; returns a summary (also written to out/reconstruct.json)."""
-    from PIL import Image
+    """Reconstruct `path` into `out`; returns a summary (also written to out/reconstruct.json).
+
+    height / width / flip None: as recorded beside the stream, else 250 x 400 bottom-up;
+    header_columns None: detected (spikesim.stream.detect_header_columns).
+    """
     from spikesim.stream import DatReader
 
-    path = Path(path)
+    path, out = Path(path), Path(out)
+    height, width, flip = stream_geometry(path, height, width, flip)
     if header_columns is None:
         header_columns = detect_header_columns(path, height, width)
     reader = DatReader(path, height, width, flip=flip, header_columns=header_columns)
@@ -98,18 +112,40 @@ def reconstruct_file(path: Path, out: Path, method_spec: str = "tfp", height: in
     n = available if num_windows is None else min(num_windows, available)
     source = StepWindows(lambda a, b: reader.read(a, b).unpack(), start, window, n)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "png").mkdir(exist_ok=True)
-    npy = (np.lib.format.open_memmap(out / "frames.npy", mode="w+", dtype=np.float32, shape=(n, height, width))
+    stage = Path(tempfile.mkdtemp(prefix=".reconstruct.", suffix=".part", dir=out))
+    try:
+        _render_frames(method, source, stage, n, start, window, (height, width),
+                       lambda y: display_frame(y, enhance, gamma, scale, percentile), fps, gif, mp4, save_npy,
+                       progress)
+        summary = {"input": str(path), "method": method.name, "frames": n, "window": window, "start": start,
+                   "height": height, "width": width, "header_columns": header_columns, "flip": flip,
+                   "display": {"enhance": enhance, "gamma": gamma, "scale": scale, "percentile": percentile},
+                   "outputs": sorted([p.name for p in stage.iterdir()] + ["reconstruct.json"])}
+        (stage / "reconstruct.json").write_text(json.dumps(summary, indent=2))
+        replace_outputs(stage, out)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
+    return summary
+
+
+def _render_frames(method, source: StepWindows, stage: Path, n: int, start: int, window: int,
+                   shape: tuple[int, int], to_image, fps: float, gif: bool, mp4: bool, save_npy: bool,
+                   progress: bool) -> None:
+    """Write the frames of `method` on `source` into `stage`: PNGs, video, optional .npy."""
+    from PIL import Image
+
+    (stage / PNG_DIR).mkdir()
+    npy = (np.lib.format.open_memmap(stage / "frames.npy", mode="w+", dtype=np.float32, shape=(n, *shape))
            if save_npy else None)
-    video = _Video(out, fps, gif, mp4)
+    video = _Video(stage, fps, gif, mp4)
     try:
         for i, frame in method.frames(source):
             y = frame.numpy() if isinstance(frame, torch.Tensor) else np.asarray(frame)
             if npy is not None:
                 npy[i] = y
-            img = display_frame(y, enhance, gamma, scale, percentile)
+            img = to_image(y)
             centre = start + i * window + window // 2
-            Image.fromarray(img).save(out / "png" / f"step_{centre:06d}.png")
+            Image.fromarray(img).save(stage / PNG_DIR / f"step_{centre:06d}.png")
             video.add(img)
             if progress and (i + 1) % 10 == 0:
                 print(f"[reconstruct] {i + 1}/{n} frames", file=sys.stderr)
@@ -117,22 +153,37 @@ def reconstruct_file(path: Path, out: Path, method_spec: str = "tfp", height: in
         video.close()
         if npy is not None:
             npy.flush()
-    summary = {"input": str(path), "method": method.name, "frames": n, "window": window, "start": start,
-               "height": height, "width": width, "header_columns": header_columns, "flip": flip,
-               "display": {"enhance": enhance, "gamma": gamma, "scale": scale, "percentile": percentile},
-               "outputs": sorted(p.name for p in out.iterdir())}
-    (out / "reconstruct.json").write_text(json.dumps(summary, indent=2))
-    return summary
+            del npy
+
+
+def replace_outputs(stage: Path, out: Path) -> None:
+    """Move a finished run's outputs from `stage` into `out`, removing what an earlier run wrote
+    there that this one did not (stale frames, a video or .npy no longer asked for); files
+    that are not outputs of this command are left alone. reconstruct.json moves last."""
+    png = out / PNG_DIR
+    png.mkdir(exist_ok=True)
+    fresh = {p.name for p in (stage / PNG_DIR).glob(PNG_PATTERN)}
+    for old in png.glob(PNG_PATTERN):
+        if old.name not in fresh:
+            old.unlink()
+    for name in sorted(fresh):
+        os.replace(stage / PNG_DIR / name, png / name)
+    for name in OUTPUT_FILES:
+        if (stage / name).exists():
+            os.replace(stage / name, out / name)
+        else:
+            (out / name).unlink(missing_ok=True)
 
 
 def cmd_reconstruct(args: argparse.Namespace) -> int:
     from pipelines.train import resolve_device
+    device = str(resolve_device(args.device))
     if args.threads:
         torch.set_num_threads(args.threads)
-    header = None if args.header_columns == "auto" else int(args.header_columns)
+    header = None if args.header_columns == "auto" else args.header_columns
     summary = reconstruct_file(Path(args.input), Path(args.out), args.method, args.height, args.width, header,
-                               not args.no_flip, args.start, args.num_windows, args.window, args.chunk,
-                               str(resolve_device(args.device)), args.enhance, args.gamma, args.scale,
+                               args.flip, args.start, args.num_windows, args.window, args.chunk,
+                               device, args.enhance, args.gamma, args.scale,
                                args.percentile, args.fps, not args.no_gif, not args.no_mp4, args.save_npy,
                                progress=not args.quiet)
     print(json.dumps(summary, indent=2))
@@ -146,24 +197,31 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("input", help=".dat spike stream")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--method", default="tfp", help="tfp, tfi or a checkpoint path (default tfp)")
-    p.add_argument("--height", type=int, default=PKU_HEIGHT)
-    p.add_argument("--width", type=int, default=PKU_WIDTH, help="image width without header columns")
-    p.add_argument("--header-columns", default="auto",
-                   help="columns to drop at the start of each row: auto (0, or 16 for 416-wide files) or a number")
-    p.add_argument("--no-flip", action="store_true",
-                   help="rows stored top-down (SPCS/SCSim/LR-Rep authors); default: real-camera bottom-up")
-    p.add_argument("--start", type=int, default=0, help="first step of the first window")
-    p.add_argument("--num-windows", type=int, help="frames to make (default: as many as fit)")
-    p.add_argument("--window", type=int, default=41, help="steps per window for tfp/tfi (a model uses its own)")
-    p.add_argument("--chunk", type=int, default=8, help="windows held in memory by a network")
-    p.add_argument("--device", default="auto")
-    p.add_argument("--threads", type=int, default=0)
+    p.add_argument("--height", type=positive_int, help=f"rows (default: as recorded, else {PKU_HEIGHT})")
+    p.add_argument("--width", type=positive_int,
+                   help=f"image width without header columns (default: as recorded, else {PKU_WIDTH})")
+    p.add_argument("--header-columns", type=header_columns_arg, default="auto",
+                   help=f"columns to drop at the end of each row: auto (as recorded; else 0, or {PKU_HEADER} for "
+                        "416-wide files, deciding by content when the size fits both) or a number")
+    flip = p.add_mutually_exclusive_group()
+    flip.add_argument("--flip", dest="flip", action="store_true", default=None,
+                      help="rows stored bottom-up (real cameras; the default unless recorded otherwise)")
+    flip.add_argument("--no-flip", dest="flip", action="store_false",
+                      help="rows stored top-down (SPCS/SCSim/LR-Rep authors)")
+    p.add_argument("--start", type=nonnegative_int, default=0, help="first step of the first window")
+    p.add_argument("--num-windows", type=positive_int, help="frames to make (default: as many as fit)")
+    p.add_argument("--window", type=positive_int, default=41,
+                   help="steps per window for tfp/tfi (a model uses its own)")
+    p.add_argument("--chunk", type=positive_int, default=8, help="windows held in memory by a network")
+    p.add_argument("--device", default="auto", help="auto (CUDA when present), cpu, cuda, cuda:N or mps")
+    p.add_argument("--threads", type=nonnegative_int, default=0, help="torch CPU threads (0: torch's default)")
     p.add_argument("--enhance", choices=["none", "gamma", "stretch"], default="gamma",
                    help="display only: none (linear), gamma (1/gamma encode; default), stretch (percentile to white + gamma)")
-    p.add_argument("--gamma", type=float, default=2.2)
-    p.add_argument("--scale", type=float, default=1.0, help="display gain on y before clipping (e.g. 1/0.6)")
-    p.add_argument("--percentile", type=float, default=99.5, help="percentile mapped to white by --enhance stretch")
-    p.add_argument("--fps", type=float, default=10.0)
+    p.add_argument("--gamma", type=positive_float, default=2.2)
+    p.add_argument("--scale", type=positive_float, default=1.0, help="display gain on y before clipping (e.g. 1/0.6)")
+    p.add_argument("--percentile", type=percentage, default=99.5,
+                   help="percentile mapped to white by --enhance stretch, in (0, 100]")
+    p.add_argument("--fps", type=positive_float, default=10.0)
     p.add_argument("--no-gif", action="store_true")
     p.add_argument("--no-mp4", action="store_true")
     p.add_argument("--save-npy", action="store_true", help="also write the linear frames to frames.npy")

@@ -31,6 +31,7 @@ from model.data import Scene, SequenceDataset, open_scenes, split_scenes
 from model.losses import build_loss
 from model.metrics import psnr, ssim
 from model.representations import tfp_windows
+from pipelines.argtypes import nonnegative_int, positive_float, positive_int
 
 
 def seed_everything(seed: int) -> None:
@@ -46,12 +47,33 @@ def _worker_init(worker_id: int) -> None:
     np.random.seed(s)
 
 
+DEVICES = "auto, cpu, cuda, cuda:N or mps"
+
+
 def resolve_device(name: str) -> torch.device:
+    """The torch device for --device: auto (CUDA when torch sees one, else CPU), cpu, cuda,
+    cuda:N or mps. A name torch does not know is a ValueError; a device this machine lacks is an
+    UnavailableError, both naming --device."""
+    from spikesim.errors import UnavailableError
+
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    dev = torch.device(name)
-    if dev.type == "cuda" and not torch.cuda.is_available():
-        raise RuntimeError("--device cuda asked for, but torch sees no CUDA device")
+    try:
+        dev = torch.device(name)
+    except (RuntimeError, ValueError, TypeError):
+        dev = None
+    if dev is None or dev.type not in ("cpu", "cuda", "mps"):
+        raise ValueError(f"--device {name!r} is not a device; expected {DEVICES}")
+    if dev.type == "cuda":
+        if not torch.cuda.is_available():
+            build = f"CUDA {torch.version.cuda}" if torch.version.cuda else "a CPU-only build"
+            raise UnavailableError(f"--device {name} asked for, but torch sees no CUDA device (torch "
+                                   f"{torch.__version__}, {build}); use --device cpu or auto")
+        if dev.index is not None and dev.index >= torch.cuda.device_count():
+            raise UnavailableError(f"--device {name} asked for, but torch sees only "
+                                   f"{torch.cuda.device_count()} CUDA device(s)")
+    if dev.type == "mps" and not torch.backends.mps.is_available():
+        raise UnavailableError(f"--device {name} asked for, but torch sees no MPS device; use --device cpu or auto")
     return dev
 
 
@@ -117,14 +139,43 @@ def _epoch_order(n: int, seed: int, epoch: int) -> list[int]:
     return torch.randperm(n, generator=g).tolist()
 
 
+def _resume(last_path: Path, dev: torch.device, mc: Any, model: torch.nn.Module, opt: Any, sched: Any,
+            scaler: Any) -> tuple[int, int, int, float]:
+    """Restore a run from its last checkpoint; returns (epoch, batch in epoch, step, best PSNR).
+    A checkpoint that does not fit this run is an error naming the file, never a traceback."""
+    if not last_path.exists():
+        raise FileNotFoundError(f"--resume: no checkpoint at {last_path}")
+    state = load_checkpoint(last_path, dev)
+    try:
+        saved = ExperimentConfig.from_dict(state["experiment"])
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"--resume: {last_path}: its config is not valid: {exc}") from None
+    if saved.model != mc:
+        raise ValueError(f"--resume: {last_path} holds a different model config: {saved.model} vs {mc}")
+    try:
+        model.load_state_dict(state["model_state"])
+        opt.load_state_dict(state["optimizer_state"])
+        sched.load_state_dict(state["scheduler_state"])
+        if state.get("scaler_state"):
+            scaler.load_state_dict(state["scaler_state"])
+        torch.set_rng_state(state["rng"]["torch"].cpu())
+        extra = state["extra"]
+        return (int(state["epoch"]), int(extra.get("batch_in_epoch", 0)), int(state["step"]),
+                float(extra.get("best_val_psnr", -math.inf)))
+    except (KeyError, TypeError, ValueError, AttributeError, RuntimeError) as exc:
+        text = str(exc).strip().splitlines()
+        raise ValueError(f"--resume: {last_path} cannot continue this run: "
+                         f"{text[0] if text else type(exc).__name__}") from None
+
+
 def run_training(experiment: ExperimentConfig, train_scenes: Sequence[Scene], val_scenes: Sequence[Scene],
                  out_dir: str | Path, device: str = "auto", resume: bool = False,
                  progress: bool = True) -> dict[str, Any]:
     """Train; returns a summary (steps, last loss, best validation PSNR, throughput)."""
     out = Path(out_dir)
+    dev = resolve_device(device)
     out.mkdir(parents=True, exist_ok=True)
     tc, mc = experiment.train, experiment.model
-    dev = resolve_device(device)
     seed_everything(tc.seed)
     model = build_model(mc).to(dev)
     opt = torch.optim.Adam(model.parameters(), lr=tc.lr, betas=tuple(tc.betas))
@@ -144,21 +195,7 @@ def run_training(experiment: ExperimentConfig, train_scenes: Sequence[Scene], va
     epoch, batch_in_epoch, step, best = 0, 0, 0, -math.inf
     last_path, best_path = out / "last.pt", out / "best.pt"
     if resume:
-        if not last_path.exists():
-            raise FileNotFoundError(f"--resume: no checkpoint at {last_path}")
-        state = load_checkpoint(last_path, dev)
-        saved = ExperimentConfig.from_dict(state["experiment"])
-        if saved.model != mc:
-            raise ValueError(f"--resume: {last_path} holds a different model config: {saved.model} vs {mc}")
-        model.load_state_dict(state["model_state"])
-        opt.load_state_dict(state["optimizer_state"])
-        sched.load_state_dict(state["scheduler_state"])
-        if state.get("scaler_state"):
-            scaler.load_state_dict(state["scaler_state"])
-        torch.set_rng_state(state["rng"]["torch"].cpu())
-        epoch, step = state["epoch"], state["step"]
-        batch_in_epoch = state["extra"].get("batch_in_epoch", 0)
-        best = state["extra"].get("best_val_psnr", -math.inf)
+        epoch, batch_in_epoch, step, best = _resume(last_path, dev, mc, model, opt, sched, scaler)
     else:
         if last_path.exists():
             raise FileExistsError(f"{last_path} exists: pass --resume to continue that run, or choose another --out")
@@ -255,6 +292,7 @@ def _apply_overrides(exp: ExperimentConfig, args: argparse.Namespace) -> Experim
 
 
 def cmd_train(args: argparse.Namespace) -> int:
+    resolve_device(args.device)  # before any work: a missing GPU is one line, not a late traceback
     if args.threads:
         torch.set_num_threads(args.threads)
     exp = _apply_overrides(load_config(args.config), args)
@@ -279,20 +317,20 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--val-data", help="separate validation dataset root (default: split --data by scene)")
     p.add_argument("--out", help="run folder (default: runs/<config name>)")
     p.add_argument("--resume", action="store_true", help="continue from <out>/last.pt")
-    p.add_argument("--device", default="auto", help="auto (CUDA when present), cpu, cuda, cuda:1, ...")
-    p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: torch's default)")
+    p.add_argument("--device", default="auto", help="auto (CUDA when present), cpu, cuda, cuda:N or mps")
+    p.add_argument("--threads", type=nonnegative_int, default=0, help="torch CPU threads (0: torch's default)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     g = p.add_argument_group("overrides of the config's train section")
-    g.add_argument("--epochs", type=int)
-    g.add_argument("--max-steps", type=int)
-    g.add_argument("--batch-size", type=int)
-    g.add_argument("--num-windows", type=int, help="K, consecutive windows per sample")
-    g.add_argument("--crop", type=int)
-    g.add_argument("--val-crop", type=int)
-    g.add_argument("--lr", type=float)
-    g.add_argument("--seed", type=int)
-    g.add_argument("--num-workers", type=int)
-    g.add_argument("--samples-per-epoch", type=int)
+    g.add_argument("--epochs", type=positive_int)
+    g.add_argument("--max-steps", type=positive_int)
+    g.add_argument("--batch-size", type=positive_int)
+    g.add_argument("--num-windows", type=positive_int, help="K, consecutive windows per sample")
+    g.add_argument("--crop", type=positive_int)
+    g.add_argument("--val-crop", type=positive_int)
+    g.add_argument("--lr", type=positive_float)
+    g.add_argument("--seed", type=nonnegative_int)
+    g.add_argument("--num-workers", type=nonnegative_int)
+    g.add_argument("--samples-per-epoch", type=positive_int)
     g.add_argument("--no-amp", action="store_true", help="no mixed precision on CUDA")
     p.set_defaults(func=cmd_train)
     return p

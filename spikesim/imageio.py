@@ -24,8 +24,7 @@ def write_exr(path: str | Path, y: np.ndarray) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.part")
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-    OpenEXR.File(header, {CHANNEL: y}).write(str(tmp))
-    os.replace(tmp, path)
+    _write_then_rename(lambda: OpenEXR.File(header, {CHANNEL: y}).write(str(tmp)), tmp, path)
     return path
 
 
@@ -56,6 +55,12 @@ def to_display(y: np.ndarray, gamma: float = 2.2, scale: float | None = None, pe
     `scale` defaults to 1 (y = 1 is white: one spike per step); `percentile` instead maps that
     percentile of the image to white, the display enhancement used for very dark results.
     """
+    if not (np.isfinite(gamma) and gamma > 0):
+        raise ValueError(f"gamma must be a finite number > 0, got {gamma}")
+    if scale is not None and not (np.isfinite(scale) and scale >= 0):
+        raise ValueError(f"scale must be a finite number >= 0, got {scale}")
+    if percentile is not None and not 0 <= percentile <= 100:
+        raise ValueError(f"percentile must be in [0, 100], got {percentile}")
     y = np.asarray(y, dtype=np.float64)
     if percentile is not None:
         ref = np.percentile(y, percentile)
@@ -73,9 +78,19 @@ def write_png(path: str | Path, y: np.ndarray, gamma: float = 2.2, scale: float 
     path.parent.mkdir(parents=True, exist_ok=True)
     img = to_display(y, gamma=gamma, scale=scale, percentile=percentile)
     tmp = path.with_name(f".{path.name}.part")
-    Image.fromarray(img).save(tmp, format="PNG")
-    os.replace(tmp, path)
+    _write_then_rename(lambda: Image.fromarray(img).save(tmp, format="PNG"), tmp, path)
     return path
+
+
+def _write_then_rename(write, tmp: Path, path: Path) -> None:
+    """Run `write` (which creates `tmp`), then rename `tmp` to `path`; on any failure remove
+    `tmp`, so a failed write leaves neither a partial image nor a temporary file."""
+    try:
+        write()
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 __all__ = ["write_exr", "read_exr", "write_png", "to_display"]

@@ -4,16 +4,20 @@ The `.dat` layout (DESIGN.md section 3): frames one after another; each frame ro
 8 pixels per byte, least significant bit first; rows stored bottom-up (vertically flipped) by
 real cameras and the readers of their recordings (Spk2ImgNet, WGSE, SSML, SpikeCV). The group's
 simulators (SPCS, SCSim) and the LR-Rep authors' loader use top-down rows: pass `flip=False` for
-those. Some real recordings are 416 columns wide, of which 16 are a header to drop.
+those. Some real recordings are 416 columns wide: each stored row is the 400 image columns followed
+by 16 extra ("header") columns, which readers drop (see `DatReader`).
 
 In memory a stream is `packed`, uint8 (N, ceil(H*W/8)): each frame flattened row-major and
 packed LSB first, top-down. With W a multiple of 8 (400 and 416 are) a flip is a byte reshuffle.
 """
 from __future__ import annotations
 
+import errno
 import json
+import math
 import os
-import tempfile
+import secrets
+import stat
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterable, Iterator
@@ -111,20 +115,37 @@ def _flip_packed(packed: np.ndarray, height: int, width: int) -> np.ndarray:
 
 
 # ---- writing ------------------------------------------------------------------------------------
+def open_temp_beside(path: str | Path, suffix: str = ".part") -> tuple[Any, Path]:
+    """A new file `.<name>.<random><suffix>` in `path`'s folder, opened for binary writing.
+
+    Created with mode 0666 masked by the user's umask, like any file the user writes (mkstemp's
+    0600 would make shared datasets unreadable to others); O_EXCL so it never reuses a file.
+    """
+    path = Path(path)
+    if path.is_dir():
+        raise IsADirectoryError(errno.EISDIR, "is a directory; give a file name to write", str(path))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    while True:
+        tmp = path.with_name(f".{path.name}.{secrets.token_hex(4)}{suffix}")
+        try:
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+        except FileExistsError:
+            continue
+        return os.fdopen(fd, "wb"), tmp
+
+
 class DatWriter:
     """Append packed frames to a `.dat` file; it appears under its name only on `close()`.
 
     Writes go to a temporary file in the same folder, renamed on success, so an interrupted run
-    never leaves a truncated stream that looks complete.
+    never leaves a truncated stream that looks complete. A stream of no frames is an error, not
+    an empty file, and any failure (including the final rename) removes the temporary file.
     """
 
     def __init__(self, path: str | Path, height: int, width: int, flip: bool = True):
         self.path = Path(path)
         self.height, self.width, self.flip = height, width, flip
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".part", dir=self.path.parent)
-        self._tmp = Path(tmp)
-        self._file = os.fdopen(fd, "wb")
+        self._file, self._tmp = open_temp_beside(self.path)
         self.num_steps = 0
 
     def write(self, stream: SpikeStream) -> None:
@@ -135,10 +156,16 @@ class DatWriter:
         self.num_steps += stream.num_steps
 
     def close(self) -> Path:
-        self._file.flush()
-        os.fsync(self._file.fileno())
-        self._file.close()
-        os.replace(self._tmp, self.path)
+        try:
+            if self.num_steps == 0:
+                raise ValueError(f"{self.path}: no frames were written; not creating an empty stream")
+            self._file.flush()
+            os.fsync(self._file.fileno())
+            self._file.close()
+            os.replace(self._tmp, self.path)
+        except BaseException:
+            self.abort()
+            raise
         return self.path
 
     def abort(self) -> None:
@@ -166,8 +193,12 @@ def write_dat(path: str | Path, stream: SpikeStream, flip: bool = True) -> Path:
 class DatReader:
     """Memory-mapped `.dat` reader: any time range without loading the file.
 
-    `header_columns` are extra columns stored at the start of each row by some real cameras (416-wide
-    recordings carry 16), dropped on read; `width` is the image width without them.
+    `header_columns` are extra columns stored at the END of each row by some real cameras
+    (416-wide recordings: 400 image columns, then 16), dropped on read; `width` is the image width
+    without them. This is the ecosystem's convention: SpikeCV's `SpikeStream` deletes column
+    indices 400-415 of each 416-wide row (`get_row_index`), and Spike-Zoo's `load_vidar_dat` with
+    `remove_head=True` keeps all but the last 16 columns; both do so after decoding each frame
+    with its rows flipped, so the columns are the same whichever way the rows are stored.
     """
 
     def __init__(self, path: str | Path, height: int = 250, width: int = 400, flip: bool = True,
@@ -179,10 +210,7 @@ class DatReader:
         self.header_columns = header_columns
         self.stored_width = width + header_columns
         self.frame_bytes = frame_bytes(height, self.stored_width)
-        try:
-            size = self.path.stat().st_size
-        except FileNotFoundError:
-            raise FileNotFoundError(f"spike stream {self.path} does not exist") from None
+        size = _stream_size(self.path)
         full, rest = divmod(size, self.frame_bytes)
         if rest and not drop_partial:
             raise ValueError(
@@ -205,13 +233,33 @@ class DatReader:
         if self.flip:
             raw = _flip_packed(raw, h, sw)
         if self.header_columns:
-            frames = unpack_frames(raw, h, sw)[:, :, self.header_columns:]
-            return SpikeStream.from_bool(frames)
+            raw = _drop_trailing_columns(raw, h, sw, self.width)
         return SpikeStream(raw, h, self.width)
 
     def iter_chunks(self, chunk: int = 1024) -> Iterator[SpikeStream]:
         for a in range(0, self.num_steps, chunk):
             yield self.read(a, min(self.num_steps, a + chunk))
+
+
+def _stream_size(path: Path) -> int:
+    """The size of a `.dat` file; a missing file or a directory is an error naming it."""
+    try:
+        st = path.stat()
+    except FileNotFoundError:
+        raise FileNotFoundError(errno.ENOENT, "spike stream does not exist", str(path)) from None
+    if stat.S_ISDIR(st.st_mode):
+        raise IsADirectoryError(errno.EISDIR, "is a directory, expected a .dat spike stream", str(path))
+    return st.st_size
+
+
+def _drop_trailing_columns(packed: np.ndarray, height: int, stored_width: int, width: int) -> np.ndarray:
+    """Keep the first `width` of `stored_width` columns of every row (a byte slice when both are
+    whole bytes, as 400 and 416 are)."""
+    n = packed.shape[0]
+    if stored_width % 8 == 0 and width % 8 == 0:
+        rows = packed.reshape(n, height, stored_width // 8)[:, :, : width // 8]
+        return np.ascontiguousarray(rows).reshape(n, -1)
+    return pack_frames(unpack_frames(packed, height, stored_width)[:, :, :width])
 
 
 def read_dat(path: str | Path, height: int = 250, width: int = 400, start: int = 0, stop: int | None = None,
@@ -230,9 +278,14 @@ def sidecar_path(dat_path: str | Path) -> Path:
 def write_sidecar(dat_path: str | Path, info: dict[str, Any]) -> Path:
     """A small JSON beside a simulated stream: camera parameters, seed, geometry, flip."""
     path = sidecar_path(dat_path)
-    tmp = path.with_name(f".{path.name}.part")
-    tmp.write_text(json.dumps(info, indent=2, sort_keys=True) + "\n")
-    os.replace(tmp, path)
+    f, tmp = open_temp_beside(path)
+    try:
+        with f:
+            f.write((json.dumps(info, indent=2, sort_keys=True) + "\n").encode())
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
     return path
 
 
@@ -240,11 +293,141 @@ def read_sidecar(dat_path: str | Path) -> dict[str, Any] | None:
     path = sidecar_path(dat_path)
     if not path.exists():
         return None
+    return _read_json_object(path, "sidecar")
+
+
+def _read_json_object(path: Path, what: str) -> dict[str, Any]:
     try:
-        return json.loads(path.read_text())
+        data = json.loads(path.read_text())
     except ValueError as exc:
-        raise ValueError(f"sidecar {path} is not valid JSON: {exc}") from exc
+        raise ValueError(f"{what} {path} is not valid JSON: {exc}") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"{what} {path} is not a JSON object")
+    return data
+
+
+# ---- which geometry a file was recorded with ---------------------------------------------------
+HEADER_COLUMNS = 16  # the extra columns of 416-wide recordings
+DATASET_STREAM, DATASET_META = "spikes.dat", "meta.json"  # a dataset scene folder (spikesim.dataset)
+
+
+def recorded_geometry(dat_path: str | Path) -> dict[str, Any] | None:
+    """The geometry written down for a stream: its sidecar `<name>.dat.json`, or for a dataset
+    scene the `meta.json` beside its `spikes.dat`. None when there is neither.
+
+    Returns height, width, flip (None if not recorded), header_columns (0 unless recorded: the
+    project writes no header columns) and source (the JSON file), so callers trust what was
+    recorded instead of guessing from the file size.
+    """
+    p = Path(dat_path)
+    source = sidecar_path(p)
+    if not source.exists():
+        source = p.parent / DATASET_META
+        if p.name != DATASET_STREAM or not source.is_file():
+            return None
+    info = _read_json_object(source, "stream description")
+    try:
+        geometry = {k: int(info[k]) for k in ("height", "width")}
+        geometry["header_columns"] = int(info.get("header_columns", 0))
+    except (KeyError, TypeError, ValueError):
+        raise ValueError(f"{source} does not record the stream's height and width as integers") from None
+    if min(geometry["height"], geometry["width"]) < 1 or geometry["header_columns"] < 0:
+        raise ValueError(f"{source} records an impossible geometry {geometry}")
+    flip = info.get("flip")
+    return {**geometry, "flip": None if flip is None else bool(flip), "source": source}
+
+
+def stream_geometry(dat_path: str | Path, height: int | None = None, width: int | None = None,
+                    flip: bool | None = None) -> tuple[int, int, bool]:
+    """(height, width, flip) to read a stream with: what is given, else what is recorded beside it
+    (`recorded_geometry`), else the PKU camera's 250 x 400 with rows bottom-up."""
+    rec = recorded_geometry(dat_path) or {}
+    height = height or rec.get("height") or 250
+    width = width or rec.get("width") or 400
+    if flip is None:
+        flip = True if rec.get("flip") is None else rec["flip"]
+    return height, width, flip
+
+
+def detect_header_columns(path: str | Path, height: int, width: int, drop_partial: bool = False) -> int:
+    """Header columns per row of a stream of `width`-column images: 0 or 16 (416-wide recordings).
+
+    In order: what the sidecar or dataset meta.json records; the file size when only one reading
+    gives whole frames; else (a 416-wide file whose frame count is a multiple of 25 is also whole
+    400-wide frames) the content, or an error naming both readings when the content cannot tell.
+    With `drop_partial` a partial last frame is allowed, so only the content can decide.
+    """
+    path = Path(path)
+    rec = recorded_geometry(path)
+    if rec is not None:
+        if (rec["height"], rec["width"]) != (height, width):
+            raise ValueError(f"{rec['source']} records {rec['width']}x{rec['height']} frames (width x height), "
+                             f"not the {width}x{height} asked for; pass its --width/--height, or "
+                             "--header-columns to read the file otherwise")
+        return rec["header_columns"]
+    size = _stream_size(path)
+    plain, wide = frame_bytes(height, width), frame_bytes(height, width + HEADER_COLUMNS)
+    fits_plain, fits_wide = size % plain == 0, size % wide == 0
+    if drop_partial:
+        fits_plain = fits_wide = True  # a partial last frame is ignored whichever the reading
+    if not (fits_plain or fits_wide):
+        raise ValueError(f"{path}: {size} bytes is not a whole number of {width}x{height} frames ({plain} bytes "
+                         f"each), nor of {width + HEADER_COLUMNS}x{height} frames ({wide} bytes each): the file "
+                         "is truncated or --height/--width are wrong")
+    if size == 0 or not fits_wide:
+        return 0
+    if not fits_plain:
+        return HEADER_COLUMNS
+    decided = header_columns_from_content(path, height, width)
+    if decided is None:
+        verb = "holds" if drop_partial else "is"
+        raise ValueError(f"{path}: {size} bytes {verb} either {size // plain} frames of {width}x{height} (no "
+                         f"header columns) or {size // wide} frames of {width + HEADER_COLUMNS}x{height} "
+                         f"({HEADER_COLUMNS} header columns per row), and its content does not tell which; "
+                         f"pass --header-columns 0 or {HEADER_COLUMNS}")
+    return decided
+
+
+def header_columns_from_content(path: str | Path, height: int, width: int, max_bytes: int = 32 << 20,
+                                margin: float = 3.0) -> int | None:
+    """0 or 16 when one reading of the file is clearly right, else None.
+
+    Read with the right width, every position of a frame is the same physical pixel in every
+    frame, so per-position spike counts keep the scene's (and the sensor's) spatial contrast.
+    Read with the wrong width, frame starts drift by 16 columns per row against the true rows, and
+    each position visits 25 or 26 physical pixels in turn, which averages the contrast away. The
+    reading whose counts are `margin` times more over-dispersed (variance / mean), and at least
+    `margin` in absolute terms, wins; a scene without structure (uniform light, pure noise) gives
+    None. Only the first `max_bytes` (rounded to whole frames of both readings) are read.
+    """
+    path = Path(path)
+    plain, wide = frame_bytes(height, width), frame_bytes(height, width + HEADER_COLUMNS)
+    block = plain * wide // math.gcd(plain, wide)
+    size = _stream_size(path)
+    if size < block:
+        return None
+    nbytes = block * max(1, min(size // block, max_bytes // block))
+    data = np.memmap(path, dtype=np.uint8, mode="r", shape=(nbytes,))
+    flat = _dispersion(data.reshape(-1, plain), height * width)
+    headed = _dispersion(data.reshape(-1, wide), height * (width + HEADER_COLUMNS))
+    if headed >= margin * max(flat, 1.0):
+        return HEADER_COLUMNS
+    if flat >= margin * max(headed, 1.0):
+        return 0
+    return None
+
+
+def _dispersion(frames: np.ndarray, pixels: int, chunk_bits: int = 1 << 22) -> float:
+    """Variance / mean over positions of the spike counts of packed frames (0 with no spikes)."""
+    counts = np.zeros(pixels, dtype=np.int64)
+    step = max(1, chunk_bits // max(1, frames.shape[1] * 8))
+    for a in range(0, frames.shape[0], step):
+        counts += np.unpackbits(frames[a:a + step], axis=1, bitorder="little", count=pixels).sum(axis=0, dtype=np.int64)
+    mean = counts.mean()
+    return float(counts.var() / mean) if mean > 0 else 0.0
 
 
 __all__ = ["SpikeStream", "DatWriter", "DatReader", "write_dat", "read_dat", "pack_frames", "unpack_frames",
-           "frame_bytes", "write_sidecar", "read_sidecar", "sidecar_path"]
+           "frame_bytes", "write_sidecar", "read_sidecar", "sidecar_path", "recorded_geometry",
+           "stream_geometry", "detect_header_columns", "header_columns_from_content", "open_temp_beside",
+           "HEADER_COLUMNS"]

@@ -50,9 +50,10 @@ def test_truncated_file_is_an_error_unless_asked(tmp_path):
 
 
 def test_header_columns_are_dropped(tmp_path):
+    # stored after the image columns of each row, as SpikeCV and Spike-Zoo read them
     s = random_stream(h=4, w=32)
     header = np.ones((5, 4, 16), bool)
-    write_dat(tmp_path / "h.dat", SpikeStream.from_bool(np.concatenate([header, s.unpack()], axis=2)))
+    write_dat(tmp_path / "h.dat", SpikeStream.from_bool(np.concatenate([s.unpack(), header], axis=2)))
     assert read_dat(tmp_path / "h.dat", 4, 32, header_columns=16) == s
 
 

@@ -128,7 +128,7 @@ def test_reconstruct_dat_to_frames(tmp_path):
 def test_reconstruct_drops_header_columns(tmp_path):
     from spikesim.stream import SpikeStream, write_dat
     sc = make_scene("h", 16, 24, 7 * 4, brightness=0.3)
-    wide = np.concatenate([np.ones((28, 16, 16), bool), sc.spike_array], axis=2)  # 16 junk columns first
+    wide = np.concatenate([sc.spike_array, np.ones((28, 16, 16), bool)], axis=2)  # 16 junk columns last
     dat = write_dat(tmp_path / "wide.dat", SpikeStream.from_bool(wide))
     assert rc.detect_header_columns(dat, 16, 24) == 16
     s = rc.reconstruct_file(dat, tmp_path / "o", "tfp", 16, 24, None, True, window=7, save_npy=True,
@@ -137,7 +137,7 @@ def test_reconstruct_drops_header_columns(tmp_path):
     want = tfp_windows(torch.from_numpy(sc.spike_array).reshape(4, 7, 16, 24)).numpy()
     np.testing.assert_allclose(np.load(tmp_path / "o" / "frames.npy"), want)
     (tmp_path / "bad.dat").write_bytes(b"\0" * 7)
-    with pytest.raises(ValueError, match="neither whole"):
+    with pytest.raises(ValueError, match="not a whole number"):
         rc.detect_header_columns(tmp_path / "bad.dat", 16, 24)
 
 

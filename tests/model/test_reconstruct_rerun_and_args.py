@@ -1,0 +1,148 @@
+"""reconstruct / evaluate / train on bad arguments (one line naming the flag, exit status 2) and
+reconstruct rerun into the same folder (its outputs describe exactly the last run)."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from modeltest_fakes import make_scene
+from pipelines import reconstruct as rc
+from pipelines.cli import main
+
+
+@pytest.fixture
+def dat(tmp_path):
+    from spikesim.stream import SpikeStream, write_dat
+    sc = make_scene("r", 12, 16, 7 * 5, brightness=0.3)
+    return write_dat(tmp_path / "s.dat", SpikeStream.from_bool(sc.spike_array))
+
+
+def run_cli(argv, capsys):
+    capsys.readouterr()
+    try:
+        rc_ = main([str(a) for a in argv])
+    except SystemExit as exc:  # argparse refusing a value
+        rc_ = exc.code
+    return rc_, capsys.readouterr().err
+
+
+def one_line(err):
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1 and "Traceback" not in err, err
+    return lines[0]
+
+
+def parser_error(err):
+    """argparse's refusal: a usage line, then one error line naming the flag."""
+    assert "Traceback" not in err and err.splitlines()[0].startswith("usage:"), err
+    return err.strip().splitlines()[-1]
+
+
+def tree(root):
+    return sorted(p.relative_to(root).as_posix() for p in root.rglob("*"))
+
+
+def test_rerun_replaces_its_own_outputs_and_keeps_the_users(dat, tmp_path, capsys):
+    out = tmp_path / "out"
+    base = ["reconstruct", dat, "--height", 12, "--width", 16, "--window", 7, "--out", out, "--no-mp4", "--quiet"]
+    assert run_cli(base + ["--save-npy"], capsys)[0] == 0
+    assert len(list((out / "png").glob("step_*.png"))) == 5 and (out / "frames.npy").exists()
+    (out / "notes.txt").write_text("mine")
+    (out / "png" / "README").write_text("mine too")
+    assert run_cli(base + ["--num-windows", 2, "--no-gif"], capsys)[0] == 0
+    assert tree(out) == ["notes.txt", "png", "png/README", "png/step_000003.png", "png/step_000010.png",
+                         "reconstruct.json"]
+    summary = json.loads((out / "reconstruct.json").read_text())
+    assert summary["frames"] == 2 and summary["outputs"] == ["png", "reconstruct.json"]
+
+
+def test_a_failed_rerun_keeps_the_previous_outputs(dat, tmp_path, monkeypatch):
+    out = tmp_path / "out"
+    rc.reconstruct_file(dat, out, "tfp", 12, 16, window=7, save_npy=True, mp4=False, progress=False)
+    before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    calls = []
+
+    def fail_on_third(*a, **k):
+        calls.append(1)
+        if len(calls) == 3:
+            raise OSError(28, "No space left on device", str(out / "png"))
+        return np.zeros((12, 16), np.uint8)
+    monkeypatch.setattr(rc, "display_frame", fail_on_third)
+    with pytest.raises(OSError, match="No space"):
+        rc.reconstruct_file(dat, out, "tfp", 12, 16, window=7, num_windows=4, mp4=False, progress=False)
+    assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
+    assert not [p for p in out.iterdir() if p.name.startswith(".")]
+
+
+def test_geometry_comes_from_the_sidecar(dat, tmp_path):
+    from spikesim.stream import write_sidecar
+    write_sidecar(dat, {"height": 12, "width": 16, "flip": False})
+    s = rc.reconstruct_file(dat, tmp_path / "o", "tfp", window=7, gif=False, mp4=False, progress=False)
+    assert (s["height"], s["width"], s["flip"], s["header_columns"]) == (12, 16, False, 0)
+
+
+@pytest.mark.parametrize("flag, value", [
+    ("--fps", 0), ("--gamma", 0), ("--gamma", -1), ("--window", 0), ("--start", -1), ("--percentile", 101),
+    ("--percentile", 0), ("--height", 0), ("--width", -4), ("--header-columns", -1),
+    ("--header-columns", "x"), ("--scale", 0), ("--chunk", 0), ("--num-windows", 0), ("--threads", -1),
+    ("--fps", "nan")])
+def test_reconstruct_refuses_bad_values(flag, value, dat, tmp_path, capsys):
+    code, err = run_cli(["reconstruct", dat, "--out", tmp_path / "o", flag, value], capsys)
+    assert code == 2 and f"argument {flag}" in parser_error(err)
+    assert not (tmp_path / "o").exists()
+
+
+def test_reconstruct_bad_inputs_are_one_line(dat, tmp_path, capsys):
+    (tmp_path / "d.dat").mkdir()
+    code, err = run_cli(["reconstruct", tmp_path / "d.dat", "--out", tmp_path / "o"], capsys)
+    assert code == 2 and "d.dat" in one_line(err) and "directory" in err
+    code, err = run_cli(["reconstruct", tmp_path / "nope.dat", "--out", tmp_path / "o"], capsys)
+    assert code == 2 and "nope.dat" in one_line(err)
+    code, err = run_cli(["reconstruct", dat, "--height", 12, "--width", 16, "--window", 7, "--start", 99,
+                         "--out", tmp_path / "o"], capsys)
+    assert code == 2 and "--start 99" in one_line(err)
+    (tmp_path / "empty.dat").write_bytes(b"")
+    code, err = run_cli(["reconstruct", tmp_path / "empty.dat", "--out", tmp_path / "o"], capsys)
+    assert code == 2 and "empty.dat" in one_line(err)
+    (tmp_path / "file").write_text("x")
+    code, err = run_cli(["reconstruct", dat, "--height", 12, "--width", 16, "--window", 7,
+                         "--out", tmp_path / "file"], capsys)
+    assert code == 2 and "file" in one_line(err)
+
+
+def test_reconstruct_refuses_an_ambiguous_416_file(tmp_path, capsys):
+    noise = np.random.default_rng(0).random((26, 250, 400)) < 0.2
+    from spikesim.stream import SpikeStream, write_dat
+    write_dat(tmp_path / "n.dat", SpikeStream.from_bool(noise))
+    code, err = run_cli(["reconstruct", tmp_path / "n.dat", "--out", tmp_path / "o"], capsys)
+    line = one_line(err)
+    assert code == 2 and "26 frames of 400x250" in line and "25 frames of 416x250" in line
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("flag, value", [("--window", 0), ("--chunk", 0), ("--threads", -2)])
+def test_evaluate_refuses_bad_values(flag, value, tmp_path, capsys):
+    code, err = run_cli(["evaluate", "--data", tmp_path, "--out", tmp_path / "o", flag, value], capsys)
+    assert code == 2 and f"argument {flag}" in parser_error(err)
+
+
+def test_evaluate_unknown_scene_is_one_line(tmp_path, capsys):
+    pytest.importorskip("OpenEXR", reason="the dataset layout stores ground truth as EXR")
+    from spikesim.dataset import write_scene
+    from spikesim.stream import SpikeStream
+    sc = make_scene("only", 12, 16, 7 * 3, brightness=0.3)
+    write_scene(tmp_path / "data", sc.name, SpikeStream.from_bool(sc.spike_array), {3: sc.gt[3]}, meta={})
+    code, err = run_cli(["evaluate", "--data", tmp_path / "data", "--scenes", "nope", "--window", 7,
+                         "--out", tmp_path / "o", "--device", "cpu"], capsys)
+    assert code == 2 and "--scenes" in one_line(err) and "nope" in err
+
+
+@pytest.mark.parametrize("flag, value", [("--epochs", 0), ("--max-steps", 0), ("--batch-size", 0), ("--lr", 0),
+                                         ("--num-workers", -1), ("--crop", 0), ("--seed", -1),
+                                         ("--threads", -1), ("--samples-per-epoch", 0)])
+def test_train_refuses_bad_values(flag, value, tmp_path, capsys):
+    code, err = run_cli(["train", "--data", tmp_path, "--config", "tiny", "--out", tmp_path / "o", flag, value],
+                        capsys)
+    assert code == 2 and f"argument {flag}" in parser_error(err)
