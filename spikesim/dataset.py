@@ -1,19 +1,27 @@
 """The on-disk layout of a spike dataset (LLR, RLLR or a user's own), and its integrity checks.
 
     <root>/manifest.json                 name, preset, and per scene: files with bytes + sha256
+    <root>/.spikesim.lock                held by the `generate` run writing here (pid, command)
     <root>/<scene>/spikes.dat            the stream, PKU .dat (flipped: the real-camera convention)
     <root>/<scene>/meta.json             camera, seed, geometry, num_steps, flip, gt_steps, windows,
                                          light and every other parameter needed to reproduce it
     <root>/<scene>/gt/step_{n:06d}.exr   ground truth y at step n (linear float32)
+    <root>/<scene>/checksums.json        bytes + sha256 of each file above, recorded when written
 
 A scene folder is built under a temporary name and renamed when complete, so a folder with the
-scene's name is always whole: an interrupted generation resumes by skipping complete scenes.
+scene's name is always whole: an interrupted generation resumes by skipping complete scenes. Each
+scene carries its own checksums, so a resume can tell a damaged scene from a finished one without
+trusting (or rewriting) the manifest from the files as they are now.
+
+Scene names are plain folder names, and every path written, deleted or read under a root goes
+through `inside_root`: neither a name, nor a manifest entry, nor a symlink can lead outside it.
 """
 from __future__ import annotations
 
 import hashlib
 import json
 import os
+import re
 import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -28,11 +36,59 @@ MANIFEST = "manifest.json"
 SPIKES = "spikes.dat"
 META = "meta.json"
 GT_DIR = "gt"
-LAYOUT_VERSION = 1
+CHECKSUMS = "checksums.json"
+LOCK_FILE = ".spikesim.lock"
+LAYOUT_VERSION = 2
+"""2: each scene records its own checksums (checksums.json)."""
+
+_PLAIN_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.+-]{0,127}")
+_SHA256 = re.compile(r"[0-9a-f]{64}")
+_GT_FILE = re.compile(r"step_\d{6}\.exr")
 
 
 def gt_name(step: int) -> str:
     return f"step_{int(step):06d}.exr"
+
+
+def check_scene_name(name: str) -> str:
+    """`name` if it is a plain folder name (letters, digits, `_.+-`, not hidden, not the
+    manifest's name); a ValueError otherwise. A scene name is never a path."""
+    if not isinstance(name, str) or not _PLAIN_NAME.fullmatch(name) or name == MANIFEST:
+        raise ValueError(f"scene name {name!r} is not a plain folder name (letters, digits and _.+-, "
+                         "not starting with a dot); a scene given by path is a user scene: generate scene --xml PATH")
+    return name
+
+
+def inside_root(root: str | Path, *parts: str | Path, follow: bool = True) -> Path:
+    """`root` joined with `parts` and resolved (symlinks followed), if that lies strictly inside
+    the resolved root; a ValueError naming both otherwise (`..`, an absolute part, a symlink that
+    leads out, or the root itself). Every write, delete and read under a dataset root goes through
+    here, so no name or link in the data can reach a file outside it.
+
+    Writes and deletes pass `follow=False`: the path itself must not be a symlink either, so a link
+    planted in the output cannot redirect them to another file, even one inside the root."""
+    base = Path(os.path.realpath(root))
+    given = Path(root).joinpath(*parts)
+    path = Path(os.path.realpath(given))
+    shown = Path(*parts) if parts else Path(".")
+    if path == base:
+        raise ValueError(f"{shown}: is the root itself ({base}), not a path inside it")
+    if not path.is_relative_to(base):
+        raise ValueError(f"{shown}: resolves to {path}, outside the dataset root {base}")
+    if not follow and given.is_symlink():
+        raise ValueError(f"{given}: is a symlink; files are not written or deleted through links "
+                         "(remove the link, or choose another output folder)")
+    return path
+
+
+def remove_inside(root: str | Path, name: str) -> None:
+    """Delete `root/name` (a folder or a file), guarded by `inside_root`: never outside the root,
+    never through a symlink."""
+    path = inside_root(root, name, follow=False)
+    if path.is_dir():
+        shutil.rmtree(path)
+    elif path.exists():
+        path.unlink()
 
 
 def sha256_file(path: Path, block: int = 1 << 20) -> str:
@@ -44,7 +100,9 @@ def sha256_file(path: Path, block: int = 1 << 20) -> str:
 
 
 def _write_json(path: Path, data: Any) -> None:
-    tmp = path.with_name(f".{path.name}.part")
+    """Write JSON atomically: a temporary file beside `path`, then a rename. Both paths must
+    already have passed `inside_root`; the temporary one is checked here."""
+    tmp = inside_root(path.parent, f".{path.name}.part", follow=False)
     tmp.write_text(json.dumps(data, indent=2, sort_keys=True) + "\n")
     os.replace(tmp, path)
 
@@ -115,17 +173,18 @@ class SceneRecord:
 
 def write_scene(root: str | Path, name: str, stream: SpikeStream | Path, ground_truth: dict[int, np.ndarray] | Iterable[tuple[int, np.ndarray]],
                 meta: dict[str, Any], flip: bool = True) -> SceneRecord:
-    """Write a complete scene folder atomically (built as `.<name>.part`, then renamed).
+    """Write a complete scene folder atomically (built as `.<name>.part`, then renamed), with the
+    checksums of its files recorded last.
 
     `stream` is either a SpikeStream or the path of an already written `.dat` (moved in).
     """
     root = Path(root)
-    final = root / name
-    if final.exists():
-        raise FileExistsError(f"scene folder {final} already exists")
-    tmp = root / f".{name}.part"
-    if tmp.exists():
-        shutil.rmtree(tmp)
+    check_scene_name(name)
+    final = inside_root(root, name, follow=False)
+    if final.exists() or final.is_symlink():
+        raise FileExistsError(f"scene folder {root / name} already exists")
+    tmp = inside_root(root, f".{name}.part", follow=False)
+    remove_inside(root, f".{name}.part")
     (tmp / GT_DIR).mkdir(parents=True)
     try:
         if isinstance(stream, SpikeStream):
@@ -149,6 +208,7 @@ def write_scene(root: str | Path, name: str, stream: SpikeStream | Path, ground_
         full_meta = {**meta, "name": name, "height": h, "width": w, "num_steps": n, "flip": flip,
                      "gt_steps": sorted(steps), "layout_version": LAYOUT_VERSION}
         _write_json(tmp / META, full_meta)
+        _write_json(tmp / CHECKSUMS, {"layout_version": LAYOUT_VERSION, "files": _file_checksums(tmp)})
         os.replace(tmp, final)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
@@ -156,52 +216,220 @@ def write_scene(root: str | Path, name: str, stream: SpikeStream | Path, ground_
     return SceneRecord.open(final)
 
 
-def scene_files(scene_dir: Path) -> dict[str, dict[str, Any]]:
+# ---- checksums: each scene's own record, and the manifest built from them ------------------------
+def _file_checksums(scene_dir: Path) -> dict[str, dict[str, Any]]:
+    """bytes and sha256 of every file of a scene folder being written, keyed by its path in the
+    folder (the checksum record itself excluded)."""
     out = {}
     for p in sorted(scene_dir.rglob("*")):
-        if p.is_file() and not p.name.startswith("."):
-            out[p.relative_to(scene_dir.parent).as_posix()] = {"bytes": p.stat().st_size, "sha256": sha256_file(p)}
+        if p.is_file() and not p.name.startswith(".") and p.name != CHECKSUMS:
+            out[p.relative_to(scene_dir).as_posix()] = {"bytes": p.stat().st_size, "sha256": sha256_file(p)}
     return out
 
 
-def write_manifest(root: str | Path, info: dict[str, Any] | None = None) -> Path:
-    """(Re)write the dataset manifest from the complete scene folders present."""
+def _entry_problem(entry: Any) -> str | None:
+    """Why a file entry ({"bytes": int >= 0, "sha256": 64 hex digits}) is malformed, or None."""
+    if not isinstance(entry, dict):
+        return f"expected an object with bytes and sha256, got {type(entry).__name__}"
+    size = entry.get("bytes")
+    if isinstance(size, bool) or not isinstance(size, int) or size < 0:
+        return f"bytes={size!r} is not a size (an integer >= 0)"
+    if not isinstance(entry.get("sha256"), str) or not _SHA256.fullmatch(entry["sha256"]):
+        return f"sha256={entry.get('sha256')!r} is not 64 lowercase hex digits"
+    return None
+
+
+def _read_json_file(path: Path, shown: Path, what: str) -> Any:
+    """Parse a JSON file, or raise a ValueError naming it (`shown`, as the user gave it)."""
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError:
+        raise ValueError(f"{shown}: not {what} (not UTF-8 text)") from None
+    except ValueError as exc:
+        raise ValueError(f"{shown}: not {what} (invalid JSON: {exc})") from None
+
+
+def read_scene_checksums(root: str | Path, name: str) -> dict[str, dict[str, Any]]:
+    """The checksums recorded when scene `name` was written: {path in the folder: {bytes, sha256}}.
+    A ValueError naming the record if it is missing or malformed."""
+    shown = Path(root) / name / CHECKSUMS
+    path = inside_root(root, name, CHECKSUMS)
+    if not path.is_file():
+        raise ValueError(f"{shown}: missing (the scene's checksum record)")
+    data = _read_json_file(path, shown, "a scene checksum record")
+    files = data.get("files") if isinstance(data, dict) else None
+    if not isinstance(files, dict):
+        raise ValueError(f"{shown}: not a scene checksum record (no 'files' object)")
+    for rel, entry in files.items():
+        if (why := _entry_problem(entry)) is not None:
+            raise ValueError(f"{shown}: file {rel!r}: {why}")
+    for required in (SPIKES, META):
+        if required not in files:
+            raise ValueError(f"{shown}: does not record {required}")
+    return files
+
+
+def _file_problem(base: Path, rel: str, want: dict[str, Any], checksums: bool, shown: str) -> str | None:
+    """What is wrong with file `rel` under `base` against its record, or None; a path that leads
+    outside `base` is reported and not read."""
+    try:
+        path = inside_root(base, rel)
+    except ValueError:
+        return f"{shown}: outside the dataset root, not read"
+    if not path.is_file():
+        return f"{shown}: missing" if not path.exists() else f"{shown}: not a regular file"
+    size = path.stat().st_size
+    if size != want["bytes"]:
+        return f"{shown}: {size} bytes, {want['bytes']} recorded (truncated or altered)"
+    if checksums and sha256_file(path) != want["sha256"]:
+        return f"{shown}: checksum differs from the recorded one (altered)"
+    return None
+
+
+def check_scene(root: str | Path, name: str, checksums: bool = False) -> list[str]:
+    """Problems of scene `name` against its own checksum record (empty: it is whole). Sizes only
+    by default, which catches deleted and truncated files cheaply; `checksums=True` hashes every
+    file, which also catches altered bytes."""
+    try:
+        folder = inside_root(root, name)
+    except ValueError:
+        return [f"{name}: outside the dataset root, not read"]
+    if not folder.is_dir():
+        return [f"{name}: scene folder missing"]
+    try:
+        files = read_scene_checksums(root, name)
+    except (OSError, ValueError) as exc:
+        return [str(exc)]
+    problems = [_file_problem(folder, rel, want, checksums, f"{name}/{rel}") for rel, want in files.items()]
+    return [p for p in problems if p is not None]
+
+
+def holds_only_scene_files(folder: Path) -> bool:
+    """Whether `folder` holds nothing but what `write_scene` writes (possibly partly deleted), so
+    that removing it to rebuild the scene cannot lose anything else."""
+    known = {SPIKES: "file", META: "file", CHECKSUMS: "file", GT_DIR: "dir"}
+    for entry in os.scandir(folder):
+        kind = known.get(entry.name)
+        if entry.is_symlink() or kind is None or (kind == "dir") != entry.is_dir(follow_symlinks=False):
+            return False
+        if kind == "dir":
+            for gt in os.scandir(entry.path):
+                if gt.is_symlink() or not gt.is_file(follow_symlinks=False) or not _GT_FILE.fullmatch(gt.name):
+                    return False
+    return True
+
+
+def scene_folders(root: str | Path) -> list[str]:
+    """Names of the folders under `root` that are scenes (not hidden, holding a meta.json or a
+    checksum record), whole or not."""
     root = Path(root)
-    scenes = {}
-    for d in sorted(root.iterdir()):
-        if d.is_dir() and not d.name.startswith(".") and (d / META).exists():
-            scenes[d.name] = scene_files(d)
-    data = {**(info or {}), "layout_version": LAYOUT_VERSION, "scenes": scenes,
-            "total_bytes": sum(f["bytes"] for files in scenes.values() for f in files.values())}
-    _write_json(root / MANIFEST, data)
+    return [d.name for d in sorted(root.iterdir())
+            if d.is_dir() and not d.is_symlink() and not d.name.startswith(".")
+            and ((d / META).exists() or (d / CHECKSUMS).exists())]
+
+
+def write_manifest(root: str | Path, info: dict[str, Any] | None = None, scenes: Iterable[str] | None = None) -> Path:
+    """(Re)write the dataset manifest from the checksum records of `scenes`, which the caller has
+    checked (default: every scene folder under `root` that passes the size check). The manifest
+    never takes its checksums from the files as they are now, so it cannot absorb damage."""
+    root = Path(root)
+    if scenes is None:
+        scenes = [name for name in scene_folders(root) if not check_scene(root, name)]
+    listed = {name: {f"{name}/{rel}": want for rel, want in read_scene_checksums(root, name).items()}
+              for name in sorted(scenes)}
+    data = {**(info or {}), "layout_version": LAYOUT_VERSION, "scenes": listed,
+            "total_bytes": sum(f["bytes"] for files in listed.values() for f in files.values())}
+    path = inside_root(root, MANIFEST, follow=False)
+    _write_json(path, data)
     return root / MANIFEST
 
 
 def read_manifest(root: str | Path) -> dict[str, Any]:
-    path = Path(root) / MANIFEST
+    """The manifest of the dataset at `root`, checked for shape: a ValueError naming the file if
+    it is not one this package writes (so it is neither trusted nor overwritten)."""
+    root = Path(root)
+    shown = root / MANIFEST
+    if not root.is_dir():
+        raise FileNotFoundError(f"dataset folder {root} does not exist" if not root.exists() else
+                                f"{root} is not a folder (a dataset is a folder)")
+    path = inside_root(root, MANIFEST)
     if not path.exists():
         raise FileNotFoundError(f"{root} has no {MANIFEST}: not a dataset, or its generation did not finish")
-    return json.loads(path.read_text())
+    data = _read_json_file(path, shown, "a spikesim dataset manifest")
+    if not isinstance(data, dict):
+        raise ValueError(f"{shown}: not a spikesim dataset manifest (a JSON {type(data).__name__}, expected an object)")
+    version = data.get("layout_version")
+    if version is not None and (isinstance(version, bool) or not isinstance(version, int) or version > LAYOUT_VERSION):
+        raise ValueError(f"{shown}: layout_version={version!r}; this spikesim reads layouts up to {LAYOUT_VERSION}")
+    scenes = data.get("scenes")
+    if not isinstance(scenes, dict):
+        raise ValueError(f"{shown}: not a spikesim dataset manifest (no 'scenes' object)")
+    for scene, files in scenes.items():
+        if not isinstance(files, dict):
+            raise ValueError(f"{shown}: scene {scene!r}: expected an object of files, got {type(files).__name__}")
+        for rel, entry in files.items():
+            if (why := _entry_problem(entry)) is not None:
+                raise ValueError(f"{shown}: scene {scene!r}, file {rel!r}: {why}")
+    return data
 
 
-def verify(root: str | Path, checksums: bool = True) -> list[str]:
-    """Compare a dataset with its manifest; returns the problems found (empty: intact)."""
+# ---- verify -----------------------------------------------------------------------------------------
+@dataclass
+class DatasetCheck:
+    """What `check_dataset` found: damage (`problems`) and files the manifest does not list
+    (`extras`: debris or additions, not damage)."""
+
+    scenes: int
+    problems: list[str]
+    extras: list[str]
+
+
+def _files_under(root: Path) -> list[str]:
+    """Every file, symlink and other non-folder under `root` (symlinked folders not followed), as
+    paths relative to it."""
+    out = []
+    for dirpath, dirnames, filenames in os.walk(root, followlinks=False):
+        base = Path(dirpath).relative_to(root)
+        out += [(base / d).as_posix() for d in dirnames if os.path.islink(os.path.join(dirpath, d))]
+        out += [(base / f).as_posix() for f in filenames]
+    return sorted(out)
+
+
+def check_dataset(root: str | Path, checksums: bool = True) -> DatasetCheck:
+    """Compare a dataset with its manifest, reading only inside `root`: every listed file must be
+    there with its size (and, with `checksums`, its sha256); a name that leads outside is reported,
+    not read; files the manifest does not list are reported as extras."""
     root = Path(root)
     manifest = read_manifest(root)
     problems = []
+    layout = {MANIFEST, LOCK_FILE}
     for scene, files in manifest["scenes"].items():
-        if not (root / scene).is_dir():
+        try:
+            folder = inside_root(root, scene)
+        except ValueError:
+            problems.append(f"{scene}: outside the dataset root, not read")
+            continue
+        try:
+            check_scene_name(scene)
+        except ValueError:
+            problems.append(f"{scene}: not a plain scene name, not read")
+            continue
+        if not folder.is_dir():
             problems.append(f"{scene}: scene folder missing")
             continue
+        layout.add(f"{scene}/{CHECKSUMS}")
         for rel, want in files.items():
-            p = root / rel
-            if not p.exists():
-                problems.append(f"{rel}: missing")
-            elif p.stat().st_size != want["bytes"]:
-                problems.append(f"{rel}: {p.stat().st_size} bytes, manifest says {want['bytes']} (truncated or altered)")
-            elif checksums and sha256_file(p) != want["sha256"]:
-                problems.append(f"{rel}: checksum differs from the manifest (altered)")
-    return problems
+            if (p := _file_problem(root, rel, want, checksums, rel)) is not None:
+                problems.append(p)
+    listed = layout | {str(Path(rel).as_posix()) for files in manifest["scenes"].values() for rel in files}
+    extras = [f"{rel}: extra, not in the manifest" for rel in _files_under(root) if rel not in listed]
+    return DatasetCheck(scenes=len(manifest["scenes"]), problems=problems, extras=extras)
+
+
+def verify(root: str | Path, checksums: bool = True) -> list[str]:
+    """Compare a dataset with its manifest; returns the damage found (empty: intact). Extra files
+    are not damage: `check_dataset` lists them."""
+    return check_dataset(root, checksums).problems
 
 
 def open_dataset(root: str | Path) -> list[SceneRecord]:
@@ -216,5 +444,7 @@ def open_dataset(root: str | Path) -> list[SceneRecord]:
     return scenes
 
 
-__all__ = ["SceneRecord", "write_scene", "write_manifest", "read_manifest", "verify", "open_dataset",
-           "gt_name", "MANIFEST", "SPIKES", "META", "GT_DIR"]
+__all__ = ["SceneRecord", "DatasetCheck", "write_scene", "write_manifest", "read_manifest", "read_scene_checksums",
+           "check_scene", "check_dataset", "verify", "open_dataset", "inside_root", "check_scene_name",
+           "holds_only_scene_files", "scene_folders", "remove_inside", "gt_name", "MANIFEST", "SPIKES", "META", "GT_DIR",
+           "CHECKSUMS", "LOCK_FILE"]

@@ -1,0 +1,178 @@
+"""Running one scene job: render (or draw the pattern), simulate, and write its scene folder.
+
+A job runs in one process from start to end, in a work folder `.<name>.work` inside the output
+root; its scene folder appears, whole and with its checksums, only when it is complete
+(spikesim.dataset.write_scene).
+"""
+from __future__ import annotations
+
+import dataclasses
+import logging
+import shutil
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Callable, Iterator
+
+import numpy as np
+
+from spikesim.dataset import inside_root, remove_inside, write_scene
+
+if TYPE_CHECKING:
+    from pipelines.generate import SceneJob
+
+log = logging.getLogger("spikesim.generate")
+
+
+class _FrameSource:
+    """What a job renders from: frames(start, n, keyframe_every), ground_truth(step), describe()."""
+
+    def __init__(self, job: SceneJob, workdir: Path):
+        src = job.source
+        self.scale = job.light_power_factor
+        h, w = job.camera["height"], job.camera["width"]
+        if src["type"] == "pattern":
+            from spikesim.patterns import MovingPattern
+            self._pattern = MovingPattern(height=h, width=w, peak_y=float(src.get("peak_y", 0.25)),
+                                          seed=int(src.get("pattern_seed", job.seed)),
+                                          readout_period_s=job.camera["readout_period_s"])
+            self._renderer = None
+        else:
+            from spikesim.camera import SpikeCamera
+            from spikesim.render import SceneRenderer
+            if src["type"] == "random":
+                from scenes.random_scene import build_random_scene
+                scene, motion, lights, light = build_random_scene(int(src["scene_seed"]), workdir / "random_scene")
+            else:
+                scene, motion, lights, light = src["scene"], src.get("motion"), src.get("lights"), src["light"]
+            render = {k: v for k, v in job.render.items()}
+            render["resolution"] = tuple(render["resolution"])
+            if job.quality is not None:
+                from spikesim.quality import QualitySettings
+                render.update(QualitySettings.from_name(job.quality).render_kwargs())
+            self._renderer = SceneRenderer(scene, light=light, motion=motion, lights=lights,
+                                           camera=SpikeCamera.from_dict(job.camera), **render)
+            self._pattern = None
+
+    @property
+    def renderer(self) -> Any:
+        return self._renderer
+
+    def scaled(self) -> Any:
+        """The renderer as the quality presets call it (render_step, motion_px), with the light
+        power factor applied."""
+        return _ScaledRenderer(self._renderer, self.scale)
+
+    def frames(self, start: int, n: int, k: int) -> Iterator[np.ndarray]:
+        if self._renderer is not None:
+            it = self._renderer.frames(start, n, keyframe_every=k)
+        else:
+            it = self._pattern.frames(-(-(n - 1) // k) + 1, start=start, every=k)
+        for f in it:
+            yield f * np.float32(self.scale) if self.scale != 1.0 else f
+
+    def ground_truth(self, step: int) -> np.ndarray:
+        img = self._renderer.ground_truth(step) if self._renderer is not None else self._pattern.frame(step)
+        return img * np.float32(self.scale) if self.scale != 1.0 else img
+
+    def describe(self) -> dict[str, Any]:
+        if self._renderer is not None:
+            return self._renderer.describe()
+        return {"pattern": dataclasses.asdict(self._pattern)}
+
+
+def _without_prefix(obj: Any, prefix: str, replacement: str) -> Any:
+    """`obj` with `prefix` replaced in every string: a random scene is built in a temporary
+    folder, whose path would otherwise make meta.json differ between runs of the same job."""
+    if isinstance(obj, str):
+        return obj.replace(prefix, replacement)
+    if isinstance(obj, dict):
+        return {k: _without_prefix(v, prefix, replacement) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_without_prefix(v, prefix, replacement) for v in obj]
+    return obj
+
+
+class _ScaledRenderer:
+    """A renderer whose frames are multiplied by the job's light power factor."""
+
+    def __init__(self, renderer: Any, scale: float):
+        self._r, self._scale = renderer, np.float32(scale)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._r, name)
+
+    def render_step(self, step: int, spp: int | None = None) -> np.ndarray:
+        y = self._r.render_step(step, spp=spp)
+        return y * self._scale if self._scale != 1 else y
+
+
+def run_job(job: SceneJob, root: str | Path, progress: Callable[[str, int, int], None] | None = None,
+            backend: str = "auto", threads: int | None = None) -> dict[str, Any]:
+    """Render, simulate and write one scene folder; returns timing and size."""
+    from spikesim.camera import SpikeCamera
+    from spikesim.simulate import Simulator
+    from spikesim.stream import DatWriter
+
+    if threads is not None and threads >= 2:
+        # Dr.Jit with a single worker thread deadlocks in Mitsuba's render (measured: a job with
+        # dr.set_thread_count(1) never finished), so one-core workers keep Dr.Jit's default pool.
+        from spikesim._drjit import dr
+        dr.set_thread_count(threads)
+    root = Path(root)
+    work_name = f".{job.name}.work"
+    work = inside_root(root, work_name, follow=False)
+    remove_inside(root, work_name)  # debris of a killed run
+    work.mkdir(parents=True)
+    t0 = time.perf_counter()
+    try:
+        source = _FrameSource(job, work)
+        cam = SpikeCamera.from_dict(job.camera)
+        quality_record = None
+        if job.quality is not None and source.renderer is not None:
+            from spikesim.quality import QualitySettings
+            q = QualitySettings.from_name(job.quality)
+            y_levels = None
+            if q.noise == "auto":  # the light levels decide which noise terms can show
+                y_levels = np.percentile(source.renderer.render_step(0) * np.float32(source.scale), [5, 50, 95])
+            cam, decisions = q.camera(cam, y_levels)
+            for d in decisions:
+                log.debug("%s: noise %s", job.name, d.to_dict())
+            quality_record = q.record(decisions)
+        sim = Simulator(cam, backend=backend, seed=job.seed)
+        dat = work / "spikes.dat"
+        written = 0
+        with DatWriter(dat, cam.height, cam.width, flip=job.flip) as writer:
+            if quality_record is not None:
+                parts = q.simulate(sim, source.scaled(), 0, job.num_steps)
+            else:
+                frames = source.frames(0, job.num_steps, job.keyframe_every)
+                parts = sim.stream(frames, keyframe_every=job.keyframe_every, final=True)
+            for part in parts:
+                take = min(part.num_steps, job.num_steps - written)
+                if take <= 0:
+                    break
+                writer.write(part.slice(0, take))
+                written += take
+                if progress:
+                    progress(job.name, written, job.num_steps)
+        t_frames = time.perf_counter() - t0
+
+        def ground_truth() -> Iterator[tuple[int, np.ndarray]]:
+            for step in job.gt_steps:
+                yield step, source.ground_truth(step)
+
+        meta = {"job": job.to_dict(), "job_digest": job.digest, "camera": job.camera, "seed": job.seed,
+                "height": cam.height, "width": cam.width,
+                "windows": [list(w) for w in job.windows], "light_power_factor": job.light_power_factor,
+                "source": _without_prefix(source.describe(), str(work), "<built from the job's seed>"),
+                "simulator": sim.describe(num_steps=written),
+                "quality": quality_record}
+        write_scene(root, job.name, dat, ground_truth(), meta, flip=job.flip)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    total = time.perf_counter() - t0
+    size = sum(p.stat().st_size for p in inside_root(root, job.name).rglob("*") if p.is_file())
+    return {"name": job.name, "seconds": total, "frames_and_spikes_seconds": t_frames, "bytes": size}
+
+
+__all__ = ["run_job"]
