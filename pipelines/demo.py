@@ -12,6 +12,8 @@ import dataclasses
 import time
 from pathlib import Path
 
+from pipelines.argtypes import bundled_scene, existing_file, nonnegative_int, output_dir, positive_int
+
 
 def run(args: argparse.Namespace) -> int:
     import numpy as np
@@ -38,7 +40,7 @@ def run(args: argparse.Namespace) -> int:
         rate = s.counts().mean() / s.num_steps
         print(f"[demo] {sc.name:<12} mean rate {rate:.4f} spikes/step, "
               f"{dark_pixel_fraction(s, 41):.1%} of pixels without a spike per 41-step window")
-    specs = ["tfp", "tfi"] + ([args.checkpoint] if args.checkpoint else [])
+    specs = ["tfp", "tfi"] + ([str(args.checkpoint)] if args.checkpoint is not None else [])
     methods = [method_from_spec(m) for m in specs]
     rows = evaluate(scenes, methods, 41, progress=False)
     names = [m.name for m in methods]
@@ -62,11 +64,13 @@ def run(args: argparse.Namespace) -> int:
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("demo", help="render a scene, simulate its spike stream and reconstruct it, end to end")
-    p.add_argument("--out", default="out/demo")
-    p.add_argument("--scenes", nargs="*", default=["fan"], help="bundled scenes (ball, car, cook, fan, rotate)")
-    p.add_argument("--windows", type=int, default=3, help="41-step windows per scene")
-    p.add_argument("--checkpoint", help="also reconstruct with a trained model (a train run's best.pt)")
-    p.add_argument("--workers", type=int, default=None)
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", type=output_dir, default=Path("out/demo"))
+    p.add_argument("--scenes", nargs="+", type=bundled_scene, default=["fan"],
+                   help="bundled scenes (ball, car, cook, fan, rotate)")
+    p.add_argument("--windows", type=positive_int, default=3, help="41-step windows per scene")
+    p.add_argument("--checkpoint", type=existing_file,
+                   help="also reconstruct with a trained model (a train run's best.pt)")
+    p.add_argument("--workers", type=positive_int, default=None, help="worker processes (default: one per core)")
+    p.add_argument("--seed", type=nonnegative_int, default=0)
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=run)
