@@ -58,6 +58,8 @@ def existing_file(text: str) -> Path:
         raise argparse.ArgumentTypeError(f"{text}: no such file")
     if p.is_dir():
         raise argparse.ArgumentTypeError(f"{text}: is a directory, expected a file")
+    if not p.is_file():  # a FIFO or device would block or never end
+        raise argparse.ArgumentTypeError(f"{text}: not a regular file")
     try:
         with open(p, "rb"):
             pass

@@ -19,6 +19,16 @@ from typing import Any
 from pipelines.argtypes import config_file, existing_file, nonnegative_int, output_dir, positive_float, positive_int
 
 
+MAX_STEPS = 1_000_000  # steps one call may render (a typo such as 0:1e11 would exhaust memory instead)
+
+
+def _bounded_range(r: range, already: int) -> range:
+    if already + len(r) > MAX_STEPS:
+        raise argparse.ArgumentTypeError(f"{r.start}:{r.stop}:{r.step} selects {len(r)} steps; "
+                                         f"at most {MAX_STEPS} per call")
+    return r
+
+
 def parse_steps(spec: str) -> list[int]:
     """"0,20,40", "0:41" (range), "0:861:41" (range with stride), or a comma list of those."""
     steps: list[int] = []
@@ -31,7 +41,7 @@ def parse_steps(spec: str) -> list[int]:
                 nums = [int(x) for x in part.split(":")]
                 if len(nums) not in (2, 3):
                     raise ValueError
-                steps.extend(range(*nums))
+                steps.extend(_bounded_range(range(*nums), len(steps)))
             else:
                 steps.append(int(part))
         except ValueError:

@@ -59,7 +59,7 @@ def bad(tmp_path_factory) -> Path:
     (d / "cam.yaml").write_text("height: 8\n")
     (d / "unreadable.npy").write_bytes((d / "good.npy").read_bytes())
     (d / "unreadable.npy").chmod(0)
-    (d / "ckpt.pt").write_bytes(b"")
+    os.mkfifo(d / "fifo.json")  # opening it would wait for a writer forever
     return d
 
 
@@ -109,6 +109,8 @@ CASES = [
     ("sim-camera-unknown-key", f"simulate --camera {{d}}/cam_unknown.json --steps 5 {SIM}", "cam_unknown.json"),
     ("sim-camera-negative", f"simulate --camera {{d}}/cam_negative.json --steps 5 {SIM}", "cam_negative.json"),
     ("sim-camera-bad-toml", f"simulate --camera {{d}}/cam_bad.toml --steps 5 {SIM}", "cam_bad.toml"),
+    ("sim-camera-fifo", f"simulate --camera {{d}}/fifo.json --steps 5 {SIM}", "--camera"),
+    ("sim-camera-device", f"simulate --camera /dev/null --steps 5 {SIM}", "--camera"),
     ("sim-camera-yaml", f"simulate --camera {{d}}/cam.yaml --steps 5 {SIM}", "--camera"),
     # simulate: the output
     ("sim-out-directory", f"simulate --steps 5 {SIM} -o {{d}}", "--out"),
@@ -128,6 +130,8 @@ CASES = [
     ("render-steps-negative", "render ball --steps -1 --out {d}/r", "--steps"),
     ("render-steps-empty-range", "render ball --steps 5:2 --out {d}/r", "--steps"),
     ("render-steps-text", "render ball --steps x --out {d}/r", "--steps"),
+    ("render-steps-zero-stride", "render ball --steps 0:10:0 --out {d}/r", "--steps"),
+    ("render-steps-huge-range", "render ball --steps 0:100000000000 --out {d}/r", "--steps"),
     ("render-spp-0", "render ball --spp 0 --out {d}/r", "--spp"),
     ("render-gt-spp-0", "render ball --gt-spp 0 --ground-truth --out {d}/r", "--gt-spp"),
     ("render-seed-negative", "render ball --seed -1 --out {d}/r", "--seed"),
