@@ -18,7 +18,7 @@ from pipelines.argtypes import bundled_scene, existing_file, nonnegative_int, ou
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from model.methods import method_from_spec
+    from model.methods import ModelMethod, method_from_spec
     from model.streaming import StepWindows
     from pipelines.evaluate import evaluate, markdown_table, write_results
     from pipelines.generate import PRESETS, generate, plan_llr
@@ -27,6 +27,10 @@ def run(args: argparse.Namespace) -> int:
     from spikesim.stats import dark_pixel_fraction
 
     out = Path(args.out)
+    # the methods first: a checkpoint that does not load fails now, not after the rendering
+    methods = [method_from_spec(m) for m in ("tfp", "tfi")]
+    if args.checkpoint is not None:  # not through a spec: a path may contain "=" (runs/lr=1e-3/best.pt)
+        methods.append(ModelMethod(args.checkpoint.parent.name or args.checkpoint.stem, args.checkpoint))
     preset = dataclasses.replace(PRESETS["small"], llr_windows=args.windows)
     t0 = time.perf_counter()
     jobs = plan_llr(preset, seed=args.seed, scenes=args.scenes)
@@ -40,8 +44,6 @@ def run(args: argparse.Namespace) -> int:
         rate = s.counts().mean() / s.num_steps
         print(f"[demo] {sc.name:<12} mean rate {rate:.4f} spikes/step, "
               f"{dark_pixel_fraction(s, 41):.1%} of pixels without a spike per 41-step window")
-    specs = ["tfp", "tfi"] + ([str(args.checkpoint)] if args.checkpoint is not None else [])
-    methods = [method_from_spec(m) for m in specs]
     rows = evaluate(scenes, methods, 41, progress=False)
     names = [m.name for m in methods]
     write_results(rows, names, out)
