@@ -128,12 +128,16 @@ def check_frames_cover(steps: int | None, num_frames: int, keyframe_every: int, 
         raise ValueError(f"--steps {steps}: the {what} in {source} cover only {covered} steps")
 
 
-def check_out_is_not_an_input(args: argparse.Namespace) -> None:
-    """-o (or its JSON sidecar) must not overwrite a file this run reads."""
+def check_outputs(args: argparse.Namespace) -> None:
+    """-o and its JSON sidecar can be written and overwrite no file this run reads (checked before
+    the simulation, which may take long)."""
     from spikesim.stream import sidecar_path
 
+    side = sidecar_path(args.out)
+    if side.is_dir():
+        raise ValueError(f"--out {args.out}: its sidecar {side} is a directory")
     inputs = {"--frames": args.frames, "--camera": args.camera, "--motion": args.motion, "--lights": args.lights}
-    for written in (Path(args.out), sidecar_path(args.out)):
+    for written in (Path(args.out), side):
         for flag, path in inputs.items():
             if path is not None and written.exists() and Path(path).exists() and written.samefile(path):
                 raise ValueError(f"--out {args.out} would overwrite the {flag} input {path}")
@@ -143,7 +147,7 @@ def run(args: argparse.Namespace) -> int:
     from spikesim.simulate import Simulator
     from spikesim.stats import summary
 
-    check_out_is_not_an_input(args)
+    check_outputs(args)
     cam = camera_from_args(args)
     sim = Simulator(cam, backend=args.backend, seed=args.seed)  # an unavailable backend fails first
     frames, source = frames_from_source(args, cam)

@@ -57,6 +57,8 @@ def bad(tmp_path_factory) -> Path:
     (d / "cam_negative.json").write_text('{"height": -5}')
     (d / "cam_bad.toml").write_text("height = = 3")
     (d / "cam.yaml").write_text("height: 8\n")
+    (d / "cam.dat.json").write_text('{"height": 8, "width": 16}')
+    (d / "side.dat.json").mkdir()
     (d / "unreadable.npy").write_bytes((d / "good.npy").read_bytes())
     (d / "unreadable.npy").chmod(0)
     os.mkfifo(d / "fifo.json")  # opening it would wait for a writer forever
@@ -115,6 +117,8 @@ CASES = [
     # simulate: the output
     ("sim-out-directory", f"simulate --steps 5 {SIM} -o {{d}}", "--out"),
     ("sim-out-under-file", f"simulate --steps 5 {SIM} -o {{d}}/good.npy/x.dat", "--out"),
+    ("sim-out-sidecar-directory", f"simulate --steps 5 {SIM} -o {{d}}/side.dat", "side.dat.json"),
+    ("sim-out-sidecar-is-input", f"simulate --steps 5 --camera {{d}}/cam.dat.json {SIM} -o {{d}}/cam.dat", "--camera"),
     ("sim-out-is-input", f"simulate --frames {{d}}/good.npy {SIM} -o {{d}}/good.npy", "--out"),
     # simulate: scenes
     ("sim-scene-unknown", f"simulate --scene nosuchscene --steps 2 {SIM}", "nosuchscene"),
