@@ -64,6 +64,15 @@ def main(argv: list[str] | None = None) -> int:
     arguments are returned as their status too, so that callers in-process get a number."""
     argv = list(sys.argv[1:] if argv is None else argv)
     command = next((a for a in argv if not a.startswith("-")), None)
+    try:
+        return _run(argv, command)
+    except KeyboardInterrupt:  # also while the command's modules load (torch takes seconds)
+        name = f"spikesim {command}" if command in _COMMAND_MODULE else "spikesim"
+        print(f"{name}: interrupted", file=sys.stderr)
+        return 130
+
+
+def _run(argv: list[str], command: str | None) -> int:
     parser = build_parser(command)
     try:
         args = parser.parse_args(argv)
@@ -73,9 +82,6 @@ def main(argv: list[str] | None = None) -> int:
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s", datefmt="%H:%M:%S")
     try:
         return int(args.func(args) or 0)
-    except KeyboardInterrupt:
-        print(f"spikesim {args.command}: interrupted", file=sys.stderr)
-        return 130
     except (ValueError, KeyError, OSError, MemoryError, UnavailableError) as exc:
         # Bad input or a missing resource: one clear line, no traceback (use -v for one).
         if args.verbose:

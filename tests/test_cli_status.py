@@ -82,3 +82,12 @@ def test_cuda_without_a_gpu_is_one_line(command, tmp_path, capsys):
     lines = err.strip().splitlines()
     assert len(lines) == 1 and "error:" in lines[0] and "'cuda' is not available" in lines[0], err
     assert list(tmp_path.iterdir()) == []  # it fails before writing anything
+
+
+def test_ctrl_c_while_the_command_loads_is_one_line_and_130(monkeypatch, capsys):
+    def interrupted_import(command=None):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "build_parser", interrupted_import)
+    assert main(["simulate", "--steps", "5"]) == 130
+    assert capsys.readouterr().err.strip() == "spikesim simulate: interrupted"
