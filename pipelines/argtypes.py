@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 from pathlib import Path
 
 
@@ -57,6 +58,8 @@ def existing_file(text: str) -> Path:
         raise argparse.ArgumentTypeError(f"{text}: no such file")
     if p.is_dir():
         raise argparse.ArgumentTypeError(f"{text}: is a directory, expected a file")
+    if not p.is_file():  # a FIFO or device would block or never end
+        raise argparse.ArgumentTypeError(f"{text}: not a regular file")
     try:
         with open(p, "rb"):
             pass
@@ -65,4 +68,53 @@ def existing_file(text: str) -> Path:
     return p
 
 
-__all__ = ["positive_int", "nonnegative_int", "positive_float", "nonnegative_float", "existing_file"]
+def config_file(text: str) -> Path:
+    """A readable JSON or TOML config file (the format follows the suffix, spikesim.config_io)."""
+    p = existing_file(text)
+    if p.suffix.lower() not in (".json", ".toml"):
+        raise argparse.ArgumentTypeError(f"{text}: expected a .json or .toml file")
+    return p
+
+
+def output_file(text: str) -> Path:
+    """A file to write: not an existing folder, and in a folder that exists or can be made."""
+    p = Path(text)
+    if p.is_dir():
+        raise argparse.ArgumentTypeError(f"{text}: is a directory, expected a file name")
+    _check_writable_parent(p)
+    return p
+
+
+def output_dir(text: str) -> Path:
+    """A folder to write in: an existing folder, or one that can be made (not an existing file)."""
+    p = Path(text)
+    if p.exists() and not p.is_dir():
+        raise argparse.ArgumentTypeError(f"{text}: exists and is not a directory")
+    _check_writable_parent(p)
+    return p
+
+
+def _check_writable_parent(p: Path) -> None:
+    """The nearest existing ancestor of `p` must be a folder we may write in, so that the run
+    fails now rather than after its work."""
+    for parent in p.absolute().parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise argparse.ArgumentTypeError(f"{p}: {parent} is a file, not a directory")
+            if not os.access(parent, os.W_OK | os.X_OK):
+                raise argparse.ArgumentTypeError(f"{p}: cannot write in {parent}")
+            return
+
+
+def bundled_scene(text: str) -> str:
+    """The name of a bundled scene (ball, car, cook, fan, rotate), lower-cased; never a path."""
+    from scenes import SCENES
+
+    name = text.lower()
+    if name not in SCENES:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a bundled scene; expected one of {', '.join(SCENES)}")
+    return name
+
+
+__all__ = ["positive_int", "nonnegative_int", "positive_float", "nonnegative_float", "existing_file",
+           "config_file", "output_file", "output_dir", "bundled_scene"]

@@ -34,8 +34,17 @@ _COMMAND_MODULE = {
 }
 
 
+EXIT_STATUSES = """exit status:
+  0    success
+  2    bad input or a missing resource (a file, a GPU, memory): one line names the flag or file
+  1    an unexpected error, shown with its traceback: a bug, please report it
+       (`verify` and `golden` also return 1 when their check finds problems, listed above it)
+  130  interrupted (Ctrl-C)"""
+
+
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="spikesim", description=__doc__)
+    parser = argparse.ArgumentParser(prog="spikesim", description=__doc__, epilog=EXIT_STATUSES,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     modules = [_COMMAND_MODULE[command]] if command in _COMMAND_MODULE else _SUBCOMMANDS
@@ -51,15 +60,29 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run one command and return its exit status (see EXIT_STATUSES); argparse's refusals of bad
+    arguments are returned as their status too, so that callers in-process get a number."""
     argv = list(sys.argv[1:] if argv is None else argv)
     command = next((a for a in argv if not a.startswith("-")), None)
+    try:
+        return _run(argv, command)
+    except KeyboardInterrupt:  # also while the command's modules load (torch takes seconds)
+        name = f"spikesim {command}" if command in _COMMAND_MODULE else "spikesim"
+        print(f"{name}: interrupted", file=sys.stderr)
+        return 130
+
+
+def _run(argv: list[str], command: str | None) -> int:
     parser = build_parser(command)
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # --help (0) or a refused argument (2), already printed
+        return exc.code if isinstance(exc.code, int) else 2
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s", datefmt="%H:%M:%S")
     try:
         return int(args.func(args) or 0)
-    except (ValueError, KeyError, OSError, UnavailableError) as exc:
+    except (ValueError, KeyError, OSError, MemoryError, UnavailableError) as exc:
         # Bad input or a missing resource: one clear line, no traceback (use -v for one).
         if args.verbose:
             raise
@@ -73,6 +96,8 @@ def _one_line(exc: BaseException) -> str:
     if isinstance(exc, OSError) and exc.filename is not None:
         return f"{exc.filename}: {exc.strerror or exc}"
     text = str(exc.args[0]) if isinstance(exc, KeyError) and exc.args else str(exc)
+    if isinstance(exc, MemoryError):
+        text = f"out of memory: {text}" if text else "out of memory"
     return " ".join(text.split()) or type(exc).__name__
 
 

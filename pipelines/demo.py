@@ -12,11 +12,13 @@ import dataclasses
 import time
 from pathlib import Path
 
+from pipelines.argtypes import bundled_scene, existing_file, nonnegative_int, output_dir, positive_int
+
 
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from model.methods import method_from_spec
+    from model.methods import ModelMethod, method_from_spec
     from model.streaming import StepWindows
     from pipelines.evaluate import evaluate, markdown_table, write_results
     from pipelines.generate import PRESETS, generate, plan_llr
@@ -25,6 +27,10 @@ def run(args: argparse.Namespace) -> int:
     from spikesim.stats import dark_pixel_fraction
 
     out = Path(args.out)
+    # the methods first: a checkpoint that does not load fails now, not after the rendering
+    methods = [method_from_spec(m) for m in ("tfp", "tfi")]
+    if args.checkpoint is not None:  # not through a spec: a path may contain "=" (runs/lr=1e-3/best.pt)
+        methods.append(ModelMethod(args.checkpoint.parent.name or args.checkpoint.stem, args.checkpoint))
     preset = dataclasses.replace(PRESETS["small"], llr_windows=args.windows)
     t0 = time.perf_counter()
     jobs = plan_llr(preset, seed=args.seed, scenes=args.scenes)
@@ -38,8 +44,6 @@ def run(args: argparse.Namespace) -> int:
         rate = s.counts().mean() / s.num_steps
         print(f"[demo] {sc.name:<12} mean rate {rate:.4f} spikes/step, "
               f"{dark_pixel_fraction(s, 41):.1%} of pixels without a spike per 41-step window")
-    specs = ["tfp", "tfi"] + ([args.checkpoint] if args.checkpoint else [])
-    methods = [method_from_spec(m) for m in specs]
     rows = evaluate(scenes, methods, 41, progress=False)
     names = [m.name for m in methods]
     write_results(rows, names, out)
@@ -62,11 +66,13 @@ def run(args: argparse.Namespace) -> int:
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("demo", help="render a scene, simulate its spike stream and reconstruct it, end to end")
-    p.add_argument("--out", default="out/demo")
-    p.add_argument("--scenes", nargs="*", default=["fan"], help="bundled scenes (ball, car, cook, fan, rotate)")
-    p.add_argument("--windows", type=int, default=3, help="41-step windows per scene")
-    p.add_argument("--checkpoint", help="also reconstruct with a trained model (a train run's best.pt)")
-    p.add_argument("--workers", type=int, default=None)
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", type=output_dir, default=Path("out/demo"))
+    p.add_argument("--scenes", nargs="+", type=bundled_scene, default=["fan"],
+                   help="bundled scenes (ball, car, cook, fan, rotate)")
+    p.add_argument("--windows", type=positive_int, default=3, help="41-step windows per scene")
+    p.add_argument("--checkpoint", type=existing_file,
+                   help="also reconstruct with a trained model (a train run's best.pt)")
+    p.add_argument("--workers", type=positive_int, default=None, help="worker processes (default: one per core)")
+    p.add_argument("--seed", type=nonnegative_int, default=0)
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=run)

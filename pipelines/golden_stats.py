@@ -102,13 +102,39 @@ def compare(measured: dict[str, Any], golden: dict[str, Any], n_sigma: float = 5
     return problems
 
 
-def load_golden(path: Path = GOLDEN_PATH) -> dict[str, Any]:
+def load_golden(path: Path | None = None) -> dict[str, Any]:
+    """The stored golden statistics (default GOLDEN_PATH), checked enough that `compare` cannot
+    trip over a damaged file; errors name the file."""
+    path = GOLDEN_PATH if path is None else Path(path)
     if not path.exists():
         raise FileNotFoundError(f"golden statistics {path} missing; create them with `spikesim golden --write`")
-    return json.loads(path.read_text())
+    try:
+        data = json.loads(path.read_text())
+    except ValueError as exc:
+        raise ValueError(f"golden statistics {path}: not valid JSON ({exc}); "
+                         "regenerate them with `spikesim golden --write`") from exc
+    problem = _layout_problem(data)
+    if problem:
+        raise ValueError(f"golden statistics {path}: {problem}; regenerate them with `spikesim golden --write`")
+    return data
+
+
+def _layout_problem(data: Any) -> str | None:
+    """What is wrong with the layout `measure` writes ({"stats": {level: {name: {"value", "se"}}}}), if anything."""
+    stats = data.get("stats") if isinstance(data, dict) else None
+    if not isinstance(stats, dict):
+        return "no 'stats' object"
+    for level, entry in stats.items():
+        if not isinstance(entry, dict):
+            return f"stats[{level!r}] is not an object"
+        for name, g in entry.items():
+            if isinstance(g, dict) and not all(isinstance(g.get(k), (int, float)) for k in ("value", "se")):
+                return f"stats[{level!r}][{name!r}] lacks a numeric 'value' and 'se'"
+    return None
 
 
 def run(args: argparse.Namespace) -> int:
+    golden = None if args.write else load_golden()  # a missing or damaged file fails before the measurement
     measured = measure(args.backend)
     if args.write:
         GOLDEN_PATH.parent.mkdir(parents=True, exist_ok=True)
@@ -117,7 +143,7 @@ def run(args: argparse.Namespace) -> int:
         tmp.replace(GOLDEN_PATH)
         print(f"wrote {GOLDEN_PATH}")
         return 0
-    problems = compare(measured, load_golden())
+    problems = compare(measured, golden)
     for p in problems:
         print(p)
     print("golden statistics: " + ("OK" if not problems else f"{len(problems)} statistic(s) moved"))

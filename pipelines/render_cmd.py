@@ -11,10 +11,22 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
+import os
 import time
 from pathlib import Path
 from typing import Any
+
+from pipelines.argtypes import config_file, existing_file, nonnegative_int, output_dir, positive_float, positive_int
+
+
+MAX_STEPS = 1_000_000  # steps one call may render (a typo such as 0:1e11 would exhaust memory instead)
+
+
+def _bounded_range(r: range, already: int) -> range:
+    if already + len(r) > MAX_STEPS:
+        raise argparse.ArgumentTypeError(f"{r.start}:{r.stop}:{r.step} selects {len(r)} steps; "
+                                         f"at most {MAX_STEPS} per call")
+    return r
 
 
 def parse_steps(spec: str) -> list[int]:
@@ -29,7 +41,7 @@ def parse_steps(spec: str) -> list[int]:
                 nums = [int(x) for x in part.split(":")]
                 if len(nums) not in (2, 3):
                     raise ValueError
-                steps.extend(range(*nums))
+                steps.extend(_bounded_range(range(*nums), len(steps)))
             else:
                 steps.append(int(part))
         except ValueError:
@@ -50,6 +62,17 @@ def parse_resolution(spec: str) -> tuple[int, int]:
     return h, w
 
 
+def percentile(text: str) -> float:
+    """A percentile, 0 to 100."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not 0 <= v <= 100:
+        raise argparse.ArgumentTypeError(f"must be a percentile from 0 to 100, got {text}")
+    return v
+
+
 def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     """Register the `render` subcommand on an argparse subparsers object."""
     p = subparsers.add_parser("render", help="render a scene's frames or ground truth to EXR + PNG",
@@ -61,36 +84,35 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
                         "the lighting has one spectrum, else spectral)")
     p.add_argument("--steps", type=parse_steps, default=[0], help="steps to render: N, A:B, A:B:S, comma lists")
     p.add_argument("--ground-truth", action="store_true", help="render ground truth (gt_spp) instead of frames")
-    p.add_argument("--spp", type=int, default=None, help="samples per pixel per frame render (default 4)")
-    p.add_argument("--gt-spp", type=int, default=None, help="samples per pixel per ground-truth render (default 64)")
-    p.add_argument("--seed", type=int, default=None, help="render seed (default 0)")
+    p.add_argument("--spp", type=positive_int, default=None, help="samples per pixel per frame render (default 4)")
+    p.add_argument("--gt-spp", type=positive_int, default=None,
+                   help="samples per pixel per ground-truth render (default 64)")
+    p.add_argument("--seed", type=nonnegative_int, default=None, help="render seed (default 0)")
     p.add_argument("--resolution", type=parse_resolution, default=None, help="HEIGHTxWIDTH override, e.g. 25x40")
-    p.add_argument("--motion", type=Path, default=None, help="motion file (default: motion.json beside the XML)")
-    p.add_argument("--lights", type=Path, default=None, help="light file (default: lights.json beside the XML)")
-    p.add_argument("--settings", type=Path, default=None, help="JSON file of RenderSettings")
-    p.add_argument("--exposure", type=Path, default=None, help="JSON file of Exposure (optics, pixel, T, threshold)")
-    p.add_argument("--png-scale", type=float, default=None, help="PNG preview: multiply y by this before display")
-    p.add_argument("--png-percentile", type=float, default=None,
-                   help="PNG preview: map this percentile of y to white (for dark scenes)")
-    p.add_argument("--out", type=Path, default=Path("out/render"), help="output folder (default out/render)")
+    p.add_argument("--motion", type=existing_file, default=None, help="motion file (default: motion.json beside the XML)")
+    p.add_argument("--lights", type=existing_file, default=None, help="light file (default: lights.json beside the XML)")
+    p.add_argument("--settings", type=config_file, default=None, help="JSON/TOML file of RenderSettings")
+    p.add_argument("--exposure", type=config_file, default=None,
+                   help="JSON/TOML file of Exposure (optics, pixel, T, threshold)")
+    p.add_argument("--png-scale", type=positive_float, default=None, help="PNG preview: multiply y by this before display")
+    p.add_argument("--png-percentile", type=percentile, default=None,
+                   help="PNG preview: map this percentile (0-100) of y to white (for dark scenes)")
+    p.add_argument("--out", type=output_dir, default=Path("out/render"), help="output folder (default out/render)")
     p.set_defaults(func=run)
     return p
 
 
 def run(args: argparse.Namespace) -> int:
     from spikesim.imageio import write_exr, write_png
-    from spikesim.render import Exposure, RenderSettings, SceneError, SceneRenderer, write_ground_truth
+    from spikesim.render import Exposure, RenderSettings, SceneRenderer, write_ground_truth
 
-    try:
-        settings = RenderSettings.from_file(args.settings) if args.settings else None
-        exposure = Exposure.from_file(args.exposure) if args.exposure else None
-        kw: dict[str, Any] = {"gt_spp": args.gt_spp} if args.gt_spp else {}
-        renderer = SceneRenderer(args.scene, light=args.light, variant=args.variant, spp=args.spp,
-                                 resolution=args.resolution, seed=args.seed, motion=args.motion,
-                                 lights=args.lights, settings=settings, exposure=exposure, **kw)
-    except (SceneError, ValueError, KeyError) as exc:
-        print(f"spikesim render: {exc}", file=sys.stderr)
-        return 2
+    # A bad scene, light or config file raises SceneError/ValueError: one line from pipelines.cli.
+    settings = RenderSettings.from_file(args.settings) if args.settings is not None else None
+    exposure = Exposure.from_file(args.exposure) if args.exposure is not None else None
+    kw: dict[str, Any] = {"gt_spp": args.gt_spp} if args.gt_spp is not None else {}
+    renderer = SceneRenderer(args.scene, light=args.light, variant=args.variant, spp=args.spp,
+                             resolution=args.resolution, seed=args.seed, motion=args.motion,
+                             lights=args.lights, settings=settings, exposure=exposure, **kw)
     kind = "gt" if args.ground_truth else ("preview" if renderer.variant == "rgb" else "frames")
     folder = args.out / kind
     folder.mkdir(parents=True, exist_ok=True)
@@ -111,8 +133,15 @@ def run(args: argparse.Namespace) -> int:
         print(f"{name}  ({timings[-1]:.2f} s)")
     meta = {**renderer.describe(), "kind": kind, "steps": args.steps, "seconds_per_step": timings,
             "stats": renderer.stats}
-    (args.out / "render.json").write_text(json.dumps(meta, indent=2))
+    _write_json(args.out / "render.json", meta)
     return 0
+
+
+def _write_json(path: Path, obj: Any) -> None:
+    """Replace `path` whole: a temporary file in the same folder, then a rename."""
+    tmp = path.with_name(f".{path.name}.part")
+    tmp.write_text(json.dumps(obj, indent=2) + "\n")
+    os.replace(tmp, path)
 
 
 def _write_rgb_png(path: Path, rgb, scale: float | None, percentile: float | None) -> None:
@@ -123,8 +152,10 @@ def _write_rgb_png(path: Path, rgb, scale: float | None, percentile: float | Non
     if percentile is not None:
         ref = float(np.percentile(lum, percentile))
         scale = 1.0 / ref if ref > 0 else 1.0
-    img = np.clip(rgb * (scale or 1.0), 0.0, 1.0) ** (1 / 2.2)
-    Image.fromarray(np.round(img * 255).astype(np.uint8)).save(path)
+    img = np.clip(rgb * (1.0 if scale is None else scale), 0.0, 1.0) ** (1 / 2.2)
+    tmp = path.with_name(f".{path.name}.part")
+    Image.fromarray(np.round(img * 255).astype(np.uint8)).save(tmp, format="PNG")
+    os.replace(tmp, path)
 
 
 __all__ = ["add_parser", "run", "parse_steps", "parse_resolution"]

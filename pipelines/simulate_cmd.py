@@ -4,20 +4,26 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import time
 from pathlib import Path
 from typing import Iterator
 
 import numpy as np
 
+from pipelines.argtypes import (config_file, existing_file, nonnegative_float, nonnegative_int, output_file,
+                                positive_int)
 from spikesim.camera import SpikeCamera
 from spikesim.patterns import MovingPattern
 
 log = logging.getLogger("spikesim.simulate")
 
+NPY_MAGIC = b"\x93NUMPY"  # the first bytes of every .npy file (numpy.lib.format)
+DEFAULT_STEPS = 2000  # steps of the pattern and of a rendered scene when --steps is not given
+
 
 def camera_from_args(args: argparse.Namespace) -> SpikeCamera:
-    if getattr(args, "camera", None):
+    if getattr(args, "camera", None) is not None:
         cam = SpikeCamera.from_file(args.camera)
     else:
         cam = SpikeCamera.noiseless() if args.preset == "noiseless" else SpikeCamera.realistic()
@@ -27,58 +33,134 @@ def camera_from_args(args: argparse.Namespace) -> SpikeCamera:
 
 def add_camera_arguments(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("camera")
-    g.add_argument("--camera", type=Path, help="camera config (JSON/TOML); overrides --preset")
+    g.add_argument("--camera", type=config_file, help="camera config (JSON/TOML); overrides --preset")
     g.add_argument("--preset", choices=["realistic", "noiseless"], default="realistic")
-    g.add_argument("--height", type=int, help="sensor rows (default: the camera's, 250)")
-    g.add_argument("--width", type=int, help="sensor columns (default: the camera's, 400)")
+    g.add_argument("--height", type=positive_int, help="sensor rows (default: the camera's, 250)")
+    g.add_argument("--width", type=positive_int, help="sensor columns (default: the camera's, 400)")
 
 
 def frames_from_source(args: argparse.Namespace, cam: SpikeCamera) -> tuple[Iterator[np.ndarray], dict]:
     """The irradiance source named on the command line, as a frame iterator plus a description."""
     if args.frames is not None and args.scene is not None:
         raise ValueError("give --frames or --scene, not both")
+    for flag, value in (("--motion", args.motion), ("--lights", args.lights), ("--spp", args.spp)):
+        if value is not None and args.scene is None:
+            raise ValueError(f"{flag} applies to a rendered scene; give --scene too")
+    k = args.keyframe_every
     if args.scene is not None:
         from spikesim.render import SceneRenderer
         r = SceneRenderer(args.scene, light=args.light, camera=cam, motion=args.motion, lights=args.lights,
                           spp=args.spp, seed=args.seed)
-        steps = args.steps or 2000
-        return r.frames(0, steps, keyframe_every=args.keyframe_every), {"source": "scene", **r.describe()}
+        steps = DEFAULT_STEPS if args.steps is None else args.steps
+        return r.frames(0, steps, keyframe_every=k), {"source": "scene", **r.describe()}
     if args.frames is not None:
         src = Path(args.frames)
-        if src.suffix == ".npy":
-            arr = np.load(src, mmap_mode="r")
-            if arr.ndim != 3:
-                raise ValueError(f"{src}: expected an (N, H, W) array of y, got shape {arr.shape}")
-            n = arr.shape[0] if args.steps is None else min(args.steps, arr.shape[0])
-            return (np.asarray(arr[i]) for i in range(n)), {"source": str(src)}
         if src.is_dir():
-            from spikesim.imageio import read_exr
-            files = sorted(src.glob("*.exr"))
-            if not files:
-                raise FileNotFoundError(f"{src}: no .exr frames in this folder")
-            files = files[: args.steps] if args.steps else files
-            return (read_exr(f) for f in files), {"source": str(src), "frames": len(files)}
-        raise ValueError(f"--frames {src}: expected a .npy array or a folder of .exr files")
+            files = exr_files(src)
+            check_frames_cover(args.steps, len(files), k, src)
+            files = files if args.steps is None else files[: args.steps]
+            return _checked_exr_frames(files, cam), {"source": str(src), "frames": len(files)}
+        arr = load_npy_frames(src, cam)
+        check_frames_cover(args.steps, arr.shape[0], k, src)
+        n = arr.shape[0] if args.steps is None else min(args.steps, arr.shape[0])
+        return (np.asarray(arr[i]) for i in range(n)), {"source": str(src)}
     pattern = MovingPattern(height=cam.height, width=cam.width, peak_y=args.peak_y,
                             readout_period_s=cam.readout_period_s, seed=args.seed)
-    steps = args.steps or 2000
-    k = args.keyframe_every
+    steps = DEFAULT_STEPS if args.steps is None else args.steps
     nkey = (steps - 1) // k + 1 if k > 1 else steps
     return pattern.frames(nkey, every=k), {"source": "moving_pattern", "peak_y": args.peak_y}
+
+
+def load_npy_frames(path: Path, cam: SpikeCamera) -> np.ndarray:
+    """The (N, H, W) array of y in a .npy file, memory-mapped, checked against the camera; every
+    error names the file (numpy's own say neither the file nor what was expected)."""
+    with open(path, "rb") as f:
+        magic = f.read(len(NPY_MAGIC))
+    if magic != NPY_MAGIC:  # numpy would try to unpickle it, and blame pickling
+        hint = " (an .npz archive? save one array with numpy.save)" if magic.startswith(b"PK") else ""
+        raise ValueError(f"{path}: not a .npy file, it does not start with the NumPy header{hint}")
+    try:
+        arr = np.load(path, mmap_mode="r")
+    except (ValueError, EOFError) as exc:  # truncated, a broken header, Python objects
+        raise ValueError(f"{path}: not a readable .npy array ({exc})") from exc
+    if arr.ndim != 3:
+        raise ValueError(f"{path}: expected an (N, H, W) array of y, got shape {arr.shape}")
+    if not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
+        raise ValueError(f"{path}: dtype {arr.dtype} is not numeric; expected y as floats")
+    if arr.shape[0] == 0:
+        raise ValueError(f"{path}: holds no frames (shape {arr.shape})")
+    if arr.shape[1:] != (cam.height, cam.width):
+        h, w = arr.shape[1:]
+        raise ValueError(f"{path}: frames are {h}x{w} (HxW) but the camera is {cam.height}x{cam.width}; "
+                         f"give --height {h} --width {w}")
+    return arr
+
+
+def exr_files(folder: Path) -> list[Path]:
+    """The folder's EXR frames in name order."""
+    files = sorted(folder.glob("*.exr"))
+    if not files:
+        raise FileNotFoundError(f"{folder}: no .exr frames in this folder")
+    return files
+
+
+def _checked_exr_frames(files: list[Path], cam: SpikeCamera) -> Iterator[np.ndarray]:
+    """Each EXR's y, checked as the simulator would, so that a bad frame names its file."""
+    from spikesim.imageio import read_exr
+    from spikesim.simulate import check_frame
+
+    for i, f in enumerate(files):
+        y = read_exr(f)  # its errors name the file
+        try:
+            y = check_frame(y, i, cam.height, cam.width)
+        except ValueError as exc:
+            raise ValueError(f"{f}: {exc}") from None
+        yield y
+
+
+def check_frames_cover(steps: int | None, num_frames: int, keyframe_every: int, source: Path) -> None:
+    """Refuse --steps beyond what the frames cover, rather than simulating fewer steps without a
+    word: m frames cover m steps; m keyframes k steps apart cover (m - 1) k + 1."""
+    covered = (num_frames - 1) * keyframe_every + 1
+    if steps is not None and steps > covered:
+        what = (f"{num_frames} frames" if keyframe_every == 1
+                else f"{num_frames} keyframes {keyframe_every} steps apart")
+        raise ValueError(f"--steps {steps}: the {what} in {source} cover only {covered} steps")
+
+
+def check_outputs(args: argparse.Namespace) -> None:
+    """-o and its JSON sidecar can be written and overwrite no file this run reads (checked before
+    the simulation, which may take long)."""
+    from spikesim.stream import sidecar_path
+
+    side = sidecar_path(args.out)
+    if side.is_dir():
+        raise ValueError(f"--out {args.out}: its sidecar {side} is a directory")
+    inputs = {"--frames": args.frames, "--camera": args.camera, "--motion": args.motion, "--lights": args.lights}
+    for written in (Path(args.out), side):
+        for flag, path in inputs.items():
+            if path is not None and written.exists() and Path(path).exists() and written.samefile(path):
+                raise ValueError(f"--out {args.out} would overwrite the {flag} input {path}")
 
 
 def run(args: argparse.Namespace) -> int:
     from spikesim.simulate import Simulator
     from spikesim.stats import summary
 
+    check_outputs(args)
     cam = camera_from_args(args)
+    sim = Simulator(cam, backend=args.backend, seed=args.seed)  # an unavailable backend fails first
     frames, source = frames_from_source(args, cam)
-    sim = Simulator(cam, backend=args.backend, seed=args.seed)
     log.info("simulating on backend %s, %dx%d, from %s", sim.backend_name, cam.width, cam.height,
              source.get("scene") or source.get("source"))
     t0 = time.perf_counter()
-    out = sim.run_to_dat(_progress(frames, args), args.out, keyframe_every=args.keyframe_every,
-                         flip=not args.no_flip, extra={"irradiance": source}, max_steps=args.steps)
+    try:
+        out = sim.run_to_dat(_progress(frames, args), args.out, keyframe_every=args.keyframe_every,
+                             flip=not args.no_flip, extra={"irradiance": source}, max_steps=args.steps)
+    except ValueError as exc:  # a bad frame of an .npy: name the file (EXR frames name theirs)
+        if args.frames is None or Path(args.frames).is_dir():
+            raise
+        raise ValueError(f"{args.frames}: {exc}") from exc
     dt = time.perf_counter() - t0
     from spikesim.stream import DatReader
     stream = DatReader(out, cam.height, cam.width, flip=not args.no_flip).read()
@@ -99,20 +181,41 @@ def _progress(frames: Iterator[np.ndarray], args: argparse.Namespace) -> Iterato
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("simulate", help="irradiance frames -> spike stream (.dat + JSON sidecar)")
     src = p.add_argument_group("irradiance source (default: the built-in moving pattern)")
-    src.add_argument("--frames", help="an (N, H, W) .npy array of y, or a folder of EXR frames")
+    src.add_argument("--frames", type=frames_path, help="an (N, H, W) .npy array of y, or a folder of EXR frames")
     src.add_argument("--scene", help="a bundled scene (ball, car, cook, fan, rotate) or a scene XML to render")
     src.add_argument("--light", default="normal", help="lighting condition of the scene (normal, low)")
-    src.add_argument("--motion", help="motion file (default: motion.json beside the XML)")
-    src.add_argument("--lights", help="lights file (default: lights.json beside the XML)")
-    src.add_argument("--spp", type=int, help="render samples per pixel (default: the renderer's)")
-    src.add_argument("--peak-y", type=float, default=0.25, help="pattern brightness: y of white (spikes/step)")
-    src.add_argument("--steps", type=int, help="number of steps (pattern default 2000)")
-    src.add_argument("--keyframe-every", type=int, default=1,
+    src.add_argument("--motion", type=existing_file, help="motion file (default: motion.json beside the XML)")
+    src.add_argument("--lights", type=existing_file, help="lights file (default: lights.json beside the XML)")
+    src.add_argument("--spp", type=positive_int, help="render samples per pixel (default: the renderer's)")
+    src.add_argument("--peak-y", type=peak_y, default=0.25, help="pattern brightness: y of white (spikes/step)")
+    src.add_argument("--steps", type=positive_int, help=f"number of steps (pattern default {DEFAULT_STEPS})")
+    src.add_argument("--keyframe-every", type=positive_int, default=1,
                      help="frames are keyframes this many steps apart; the sensor interpolates")
     add_camera_arguments(p)
     p.add_argument("--backend", default="auto", choices=["auto", "numpy", "llvm", "cuda"])
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=nonnegative_int, default=0)
     p.add_argument("--no-flip", action="store_true", help="write rows top-down (SPCS/SCSim convention)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.add_argument("-o", "--out", type=Path, default=Path("out/stream.dat"))
+    p.add_argument("-o", "--out", type=output_file, default=Path("out/stream.dat"))
     p.set_defaults(func=run)
+
+
+def frames_path(text: str) -> Path:
+    """--frames: an existing .npy file or folder (of EXR frames)."""
+    p = Path(text)
+    if p.is_dir():
+        if not os.access(p, os.R_OK | os.X_OK):
+            raise argparse.ArgumentTypeError(f"{text}: folder cannot be read")
+        return p
+    p = existing_file(text)
+    if p.suffix.lower() != ".npy":
+        raise argparse.ArgumentTypeError(f"{text}: expected a .npy array or a folder of .exr files")
+    return p
+
+
+def peak_y(text: str) -> float:
+    """--peak-y: y >= 0 that fits the float32 frames (beyond, the pattern would be infinite)."""
+    v = nonnegative_float(text)
+    if v > float(np.finfo(np.float32).max):
+        raise argparse.ArgumentTypeError(f"must be at most {float(np.finfo(np.float32).max):.4g} (float32), got {text}")
+    return v

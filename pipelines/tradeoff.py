@@ -24,15 +24,20 @@ import argparse
 import csv
 import dataclasses
 import hashlib
+import io
 import json
 import logging
 import math
+import os
 import time
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, BinaryIO, Callable, Sequence
 
 import numpy as np
+
+from pipelines.argtypes import bundled_scene, nonnegative_int, output_dir, positive_int
 
 log = logging.getLogger(__name__)
 
@@ -264,7 +269,7 @@ class SceneStudy:
 
     def reference_frames(self) -> dict[int, np.ndarray]:
         if self._ref_frames is None:
-            data = np.load(self.folder / "reference_frames.npz")
+            data = _load_npz(self.folder / "reference_frames.npz", "steps", "frames")
             self._ref_frames = {int(s): f for s, f in zip(data["steps"], data["frames"])}
         return self._ref_frames
 
@@ -280,7 +285,7 @@ class SceneStudy:
 
         cfg, s = self.cfg, spec.settings
         if self._reuses_reference(spec):
-            ref_row = json.loads((self.folder / "reference.json").read_text())
+            ref_row = _read_json(self.folder / "reference.json")
             source: Any = _Replay(self.reference_frames())
             render_s, reused = ref_row["render_s"], True
         else:
@@ -321,8 +326,8 @@ class SceneStudy:
         extra: dict[str, np.ndarray] = {}
         if spec.knob == "reference":
             steps = sorted(keyframes)
-            np.savez_compressed(self.folder / "reference_frames.npz", steps=np.array(steps),
-                                frames=np.stack([keyframes[k] for k in steps]))
+            _save_npz(self.folder / "reference_frames.npz", steps=np.array(steps),
+                      frames=np.stack([keyframes[k] for k in steps]))
             self._ref_frames = keyframes
             r = self.renderer("spectral", cfg.seed)
             t2 = time.perf_counter()
@@ -331,8 +336,7 @@ class SceneStudy:
                      len(cfg.centres()), cfg.gt_spp, time.perf_counter() - t2)
         if spec.knob == "reference":
             self._probe = render_s / cfg.num_steps
-        np.savez_compressed(self.folder / f"{_slug(spec.name)}.npz", packed=stream.packed, y_centres=y_centres,
-                            **extra)
+        _save_npz(self.folder / f"{_slug(spec.name)}.npz", packed=stream.packed, y_centres=y_centres, **extra)
         return {"render_s": float(render_s), "render_reused": reused, "simulate_s": float(sim_s),
                 "ref_frame_s": self.reference_frame_s(),
                 "first_pass_s": float(wall), "renders": len(source.frames) if not reused else cfg.num_steps,
@@ -400,7 +404,7 @@ def run_study(cfg: StudyConfig, out: Path, progress: bool = True) -> list[dict[s
     from tqdm import tqdm
 
     out.mkdir(parents=True, exist_ok=True)
-    (out / "study.json").write_text(json.dumps(_jsonable(dataclasses.asdict(cfg)), indent=2) + "\n")
+    _write_json(out / "study.json", dataclasses.asdict(cfg))
     runs = plan_runs(cfg)
     jobs = [(sc, li, r) for sc in cfg.scenes for li in cfg.lights for r in runs]
     session = f"{time.time():.0f}"
@@ -411,7 +415,7 @@ def run_study(cfg: StudyConfig, out: Path, progress: bool = True) -> list[dict[s
         folder.mkdir(parents=True, exist_ok=True)
         path = folder / f"{_slug(spec.name)}.json"
         key = _digest({**cfg.result_key(), "scene": scene, "light": light, **spec.to_dict()})
-        if path.exists() and (folder / f"{_slug(spec.name)}.npz").exists() and json.loads(path.read_text()).get("key") == key:
+        if _is_cached(path, folder / f"{_slug(spec.name)}.npz", key):
             log.debug("%s %s %s: cached", scene, light, spec.name)
             continue
         bar.set_postfix_str(f"{scene}/{light} {spec.name}")
@@ -421,11 +425,11 @@ def run_study(cfg: StudyConfig, out: Path, progress: bool = True) -> list[dict[s
         t0 = time.perf_counter()
         row = study.run(spec)
         row.update({"key": key, "session": session, "scene": scene, "light": light, **spec.to_dict()})
-        path.write_text(json.dumps(_jsonable(row), indent=2) + "\n")
+        _write_json(path, row)
         log.info("%s %s %-28s render %.2f s simulate %.3f s (%.1f s)", scene, light, spec.name, row["render_s"],
                  row["simulate_s"], time.perf_counter() - t0)
         if spec.knob == "reference":
-            (folder / "reference.json").write_text(path.read_text())
+            _write_json(folder / "reference.json", row)
     for st in studies.values():  # release Mitsuba scenes before the report
         st._renderers.clear()
     return collect_rows(cfg, out, runs)
@@ -440,16 +444,16 @@ def collect_rows(cfg: StudyConfig, out: Path, runs: Sequence[RunSpec] | None = N
             folder = out / "runs" / f"{scene}_{light}"
             if not (folder / "reference.json").exists():
                 continue
-            ref = json.loads((folder / "reference.json").read_text())
-            ref_npz = np.load(folder / "reference.npz")
+            ref = _read_json(folder / "reference.json")
+            ref_npz = _load_npz(folder / "reference.npz", "packed", "gt")
             gt = ref_npz["gt"]
             block = []
             for spec in runs:
                 p = folder / f"{_slug(spec.name)}.json"
                 if not p.exists():
                     continue
-                row = json.loads(p.read_text())
-                data = np.load(folder / f"{_slug(spec.name)}.npz")
+                row = _read_json(p)
+                data = _load_npz(folder / f"{_slug(spec.name)}.npz", "packed", "y_centres")
                 same = row["session"] == ref["session"]
                 # a run resumed in another process: the reference re-timed there (probe frames)
                 ref_render = ref["render_s"] if same or "ref_frame_s" not in row else row["ref_frame_s"] * cfg.num_steps
@@ -478,10 +482,11 @@ COLUMNS = ("scene", "light", "run", "knob", "render_s", "simulate_s", "time_rati
 
 
 def write_csv(rows: Sequence[dict[str, Any]], path: Path) -> None:
-    with open(path, "w", newline="") as f:
-        wr = csv.DictWriter(f, fieldnames=COLUMNS, extrasaction="ignore")
-        wr.writeheader()
-        wr.writerows(rows)
+    text = io.StringIO(newline="")
+    wr = csv.DictWriter(text, fieldnames=COLUMNS, extrasaction="ignore")
+    wr.writeheader()
+    wr.writerows(rows)
+    _write_atomic(path, lambda f: f.write(text.getvalue().encode()))
 
 
 def markdown_table(rows: Sequence[dict[str, Any]]) -> str:
@@ -554,12 +559,63 @@ def plot(rows: Sequence[dict[str, Any]], path: Path) -> None:
 
 def write_report(rows: Sequence[dict[str, Any]], out: Path, images: Path | None = None) -> None:
     write_csv(rows, out / "tradeoff.csv")
-    (out / "tradeoff.md").write_text(markdown_table(rows))
+    _write_atomic(out / "tradeoff.md", lambda f: f.write(markdown_table(rows).encode()))
     if rows:
         plot(rows, out / "tradeoff.png")
         if images is not None:
             images.mkdir(parents=True, exist_ok=True)
             plot(rows, images / "tradeoff_pareto.png")
+
+
+# ---- cache files: written whole (temporary file, then rename), read with errors naming the file ----
+def _write_atomic(path: Path, write: Callable[[BinaryIO], Any]) -> None:
+    """An interrupted study leaves the old file or the new one, never half of one."""
+    tmp = path.with_name(f".{path.name}.part")
+    try:
+        with open(tmp, "wb") as f:
+            write(f)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def _write_json(path: Path, obj: Any) -> None:
+    _write_atomic(path, lambda f: f.write((json.dumps(_jsonable(obj), indent=2) + "\n").encode()))
+
+
+def _save_npz(path: Path, **arrays: np.ndarray) -> None:
+    _write_atomic(path, lambda f: np.savez_compressed(f, **arrays))
+
+
+def _read_json(path: Path) -> dict[str, Any]:
+    try:
+        data = json.loads(path.read_text())
+    except ValueError as exc:
+        raise ValueError(f"{path}: damaged cache file ({exc}); delete it to measure that run again") from exc
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: damaged cache file (not a JSON object); delete it to measure that run again")
+    return data
+
+
+def _load_npz(path: Path, *keys: str) -> dict[str, np.ndarray]:
+    """The named arrays of a cached .npz, read now (a damaged archive fails here, naming it)."""
+    try:
+        with np.load(path) as z:
+            return {k: z[k] for k in keys}
+    except (ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
+        raise ValueError(f"{path}: damaged cache file ({exc}); delete it to measure that run again") from exc
+
+
+def _is_cached(row_path: Path, npz_path: Path, key: str) -> bool:
+    """Whether a run's results are cached for this configuration; a damaged cache is measured again."""
+    if not (row_path.exists() and npz_path.exists()):
+        return False
+    try:
+        return _read_json(row_path).get("key") == key
+    except ValueError as exc:
+        log.warning("%s", exc)
+        return False
 
 
 def _digest(obj: Any) -> str:
@@ -580,20 +636,39 @@ def _jsonable(obj: Any) -> Any:
 
 # ---- command line ---------------------------------------------------------------------------------
 def _resolution(text: str) -> tuple[int, int]:
+    """--resolution HxW, each at least SSIM's 11-pixel window."""
     try:
         h, w = (int(v) for v in text.lower().split("x"))
     except ValueError:
-        raise argparse.ArgumentTypeError(f"--resolution {text!r}: expected HxW, e.g. 50x80") from None
+        raise argparse.ArgumentTypeError(f"{text!r}: expected HxW, e.g. 50x80") from None
+    if min(h, w) < 11:
+        raise argparse.ArgumentTypeError(f"{text!r}: height and width must each be >= 11 (SSIM's window)")
     return h, w
 
 
+def _windows(text: str) -> int:
+    """--windows: 1 to the 21 windows of an LLR sequence."""
+    v = positive_int(text)
+    if v > 21:
+        raise argparse.ArgumentTypeError(f"must be at most 21 (the windows of an LLR sequence), got {text}")
+    return v
+
+
 def cmd_tradeoff(args: argparse.Namespace) -> int:
-    cfg = StudyConfig(scenes=tuple(s.lower() for s in args.scenes), lights=tuple(args.lights),
+    cfg = StudyConfig(scenes=tuple(args.scenes), lights=tuple(args.lights),
                       resolution=args.resolution, windows=args.windows, ref_spp=args.ref_spp, gt_spp=args.gt_spp,
                       seed=args.seed, backend=args.backend, knobs=tuple(args.knobs), repeats=args.repeats)
     out = Path(args.out)
-    rows = collect_rows(cfg, out) if args.report_only else run_study(cfg, out, progress=not args.no_progress)
-    write_report(rows, out, Path(args.images) if args.images else None)
+    if args.report_only:
+        rows = collect_rows(cfg, out)
+        if not rows:
+            raise FileNotFoundError(f"{out}: no cached runs of these scenes and lights; run the study "
+                                    "without --report-only first")
+    else:
+        from spikesim.simulate import resolve_backend
+        resolve_backend(cfg.backend)  # an unavailable backend fails before any rendering or writing
+        rows = run_study(cfg, out, progress=not args.no_progress)
+    write_report(rows, out, Path(args.images) if args.images is not None else None)
     print((out / "tradeoff.md").read_text())
     log.info("wrote %s, %s and %s", out / "tradeoff.csv", out / "tradeoff.md", out / "tradeoff.png")
     return 0
@@ -602,18 +677,20 @@ def cmd_tradeoff(args: argparse.Namespace) -> int:
 def add_parser(subparsers: Any) -> None:
     p = subparsers.add_parser("tradeoff", help="measure each render/sensor knob's cost and error (docs/tradeoff.md)",
                               description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--scenes", nargs="+", default=list(DEFAULT_SCENES), help="LLR scenes (default: all five)")
+    p.add_argument("--scenes", nargs="+", type=bundled_scene, default=list(DEFAULT_SCENES),
+                   help="LLR scenes (default: all five)")
     p.add_argument("--lights", nargs="+", default=["low", "normal"], choices=("low", "normal"))
     p.add_argument("--resolution", type=_resolution, default=(50, 80), help="HxW of camera and renders (50x80)")
-    p.add_argument("--windows", type=int, default=3, help="41-step windows around the sequence centre (3)")
-    p.add_argument("--ref-spp", type=int, default=64, help="samples per pixel of the reference (64)")
-    p.add_argument("--gt-spp", type=int, default=256, help="samples per pixel of the ground truth (256)")
+    p.add_argument("--windows", type=_windows, default=3, help="41-step windows around the sequence centre (3)")
+    p.add_argument("--ref-spp", type=positive_int, default=64, help="samples per pixel of the reference (64)")
+    p.add_argument("--gt-spp", type=positive_int, default=256, help="samples per pixel of the ground truth (256)")
     p.add_argument("--knobs", nargs="+", default=list(KNOBS), choices=KNOBS)
-    p.add_argument("--repeats", type=int, default=3, help="simulation timing repeats (minimum kept)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--repeats", type=positive_int, default=3, help="simulation timing repeats (minimum kept)")
+    p.add_argument("--seed", type=nonnegative_int, default=0)
     p.add_argument("--backend", default="auto", choices=("auto", "numpy", "llvm", "cuda"))
-    p.add_argument("-o", "--out", default="out/tradeoff", help="output folder (cache, CSV, Markdown, PNG)")
-    p.add_argument("--images", default=None, help="also write the plot as <DIR>/tradeoff_pareto.png")
+    p.add_argument("-o", "--out", type=output_dir, default=Path("out/tradeoff"),
+                   help="output folder (cache, CSV, Markdown, PNG)")
+    p.add_argument("--images", type=output_dir, default=None, help="also write the plot as <DIR>/tradeoff_pareto.png")
     p.add_argument("--report-only", action="store_true", help="rebuild the tables and plot from the cache")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_tradeoff)

@@ -48,6 +48,7 @@ def test_render_frames_and_bad_scene_exit_code(make_scene, tmp_path, capsys):
     args = _parser().parse_args(["render", str(xml), "--steps", "0:2", "--resolution", "10x16", "--out", str(tmp_path)])
     assert args.func(args) == 0
     assert len(list((tmp_path / "frames").glob("*.exr"))) == 2
-    bad = _parser().parse_args(["render", str(tmp_path / "missing.xml"), "--out", str(tmp_path)])
-    assert bad.func(bad) == 2
-    assert "missing.xml" in capsys.readouterr().err
+    from pipelines.cli import main
+    assert main(["render", str(tmp_path / "missing.xml"), "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("spikesim render: error: ") and "missing.xml" in err and len(err.splitlines()) == 1
