@@ -54,4 +54,25 @@ def has_cuda() -> bool:
     return bool(dr.has_backend(dr.JitBackend.CUDA))
 
 
-__all__ = ["dr", "configure", "find_libllvm", "has_llvm", "has_cuda"]
+DEVICES = ("llvm", "cuda")
+#: What a user may ask for: a device, or "auto" (the GPU when there is one).
+DEVICE_CHOICES = ("auto",) + DEVICES
+
+
+def resolve_device(device: str) -> str:
+    """"auto" -> "cuda" where Dr.Jit finds a CUDA GPU, else "llvm" (the CPU); a device that is
+    not here is an UnavailableError that says so in one line."""
+    from .errors import UnavailableError
+    if device not in DEVICE_CHOICES:
+        raise ValueError(f"device={device!r}; expected one of {DEVICE_CHOICES}")
+    if device == "auto":
+        return "cuda" if has_cuda() else "llvm"
+    if device == "cuda" and not has_cuda():
+        raise UnavailableError("--device cuda: Dr.Jit finds no CUDA GPU or driver on this machine; "
+                               "use --device llvm (the CPU) or auto")
+    if device == "llvm" and not has_llvm():
+        raise UnavailableError("--device llvm: Dr.Jit's CPU backend needs libLLVM >= 17, which is missing")
+    return device
+
+
+__all__ = ["dr", "configure", "find_libllvm", "has_llvm", "has_cuda", "DEVICES", "DEVICE_CHOICES", "resolve_device"]

@@ -5,22 +5,18 @@ Mitsuba's variant is process-global, so every entry point that touches Mitsuba o
 """
 from __future__ import annotations
 
-from spikesim._drjit import dr  # noqa: F401  (sets DRJIT_LIBLLVM_PATH before mitsuba imports drjit)
+from spikesim._drjit import DEVICE_CHOICES, DEVICES, dr, resolve_device  # noqa: F401  (dr first: sets DRJIT_LIBLLVM_PATH before mitsuba imports drjit)
 
 import mitsuba as mi
 
 #: Our variant names -> the Mitsuba variant suffix (DESIGN.md section 4: mono is the fast path,
 #: spectral weighted by the silicon response is the accurate one, rgb is for previews only).
 VARIANTS = {"mono": "ad_mono", "spectral": "ad_spectral", "rgb": "ad_rgb"}
-DEVICES = ("llvm", "cuda")
-
-
 def variant_name(variant: str, device: str = "llvm") -> str:
-    """The Mitsuba variant string for one of our variants on a device."""
+    """The Mitsuba variant string for one of our variants on a device ("auto" resolved here)."""
     if variant not in VARIANTS:
         raise ValueError(f"variant={variant!r}; expected one of {tuple(VARIANTS)}")
-    if device not in DEVICES:
-        raise ValueError(f"device={device!r}; expected one of {DEVICES}")
+    device = resolve_device(device)
     name = f"{device}_{VARIANTS[variant]}"
     if name not in mi.variants():
         raise RuntimeError(f"Mitsuba variant {name!r} is not in this build (has {mi.variants()})")
@@ -42,4 +38,4 @@ def clear_caches() -> None:
     dr.kernel_history_clear()
 
 
-__all__ = ["VARIANTS", "variant_name", "use_variant", "clear_caches", "mi", "dr"]
+__all__ = ["VARIANTS", "DEVICES", "DEVICE_CHOICES", "resolve_device", "variant_name", "use_variant", "clear_caches", "mi", "dr"]

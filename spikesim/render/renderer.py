@@ -21,7 +21,7 @@ from typing import Any, Iterator
 import numpy as np
 
 from .animate import Animator
-from .backend import mi, use_variant, variant_name
+from .backend import DEVICE_CHOICES, dr, mi, resolve_device, use_variant, variant_name
 from .errors import LightError
 from .exposure import Exposure, Optics, PixelResponse
 from .lights import load_lights
@@ -56,8 +56,8 @@ class RenderSettings:
     max_substeps: int = 16
     resolution: tuple[int, int] | None = None
     """(height, width) override, e.g. (25, 40) for tests; default: the camera's, else the XML's."""
-    device: str = "llvm"
-    """Dr.Jit backend: "llvm" (CPU) or "cuda"."""
+    device: str = "auto"
+    """Dr.Jit backend: "llvm" (CPU), "cuda" (GPU), or "auto" (the GPU when there is one)."""
 
     def __post_init__(self) -> None:
         if self.variant not in ("auto", "mono", "spectral", "rgb"):
@@ -78,8 +78,8 @@ class RenderSettings:
             if len(r) != 2 or not all(isinstance(x, int) and x > 0 for x in r):
                 raise ValueError(f"resolution={self.resolution!r} must be (height, width) positive integers")
             object.__setattr__(self, "resolution", r)
-        if self.device not in ("llvm", "cuda"):
-            raise ValueError(f"device={self.device!r}; expected 'llvm' or 'cuda'")
+        if self.device not in DEVICE_CHOICES:
+            raise ValueError(f"device={self.device!r}; expected one of {DEVICE_CHOICES}")
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -139,7 +139,8 @@ class SceneRenderer:
         self.variant = self.settings.variant
         if self.variant == "auto":
             self.variant = "mono" if len(spectrum_mix(self.lighting)) == 1 else "spectral"
-        self._variant = variant_name(self.variant, self.settings.device)
+        self.device = resolve_device(self.settings.device)  # "llvm" or "cuda": where device frames live
+        self._variant = variant_name(self.variant, self.device)
         use_variant(self._variant)
         text, self.sensor_id, (h, w) = prepare_xml(self.files.xml, self.variant, self.lighting,
                                                    self.exposure.pixel, self.settings.resolution)
@@ -149,6 +150,7 @@ class SceneRenderer:
         self.animator = Animator(self.scene, self.params, self.motion)
         self.camera_model = PinholeCamera.from_params(self.params, self.sensor_id, w, h)
         self._gain = self.exposure.gain_map(h, w, self.camera_model.x_fov_deg)
+        self._gain_device: Any = None  # the gain map on the render device, made on first use
         self.stats = {"renders": 0, "render_seconds": 0.0, "frames": 0}
 
     # ---- time ---------------------------------------------------------------------------------
@@ -178,45 +180,68 @@ class SceneRenderer:
         return int(min(s.max_substeps, max(1, math.ceil(self.motion_px(step) / s.blur_threshold_px - 1e-9))))
 
     # ---- rendering ----------------------------------------------------------------------------
-    def _film(self, step: int, spp: int, stream: int) -> np.ndarray:
-        """Mean film value over step `step` (electron-weighted radiance; RGB for previews)."""
+    def _film_tensor(self, step: int, spp: int, stream: int) -> Any:
+        """Mean film value over step `step` (electron-weighted radiance; RGB for previews), as a
+        Mitsuba tensor (H, W, C) on the render device."""
         use_variant(self._variant)
         n = self.substeps_for(step)
         acc = None
         for sub in range(n):
             self.animator.apply(self.time_of(step, (sub + 0.5) / n))
             t0 = time.perf_counter()
-            img = np.array(mi.render(self.scene, spp=spp, seed=_seed(self.settings.seed, stream, step, sub)),
-                           dtype=np.float32)
+            img = mi.render(self.scene, spp=spp, seed=_seed(self.settings.seed, stream, step, sub))
             self.stats["render_seconds"] += time.perf_counter() - t0
             self.stats["renders"] += 1
             acc = img if acc is None else acc + img
-        return acc / n
+        return acc if n == 1 else acc / n
+
+    def _film(self, step: int, spp: int, stream: int) -> np.ndarray:
+        """The film of `_film_tensor`, copied to the host."""
+        return np.array(self._film_tensor(step, spp, stream), dtype=np.float32)
 
     def render_step(self, step: int, spp: int | None = None) -> np.ndarray:
         """y at step `step` (float32 (H, W)), with `spp` samples per render (default: settings.spp)."""
         return self._to_y(step, self._film(self._check_step(step), spp or self.settings.spp, _FRAMES))
 
+    def render_step_device(self, step: int, spp: int | None = None) -> Any:
+        """y at step `step` as a flat Dr.Jit array of H W values (row-major) that stays on the
+        render device, for a Simulator on the same device (`settings.device`): no host round
+        trip per frame. Non-finite values are left for the sensor kernel to reject (it names
+        the frame); checking here would cost a device sync per frame."""
+        if self.variant == "rgb":
+            raise ValueError("the rgb variant renders previews only (preview_rgb); use 'mono' or 'spectral' for y")
+        film = self._film_tensor(self._check_step(step), spp or self.settings.spp, _FRAMES)
+        channels = film.shape[2]
+        values = film.array
+        if channels != 1:  # the y channel is the first of each pixel
+            values = dr.gather(type(values), values, dr.arange(mi.UInt32, self.height * self.width) * channels)
+        if self._gain_device is None:
+            self._gain_device = mi.Float(self._gain.ravel())
+        return dr.maximum(values * self._gain_device, 0.0)
+
     def ground_truth(self, step: int, spp: int | None = None) -> np.ndarray:
         """Ground-truth y at step `step`: the same mean over the readout period, with gt_spp."""
         return self._to_y(step, self._film(self._check_step(step), spp or self.settings.gt_spp, _GROUND_TRUTH))
 
-    def frames(self, start_step: int = 0, num_steps: int = 1, keyframe_every: int = 1) -> Iterator[np.ndarray]:
+    def frames(self, start_step: int = 0, num_steps: int = 1, keyframe_every: int = 1,
+               device: bool = False) -> Iterator[Any]:
         """Stream y frames for steps start_step .. start_step + num_steps - 1.
 
         With keyframe_every = k > 1 only keyframes are rendered: frame j is y at step
         start_step + j k, for j = 0 .. ceil((num_steps - 1) / k), so the last keyframe reaches or
         passes the last step and the sensor can interpolate every step in between
-        (spikesim.simulate.Simulator.run(frames, keyframe_every=k)).
+        (spikesim.simulate.Simulator.run(frames, keyframe_every=k)). With `device=True` the
+        frames are Dr.Jit arrays on the render device (`render_step_device`).
         """
         self._check_step(start_step)
         if isinstance(num_steps, bool) or not isinstance(num_steps, int) or num_steps < 1:
             raise ValueError(f"num_steps={num_steps!r} must be a positive integer")
         if isinstance(keyframe_every, bool) or not isinstance(keyframe_every, int) or keyframe_every < 1:
             raise ValueError(f"keyframe_every={keyframe_every!r} must be a positive integer")
+        render = self.render_step_device if device else self.render_step
         n_keys = -(-(num_steps - 1) // keyframe_every) + 1
         for j in range(n_keys):
-            yield self.render_step(start_step + j * keyframe_every)
+            yield render(start_step + j * keyframe_every)
             self.stats["frames"] += 1
 
     def preview_rgb(self, step: int, spp: int | None = None) -> np.ndarray:
