@@ -116,5 +116,15 @@ def bundled_scene(text: str) -> str:
     return name
 
 
-__all__ = ["positive_int", "nonnegative_int", "positive_float", "nonnegative_float", "existing_file",
+DEVICE_HELP = ("where Mitsuba renders and, with --backend auto, the sensor runs: llvm (the CPU), cuda (a GPU), "
+               "or auto (the GPU when there is one); frames stay on that device and only packed spikes leave it")
+
+
+def add_device_argument(parser: argparse.ArgumentParser) -> None:
+    """The --device flag of every command that renders (one definition, one help text)."""
+    from spikesim._drjit import DEVICE_CHOICES
+    parser.add_argument("--device", choices=DEVICE_CHOICES, default="auto", help=DEVICE_HELP)
+
+
+__all__ = ["add_device_argument", "positive_int", "nonnegative_int", "positive_float", "nonnegative_float", "existing_file",
            "config_file", "output_file", "output_dir", "bundled_scene"]

@@ -12,7 +12,8 @@ import dataclasses
 import time
 from pathlib import Path
 
-from pipelines.argtypes import bundled_scene, existing_file, nonnegative_int, output_dir, positive_int
+from pipelines.argtypes import (add_device_argument, bundled_scene, existing_file, nonnegative_int, output_dir,
+                                positive_int)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -24,9 +25,11 @@ def run(args: argparse.Namespace) -> int:
     from pipelines.generate import PRESETS, generate, plan_llr
     from spikesim.dataset import open_dataset
     from spikesim.imageio import write_png
+    from spikesim._drjit import resolve_device
     from spikesim.stats import dark_pixel_fraction
 
     out = Path(args.out)
+    device = resolve_device(args.device)  # an unavailable GPU fails before any work
     # the methods first: a checkpoint that does not load fails now, not after the rendering
     methods = [method_from_spec(m) for m in ("tfp", "tfi")]
     if args.checkpoint is not None:  # not through a spec: a path may contain "=" (runs/lr=1e-3/best.pt)
@@ -35,8 +38,9 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     jobs = plan_llr(preset, seed=args.seed, scenes=args.scenes)
     print(f"[demo] rendering {', '.join(j.name for j in jobs)} at {preset.width}x{preset.height}, "
-          f"{jobs[0].num_steps} steps each, and simulating the realistic sensor ...")
-    generate(jobs, out / "llr", workers=args.workers, info={"kind": "demo"}, show_progress=not args.quiet)
+          f"{jobs[0].num_steps} steps each, and simulating the realistic sensor on {device} ...")
+    generate(jobs, out / "llr", workers=args.workers, info={"kind": "demo"}, show_progress=not args.quiet,
+             device=device)
     scenes = open_dataset(out / "llr")
     t_gen = time.perf_counter() - t0
     for sc in scenes:
@@ -72,7 +76,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--windows", type=positive_int, default=3, help="41-step windows per scene")
     p.add_argument("--checkpoint", type=existing_file,
                    help="also reconstruct with a trained model (a train run's best.pt)")
-    p.add_argument("--workers", type=positive_int, default=None, help="worker processes (default: one per core)")
+    p.add_argument("--workers", type=positive_int, default=None,
+                   help="worker processes (default: one per core; one with a GPU)")
+    add_device_argument(p)
     p.add_argument("--seed", type=nonnegative_int, default=0)
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=run)

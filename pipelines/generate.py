@@ -27,9 +27,10 @@ from typing import Any
 
 import numpy as np
 
-from pipelines.argtypes import existing_file, nonnegative_int, positive_float, positive_int
+from pipelines.argtypes import add_device_argument, existing_file, nonnegative_int, positive_float, positive_int
 from pipelines.generate_jobs import _FrameSource, run_job  # noqa: F401  (_FrameSource: tests patch it here)
 from pipelines.generate_lock import output_lock
+from spikesim._drjit import resolve_device
 from spikesim.dataset import (MANIFEST, META, check_scene, check_scene_name, holds_only_scene_files, inside_root,
                               read_manifest, remove_inside, scene_folders, write_manifest)
 
@@ -299,7 +300,7 @@ def _passing_scenes(root: Path, planned: list[str], full: bool) -> list[str]:
 
 def generate(jobs: list[SceneJob], root: str | Path, workers: int | None = None, ray_address: str | None = None,
              info: dict[str, Any] | None = None, overwrite_stale: bool = False, show_progress: bool = True,
-             check: bool = False, command: str | None = None) -> dict[str, Any]:
+             check: bool = False, command: str | None = None, device: str = "auto") -> dict[str, Any]:
     """Run the jobs that are not done yet, then write the manifest from the scenes that pass their
     checks. `check` hashes every file of the finished scenes (default: sizes only). Returns a report.
 
@@ -323,10 +324,11 @@ def generate(jobs: list[SceneJob], root: str | Path, workers: int | None = None,
         if todo:
             from pipelines.generate_pool import generate_local, generate_ray
             if ray_address is not None:
-                results = generate_ray(todo, root, ray_address, show_progress)
+                results = generate_ray(todo, root, ray_address, show_progress, device)
             else:
-                results = generate_local(todo, root, min(len(todo), os.cpu_count() or 1) if workers is None else workers,
-                                         show_progress)
+                if workers is None:  # one process per core; one process feeds a GPU best
+                    workers = 1 if resolve_device(device) == "cuda" else min(len(todo), os.cpu_count() or 1)
+                results = generate_local(todo, root, workers, show_progress, device)
         manifest = write_manifest(root, {**(info or {}), "jobs": {j.name: j.digest for j in jobs}},
                                   scenes=_passing_scenes(root, names, check))
     return {"root": str(root), "generated": results, "skipped": len(jobs) - len(todo),
@@ -381,6 +383,7 @@ def run(args: argparse.Namespace) -> int:
     if args.kind == "scene" and args.xml is None:
         raise ValueError("generate scene needs --xml (and usually --motion, --lights, --light)")
     preset = _preset_from_args(args)
+    device = resolve_device(args.device)  # a GPU that is not here fails before anything is written
     camera = SpikeCamera.from_file(args.camera) if args.camera is not None else None
     if args.kind == "llr":
         jobs = plan_llr(preset, seed=args.seed, camera=camera, scenes=args.scenes, quality=args.quality)
@@ -396,7 +399,7 @@ def run(args: argparse.Namespace) -> int:
     report = generate(jobs, args.out, workers=args.workers, ray_address=args.ray,
                       info={"kind": args.kind, "preset": dataclasses.asdict(preset), "seed": args.seed},
                       overwrite_stale=args.overwrite, show_progress=not args.quiet, check=args.check,
-                      command="spikesim " + shlex.join(sys.argv[1:]))
+                      command="spikesim " + shlex.join(sys.argv[1:]), device=device)
     for r in report["generated"]:
         print(f"  {r['name']}: {r['seconds']:.1f} s, {r['bytes'] / 1e6:.2f} MB")
     print(f"{args.out}: {len(report['generated'])} scene(s) generated, {report['skipped']} already complete, "
@@ -455,7 +458,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--quality", choices=["draft", "balanced", "reference"],
                    help="render/sensor knobs from spikesim.quality (measured presets; docs/tradeoff.md); "
                         "overrides --spp/--keyframe-every and the variant")
-    p.add_argument("--workers", type=positive_int, help="local processes (default: one per core)")
+    p.add_argument("--workers", type=positive_int, help="local processes (default: one per core; one with a GPU)")
+    add_device_argument(p)
     p.add_argument("--ray", metavar="ADDRESS", help="run on a Ray cluster ('auto', an address, or 'local')")
     p.add_argument("--overwrite", action="store_true", help="rebuild scenes generated with other parameters")
     p.add_argument("--check", action="store_true",

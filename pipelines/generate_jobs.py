@@ -26,7 +26,7 @@ log = logging.getLogger("spikesim.generate")
 class _FrameSource:
     """What a job renders from: frames(start, n, keyframe_every), ground_truth(step), describe()."""
 
-    def __init__(self, job: SceneJob, workdir: Path):
+    def __init__(self, job: SceneJob, workdir: Path, device: str = "auto"):
         src = job.source
         self.scale = job.light_power_factor
         h, w = job.camera["height"], job.camera["width"]
@@ -49,6 +49,7 @@ class _FrameSource:
             if job.quality is not None:
                 from spikesim.quality import QualitySettings
                 render.update(QualitySettings.from_name(job.quality).render_kwargs())
+            render["device"] = device
             self._renderer = SceneRenderer(scene, light=light, motion=motion, lights=lights,
                                            camera=SpikeCamera.from_dict(job.camera), **render)
             self._pattern = None
@@ -57,14 +58,15 @@ class _FrameSource:
     def renderer(self) -> Any:
         return self._renderer
 
-    def scaled(self) -> Any:
+    def scaled(self, device: bool = False) -> Any:
         """The renderer as the quality presets call it (render_step, motion_px), with the light
-        power factor applied."""
-        return _ScaledRenderer(self._renderer, self.scale)
+        power factor applied; with `device`, its frames stay on the render device."""
+        return _ScaledRenderer(self._renderer, self.scale, device)
 
-    def frames(self, start: int, n: int, k: int) -> Iterator[np.ndarray]:
+    def frames(self, start: int, n: int, k: int, device: bool = False) -> Iterator[Any]:
+        """y frames (keyframes every k steps); with `device`, Dr.Jit arrays on the render device."""
         if self._renderer is not None:
-            it = self._renderer.frames(start, n, keyframe_every=k)
+            it = self._renderer.frames(start, n, keyframe_every=k, device=device)
         else:
             it = self._pattern.frames(-(-(n - 1) // k) + 1, start=start, every=k)
         for f in it:
@@ -93,22 +95,27 @@ def _without_prefix(obj: Any, prefix: str, replacement: str) -> Any:
 
 
 class _ScaledRenderer:
-    """A renderer whose frames are multiplied by the job's light power factor."""
+    """A renderer whose frames are multiplied by the job's light power factor (and, with
+    `device`, stay on the render device)."""
 
-    def __init__(self, renderer: Any, scale: float):
-        self._r, self._scale = renderer, np.float32(scale)
+    def __init__(self, renderer: Any, scale: float, device: bool = False):
+        self._r, self._scale, self._device = renderer, np.float32(scale), device
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self._r, name)
 
-    def render_step(self, step: int, spp: int | None = None) -> np.ndarray:
-        y = self._r.render_step(step, spp=spp)
+    def render_step(self, step: int, spp: int | None = None) -> Any:
+        y = (self._r.render_step_device if self._device else self._r.render_step)(step, spp=spp)
         return y * self._scale if self._scale != 1 else y
 
 
 def run_job(job: SceneJob, root: str | Path, progress: Callable[[str, int, int], None] | None = None,
-            backend: str = "auto", threads: int | None = None) -> dict[str, Any]:
-    """Render, simulate and write one scene folder; returns timing and size."""
+            backend: str = "auto", threads: int | None = None, device: str = "auto") -> dict[str, Any]:
+    """Render, simulate and write one scene folder; returns timing and size.
+
+    `device` is where Mitsuba renders ("auto": the GPU when there is one); with the sensor
+    `backend` "auto" the sensor runs there too, and frames never leave the device: only packed
+    spikes come back, to be written."""
     from spikesim.camera import SpikeCamera
     from spikesim.simulate import Simulator
     from spikesim.stream import DatWriter
@@ -125,7 +132,7 @@ def run_job(job: SceneJob, root: str | Path, progress: Callable[[str, int, int],
     work.mkdir(parents=True)
     t0 = time.perf_counter()
     try:
-        source = _FrameSource(job, work)
+        source = _FrameSource(job, work, device)
         cam = SpikeCamera.from_dict(job.camera)
         quality_record = None
         if job.quality is not None and source.renderer is not None:
@@ -138,14 +145,18 @@ def run_job(job: SceneJob, root: str | Path, progress: Callable[[str, int, int],
             for d in decisions:
                 log.debug("%s: noise %s", job.name, d.to_dict())
             quality_record = q.record(decisions)
+        renderer = source.renderer
+        if backend == "auto" and renderer is not None:
+            backend = renderer.device  # the sensor where the frames are
         sim = Simulator(cam, backend=backend, seed=job.seed)
+        on_device = renderer is not None and sim.backend_name == renderer.device
         dat = work / "spikes.dat"
         written = 0
         with DatWriter(dat, cam.height, cam.width, flip=job.flip) as writer:
             if quality_record is not None:
-                parts = q.simulate(sim, source.scaled(), 0, job.num_steps)
+                parts = q.simulate(sim, source.scaled(on_device), 0, job.num_steps)
             else:
-                frames = source.frames(0, job.num_steps, job.keyframe_every)
+                frames = source.frames(0, job.num_steps, job.keyframe_every, device=on_device)
                 parts = sim.stream(frames, keyframe_every=job.keyframe_every, final=True)
             for part in parts:
                 take = min(part.num_steps, job.num_steps - written)

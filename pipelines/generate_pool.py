@@ -62,19 +62,20 @@ def _worker_init(threads: int, progress: Any, parent_pid: int) -> None:
     _progress = progress
 
 
-def _run_in_worker(job: SceneJob, root: str, threads: int) -> dict[str, Any]:
+def _run_in_worker(job: SceneJob, root: str, threads: int, device: str) -> dict[str, Any]:
     def progress(name: str, done: int, total: int) -> None:
         _progress.put((name, done, total))
-    return run_job(job, root, progress=progress, threads=threads)
+    return run_job(job, root, progress=progress, threads=threads, device=device)
 
 
 # ---- local ------------------------------------------------------------------------------------------
-def generate_local(todo: list[SceneJob], root: Path, workers: int, show_progress: bool) -> list[dict[str, Any]]:
+def generate_local(todo: list[SceneJob], root: Path, workers: int, show_progress: bool,
+                   device: str = "auto") -> list[dict[str, Any]]:
     """Run the jobs here: in this process with `workers` <= 1, else in a spawned process pool."""
     from tqdm import tqdm
 
     if workers <= 1:
-        return _generate_in_process(todo, root, show_progress, tqdm)
+        return _generate_in_process(todo, root, show_progress, tqdm, device)
     import multiprocessing as mp
     ctx = mp.get_context("spawn")  # Dr.Jit / Mitsuba state must not be forked
     threads = max(1, (os.cpu_count() or 1) // workers)
@@ -84,7 +85,7 @@ def generate_local(todo: list[SceneJob], root: Path, workers: int, show_progress
     overall = tqdm(total=len(todo), desc="scenes", unit="scene", disable=not show_progress, position=0)
     with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init,
                              initargs=(threads, queue, os.getpid())) as pool:
-        pending = {pool.submit(_run_in_worker, job, str(root), threads): job for job in todo}
+        pending = {pool.submit(_run_in_worker, job, str(root), threads, device): job for job in todo}
         try:
             while pending:
                 done, _ = wait(list(pending), timeout=0.5, return_when=FIRST_COMPLETED)
@@ -110,7 +111,8 @@ def generate_local(todo: list[SceneJob], root: Path, workers: int, show_progress
     return results
 
 
-def _generate_in_process(todo: list[SceneJob], root: Path, show_progress: bool, tqdm: Any) -> list[dict[str, Any]]:
+def _generate_in_process(todo: list[SceneJob], root: Path, show_progress: bool, tqdm: Any,
+                         device: str) -> list[dict[str, Any]]:
     results = []
     overall = tqdm(total=len(todo), desc="scenes", unit="scene", disable=not show_progress, position=0)
     for job in todo:
@@ -119,7 +121,7 @@ def _generate_in_process(todo: list[SceneJob], root: Path, show_progress: bool, 
         def progress(name: str, done: int, total: int, bar: Any = bar) -> None:
             bar.n = done
             bar.refresh()
-        results.append(run_job(job, root, progress=progress))
+        results.append(run_job(job, root, progress=progress, device=device))
         bar.close()
         overall.update(1)
     overall.close()
@@ -159,12 +161,13 @@ def connect_ray(address: str) -> Any:
     return ray
 
 
-def generate_ray(todo: list[SceneJob], root: Path, address: str, show_progress: bool) -> list[dict[str, Any]]:
+def generate_ray(todo: list[SceneJob], root: Path, address: str, show_progress: bool,
+                 device: str = "auto") -> list[dict[str, Any]]:
     """One Ray task per scene; `root` must be a path every node can write (a shared filesystem)."""
     from tqdm import tqdm
     ray = connect_ray(address)
     remote = ray.remote(num_cpus=1)(run_job)
-    refs = {remote.remote(job, str(root), None, "auto", 1): job for job in todo}
+    refs = {remote.remote(job, str(root), None, "auto", 1, device): job for job in todo}
     results = []
     with tqdm(total=len(todo), desc="scenes (ray)", unit="scene", disable=not show_progress) as bar:
         while refs:

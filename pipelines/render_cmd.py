@@ -16,7 +16,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from pipelines.argtypes import config_file, existing_file, nonnegative_int, output_dir, positive_float, positive_int
+from pipelines.argtypes import (add_device_argument, config_file, existing_file, nonnegative_int, output_dir,
+                                positive_float, positive_int)
 
 
 MAX_STEPS = 1_000_000  # steps one call may render (a typo such as 0:1e11 would exhaust memory instead)
@@ -88,6 +89,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--gt-spp", type=positive_int, default=None,
                    help="samples per pixel per ground-truth render (default 64)")
     p.add_argument("--seed", type=nonnegative_int, default=None, help="render seed (default 0)")
+    add_device_argument(p)
     p.add_argument("--resolution", type=parse_resolution, default=None, help="HEIGHTxWIDTH override, e.g. 25x40")
     p.add_argument("--motion", type=existing_file, default=None, help="motion file (default: motion.json beside the XML)")
     p.add_argument("--lights", type=existing_file, default=None, help="light file (default: lights.json beside the XML)")
@@ -112,7 +114,7 @@ def run(args: argparse.Namespace) -> int:
     kw: dict[str, Any] = {"gt_spp": args.gt_spp} if args.gt_spp is not None else {}
     renderer = SceneRenderer(args.scene, light=args.light, variant=args.variant, spp=args.spp,
                              resolution=args.resolution, seed=args.seed, motion=args.motion,
-                             lights=args.lights, settings=settings, exposure=exposure, **kw)
+                             lights=args.lights, settings=settings, exposure=exposure, device=args.device, **kw)
     kind = "gt" if args.ground_truth else ("preview" if renderer.variant == "rgb" else "frames")
     folder = args.out / kind
     folder.mkdir(parents=True, exist_ok=True)

@@ -7,12 +7,12 @@ import logging
 import os
 import time
 from pathlib import Path
-from typing import Iterator
+from typing import Any, Iterator
 
 import numpy as np
 
-from pipelines.argtypes import (config_file, existing_file, nonnegative_float, nonnegative_int, output_file,
-                                positive_int)
+from pipelines.argtypes import (add_device_argument, config_file, existing_file, nonnegative_float, nonnegative_int,
+                                output_file, positive_int)
 from spikesim.camera import SpikeCamera
 from spikesim.patterns import MovingPattern
 
@@ -39,8 +39,10 @@ def add_camera_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--width", type=positive_int, help="sensor columns (default: the camera's, 400)")
 
 
-def frames_from_source(args: argparse.Namespace, cam: SpikeCamera) -> tuple[Iterator[np.ndarray], dict]:
-    """The irradiance source named on the command line, as a frame iterator plus a description."""
+def frames_from_source(args: argparse.Namespace, cam: SpikeCamera,
+                       sensor_device: str | None = None) -> tuple[Iterator[Any], dict]:
+    """The irradiance source named on the command line, as a frame iterator plus a description.
+    A rendered scene's frames stay on the render device when the sensor runs there too."""
     if args.frames is not None and args.scene is not None:
         raise ValueError("give --frames or --scene, not both")
     for flag, value in (("--motion", args.motion), ("--lights", args.lights), ("--spp", args.spp)):
@@ -50,9 +52,10 @@ def frames_from_source(args: argparse.Namespace, cam: SpikeCamera) -> tuple[Iter
     if args.scene is not None:
         from spikesim.render import SceneRenderer
         r = SceneRenderer(args.scene, light=args.light, camera=cam, motion=args.motion, lights=args.lights,
-                          spp=args.spp, seed=args.seed)
+                          spp=args.spp, seed=args.seed, device=args.device)
         steps = DEFAULT_STEPS if args.steps is None else args.steps
-        return r.frames(0, steps, keyframe_every=k), {"source": "scene", **r.describe()}
+        frames = r.frames(0, steps, keyframe_every=k, device=sensor_device == r.device)
+        return frames, {"source": "scene", **r.describe()}
     if args.frames is not None:
         src = Path(args.frames)
         if src.is_dir():
@@ -144,13 +147,18 @@ def check_outputs(args: argparse.Namespace) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from pipelines.inspect_cmd import summarize
+    from spikesim._drjit import resolve_device
     from spikesim.simulate import Simulator
-    from spikesim.stats import summary
 
     check_outputs(args)
     cam = camera_from_args(args)
-    sim = Simulator(cam, backend=args.backend, seed=args.seed)  # an unavailable backend fails first
-    frames, source = frames_from_source(args, cam)
+    backend = args.backend
+    if args.scene is not None:
+        device = resolve_device(args.device)  # an unavailable GPU fails first
+        backend = device if backend == "auto" else backend   # the sensor where the frames are
+    sim = Simulator(cam, backend=backend, seed=args.seed)  # an unavailable backend fails first
+    frames, source = frames_from_source(args, cam, sim.backend_name)
     log.info("simulating on backend %s, %dx%d, from %s", sim.backend_name, cam.width, cam.height,
              source.get("scene") or source.get("source"))
     t0 = time.perf_counter()
@@ -163,10 +171,10 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"{args.frames}: {exc}") from exc
     dt = time.perf_counter() - t0
     from spikesim.stream import DatReader
-    stream = DatReader(out, cam.height, cam.width, flip=not args.no_flip).read()
-    log.info("wrote %s: %d steps in %.2f s (%.3g pixel-steps/s)", out, stream.num_steps, dt,
-             stream.num_steps * cam.num_pixels / max(dt, 1e-9))
-    s = summary(stream, cam.readout_period_s)
+    reader = DatReader(out, cam.height, cam.width, flip=not args.no_flip)
+    log.info("wrote %s: %d steps in %.2f s (%.3g pixel-steps/s)", out, len(reader), dt,
+             len(reader) * cam.num_pixels / max(dt, 1e-9))
+    s = summarize(reader, 0, len(reader), cam.readout_period_s, window=41)  # chunked: bounded memory
     print(f"{out}: {s['num_steps']} steps of {s['width']}x{s['height']} ({s['duration_s'] * 1e3:.2f} ms), "
           f"mean rate {s['mean_rate_per_step']:.4f} spikes/step ({s['mean_rate_hz']:.0f} Hz), "
           f"dark pixels {s['dark_pixel_fraction']:.1%}")
@@ -187,6 +195,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     src.add_argument("--motion", type=existing_file, help="motion file (default: motion.json beside the XML)")
     src.add_argument("--lights", type=existing_file, help="lights file (default: lights.json beside the XML)")
     src.add_argument("--spp", type=positive_int, help="render samples per pixel (default: the renderer's)")
+    add_device_argument(src)
     src.add_argument("--peak-y", type=peak_y, default=0.25, help="pattern brightness: y of white (spikes/step)")
     src.add_argument("--steps", type=positive_int, help=f"number of steps (pattern default {DEFAULT_STEPS})")
     src.add_argument("--keyframe-every", type=positive_int, default=1,

@@ -37,7 +37,7 @@ from typing import Any, BinaryIO, Callable, Sequence
 
 import numpy as np
 
-from pipelines.argtypes import bundled_scene, nonnegative_int, output_dir, positive_int
+from pipelines.argtypes import add_device_argument, bundled_scene, nonnegative_int, output_dir, positive_int
 
 log = logging.getLogger(__name__)
 
@@ -65,6 +65,9 @@ class StudyConfig:
     gt_spp: int = 256
     seed: int = 0
     backend: str = "auto"
+    """The sensor backend."""
+    device: str = "auto"
+    """Where Mitsuba renders (spikesim._drjit.DEVICE_CHOICES)."""
     knobs: tuple[str, ...] = KNOBS
     spp_values: tuple[int, ...] = (1, 4, 16)
     keyframe_values: tuple[int, ...] = (2, 4, 8, 16)
@@ -244,7 +247,7 @@ class SceneStudy:
             from spikesim.render import SceneRenderer
             h, w = self.cfg.resolution
             r = SceneRenderer(self.scene, light=self.light, variant=variant, resolution=(h, w), seed=seed,
-                              spp=self.cfg.ref_spp, gt_spp=self.cfg.gt_spp)
+                              spp=self.cfg.ref_spp, gt_spp=self.cfg.gt_spp, device=self.cfg.device)
             r.render_step(self.cfg.start, spp=1)
             self._renderers[key] = r
         return self._renderers[key]
@@ -657,7 +660,8 @@ def _windows(text: str) -> int:
 def cmd_tradeoff(args: argparse.Namespace) -> int:
     cfg = StudyConfig(scenes=tuple(args.scenes), lights=tuple(args.lights),
                       resolution=args.resolution, windows=args.windows, ref_spp=args.ref_spp, gt_spp=args.gt_spp,
-                      seed=args.seed, backend=args.backend, knobs=tuple(args.knobs), repeats=args.repeats)
+                      seed=args.seed, backend=args.backend, device=args.device, knobs=tuple(args.knobs),
+                      repeats=args.repeats)
     out = Path(args.out)
     if args.report_only:
         rows = collect_rows(cfg, out)
@@ -665,8 +669,10 @@ def cmd_tradeoff(args: argparse.Namespace) -> int:
             raise FileNotFoundError(f"{out}: no cached runs of these scenes and lights; run the study "
                                     "without --report-only first")
     else:
+        from spikesim._drjit import resolve_device
         from spikesim.simulate import resolve_backend
-        resolve_backend(cfg.backend)  # an unavailable backend fails before any rendering or writing
+        resolve_backend(cfg.backend)  # an unavailable backend or GPU fails before any rendering or writing
+        resolve_device(cfg.device)
         rows = run_study(cfg, out, progress=not args.no_progress)
     write_report(rows, out, Path(args.images) if args.images is not None else None)
     print((out / "tradeoff.md").read_text())
@@ -687,7 +693,8 @@ def add_parser(subparsers: Any) -> None:
     p.add_argument("--knobs", nargs="+", default=list(KNOBS), choices=KNOBS)
     p.add_argument("--repeats", type=positive_int, default=3, help="simulation timing repeats (minimum kept)")
     p.add_argument("--seed", type=nonnegative_int, default=0)
-    p.add_argument("--backend", default="auto", choices=("auto", "numpy", "llvm", "cuda"))
+    p.add_argument("--backend", default="auto", choices=("auto", "numpy", "llvm", "cuda"), help="the sensor backend")
+    add_device_argument(p)
     p.add_argument("-o", "--out", type=output_dir, default=Path("out/tradeoff"),
                    help="output folder (cache, CSV, Markdown, PNG)")
     p.add_argument("--images", type=output_dir, default=None, help="also write the plot as <DIR>/tradeoff_pareto.png")

@@ -100,7 +100,8 @@ def isi_histogram(stream: SpikeStream, max_isi: int = 1000) -> np.ndarray:
 
 
 def summary(stream: SpikeStream, readout_period_s: float = 25e-6, window: int = 41) -> dict[str, Any]:
-    """What `spikesim inspect` prints."""
+    """The summary of a stream in memory (`spikesim inspect` computes the same keys chunk by chunk
+    from a file: pipelines.inspect_cmd.summarize)."""
     rate = firing_rate(stream)
     isi = inter_spike_intervals(stream, max_intervals=5_000_000)
     out: dict[str, Any] = {
