@@ -1,92 +1,230 @@
-"""`spikesim bench`: throughput of the sensor backends on the same input, in one run.
+"""`spikesim bench`: throughput of each stage, as ratios measured in one run.
 
-Throughput is pixel-steps per second through `Simulator.run` (frames from memory, output
-packed), reported as ratios: each backend against the NumPy reference measured in the same
-process, and against the sensor's real-time rate (400 x 250 pixels x 40,000 steps/s = 4e9).
+Three stages, each on every available Dr.Jit device:
+- sensor: pixel-steps per second through the simulator (frames from memory, output packed),
+  against the NumPy reference measured in the same process; also S streams in one launch.
+- render: Mitsuba renders of a bundled scene at the camera size; a render covers
+  `keyframe_every` steps (the sensor interpolates in between).
+- pipeline (render + sensor): frames kept on the device and fed to the sensor there, against the
+  host round trip with the same sensor and against the NumPy reference (host frames, NumPy
+  sensor), with the share of time spent rendering.
+
+Every throughput is also given against the sensor's real-time rate (400 x 250 pixels x 40,000
+steps/s = 4e9 pixel-steps/s). Machines differ: the CPU model and GPU are printed with the
+figures, and only ratios taken in one run compare.
 """
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import time
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
+from pipelines.argtypes import bundled_scene, positive_int
 from spikesim.camera import SpikeCamera
-from spikesim.simulate import Simulator, available_backends
+from spikesim.simulate import BatchSimulator, Simulator, available_backends
 
 REAL_TIME_PIXEL_STEPS_PER_S = 400 * 250 * 40_000
+STAGES = ("sensor", "render", "pipeline")
 
 
-def _time_run(cam: SpikeCamera, backend: str, frames: np.ndarray, keyframe_every: int, repeats: int) -> tuple[float, int]:
-    """Best-of-`repeats` seconds for simulating `frames` (after one warm-up that compiles)."""
-    sim = Simulator(cam, backend=backend, seed=0, chunk_steps=256)
-    sim.run(frames[: min(len(frames), 2)], keyframe_every=keyframe_every)  # compile / warm up
+# ---- the machine ------------------------------------------------------------------------------------
+def machine_info() -> dict[str, Any]:
+    """What the figures were measured on: CPU model and cores, GPU (if any), library versions."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as f:
+            cpu = next((line.split(":", 1)[1].strip() for line in f if line.startswith("model name")), cpu)
+    except OSError:
+        pass
+    info: dict[str, Any] = {"cpu": cpu, "cores": os.cpu_count(), "python": platform.python_version()}
+    import drjit
+    info["drjit"] = drjit.__version__
+    if "cuda" in available_backends():
+        try:
+            import torch
+            info["gpu"] = torch.cuda.get_device_name(0) if torch.cuda.is_available() else "CUDA (name unknown)"
+        except ImportError:
+            info["gpu"] = "CUDA (name unknown)"
+    return info
+
+
+def _best(fn: Callable[[], Any], repeats: int) -> float:
+    """Best-of-`repeats` seconds (a shared machine only ever adds time)."""
     best = float("inf")
-    steps = 0
     for _ in range(repeats):
         t0 = time.perf_counter()
-        out = sim.run(frames, keyframe_every=keyframe_every)
+        fn()
         best = min(best, time.perf_counter() - t0)
-        steps = out.num_steps
-    return best, steps
+    return best
 
 
-def measure(height: int = 250, width: int = 400, steps: int = 1024, numpy_steps: int = 64,
-            backends: list[str] | None = None, repeats: int = 3, keyframe_every: tuple[int, ...] = (1, 8)) -> dict[str, Any]:
+def _row(stage: str, what: str, device: str, rate: float, ref: float | None, **extra: Any) -> dict[str, Any]:
+    return {"stage": stage, "what": what, "device": device, "pixel_steps_per_s": rate,
+            "vs_reference": None if ref is None else rate / ref, "vs_real_time": rate / REAL_TIME_PIXEL_STEPS_PER_S,
+            **extra}
+
+
+# ---- sensor -----------------------------------------------------------------------------------------
+def measure_sensor(height: int, width: int, steps: int, numpy_steps: int, backends: list[str], repeats: int,
+                   streams: int, keyframe_every: tuple[int, ...] = (1, 8)) -> list[dict[str, Any]]:
     rng = np.random.default_rng(0)
     frames = rng.uniform(0.0, 0.3, size=(steps, height, width)).astype(np.float32)
-    backends = backends or [b for b in available_backends() if b != "numpy"]
-    results: list[dict[str, Any]] = []
+    rows = []
     for model, cam in (("noiseless", SpikeCamera.noiseless(height=height, width=width)),
                        ("realistic", SpikeCamera.realistic(height=height, width=width))):
-        t, n = _time_run(cam, "numpy", frames[:numpy_steps], 1, repeats=1 if model == "realistic" else repeats)
-        ref = n * height * width / t
-        results.append({"model": model, "backend": "numpy", "keyframe_every": 1, "steps": n, "seconds": t,
-                        "pixel_steps_per_s": ref, "vs_numpy": 1.0, "vs_real_time": ref / REAL_TIME_PIXEL_STEPS_PER_S})
+        def run(sim: Any, f: np.ndarray, k: int) -> Callable[[], Any]:
+            return lambda: [p.to_numpy() for p in sim.stream_packed(f, keyframe_every=k)]
+
+        ref_sim = Simulator(cam, backend="numpy", seed=0)
+        t = _best(run(ref_sim, frames[:numpy_steps], 1), 1 if model == "realistic" else repeats)
+        ref = numpy_steps * height * width / t
+        rows.append(_row("sensor", f"{model}, frames every step", "numpy", ref, ref))
         for b in backends:
             for k in keyframe_every:
                 f = frames if k == 1 else frames[: (steps - 1) // k + 1]
-                t, n = _time_run(cam, b, f, k, repeats)
-                rate = n * height * width / t
-                results.append({"model": model, "backend": b, "keyframe_every": k, "steps": n, "seconds": t,
-                                "pixel_steps_per_s": rate, "vs_numpy": rate / ref,
-                                "vs_real_time": rate / REAL_TIME_PIXEL_STEPS_PER_S})
-    import os
-    return {"height": height, "width": width, "machine": {"cpus": os.cpu_count(), "processor": platform.processor(),
-                                                           "python": platform.python_version()},
-            "real_time_pixel_steps_per_s": REAL_TIME_PIXEL_STEPS_PER_S, "results": results}
+                n = len(f) if k == 1 else (len(f) - 1) * k + 1
+                sim = Simulator(cam, backend=b, seed=0)
+                run(sim, f[:2], k)()  # compile
+                t = _best(run(sim, f, k), repeats)
+                what = f"{model}, frames every step" if k == 1 else f"{model}, keyframes every {k}"
+                rows.append(_row("sensor", what, b, n * height * width / t, ref))
+            if streams > 1:
+                batch = BatchSimulator(cam, list(range(streams)), backend=b)
+                fb = np.broadcast_to(frames[:, None], (steps, streams, height, width)).copy()
+                run(batch, fb[:2], 1)()
+                t = _best(run(batch, fb, 1), repeats)
+                rows.append(_row("sensor", f"{model}, {streams} streams per launch", b,
+                                 streams * steps * height * width / t, ref))
+    return rows
+
+
+# ---- render and render + sensor ------------------------------------------------------------------------
+def _renderer(scene: str, light: str, spp: int, cam: SpikeCamera, device: str) -> Any:
+    from spikesim.render import SceneRenderer
+    r = SceneRenderer(scene, light=light, variant="mono", spp=spp, camera=cam, device=device)
+    r.render_step(0)  # compile
+    return r
+
+
+def measure_render(scene: str, light: str, spp: int, cam: SpikeCamera, devices: list[str], frames: int,
+                   repeats: int, keyframe_every: int) -> list[dict[str, Any]]:
+    """Renders per second, as pixel-steps per second when one render serves `keyframe_every` steps."""
+    from spikesim._drjit import dr
+    rows = []
+    for d in devices:
+        r = _renderer(scene, light, spp, cam, d)
+
+        def renders() -> None:
+            dr.eval([r.render_step_device(430 + i) for i in range(frames)])
+            dr.sync_thread()
+        per_frame = _best(renders, repeats) / frames
+        rows.append(_row("render", f"{scene} mono {spp} spp, 1 render per {keyframe_every} steps", d,
+                         keyframe_every * cam.num_pixels / per_frame, None, seconds_per_render=per_frame))
+    return rows
+
+
+def measure_pipeline(scene: str, light: str, spp: int, cam: SpikeCamera, devices: list[str], steps: int,
+                     numpy_steps: int, repeats: int, keyframe_every: int) -> list[dict[str, Any]]:
+    """Render + sensor for `steps` steps: device-resident, host round trip, NumPy reference. The
+    render share is the renders' own time (measured alone, synchronised) over the total."""
+    from spikesim._drjit import dr
+    k = keyframe_every
+
+    def run(r: Any, backend: str, n: int, device_frames: bool) -> Callable[[], None]:
+        def go() -> None:
+            sim = Simulator(cam, backend=backend, seed=0)
+            for p in sim.stream_packed(r.frames(400, n, keyframe_every=k, device=device_frames), keyframe_every=k):
+                p.to_numpy()  # what a writer takes: only packed words leave the device
+        return go
+
+    def render_seconds(r: Any, n: int) -> float:
+        def renders() -> None:
+            dr.eval([r.render_step_device(400 + j * k) for j in range(n)])
+            dr.sync_thread()
+        return _best(renders, repeats)
+
+    rows = []
+    ref_r = _renderer(scene, light, spp, cam, devices[0])
+    t = _best(run(ref_r, "numpy", numpy_steps, False), 1)
+    ref = numpy_steps * cam.num_pixels / t
+    rows.append(_row("pipeline", f"{scene}: host frames -> NumPy sensor (reference)", f"{devices[0]}+numpy", ref, ref))
+    renders = -(-(steps - 1) // k) + 1
+    for d in devices:
+        r = _renderer(scene, light, spp, cam, d)
+        render_s = render_seconds(r, renders)
+        for label, on_device in (("frames stay on the device", True), ("host round trip", False)):
+            run(r, d, 2 * k + 1, on_device)()  # compile the sensor
+            t = _best(run(r, d, steps, on_device), repeats)
+            rows.append(_row("pipeline", f"{scene}: {label}", d, steps * cam.num_pixels / t, ref,
+                             render_share=min(1.0, render_s / t)))
+    return rows
+
+
+# ---- the command ------------------------------------------------------------------------------------
+def measure(stages: tuple[str, ...] = STAGES, height: int = 250, width: int = 400, steps: int = 1024,
+            numpy_steps: int = 64, backends: list[str] | None = None, repeats: int = 3, streams: int = 1,
+            scene: str = "fan", light: str = "normal", spp: int = 4, keyframe_every: int = 8,
+            render_frames: int = 4, pipeline_steps: int = 129) -> dict[str, Any]:
+    devices = backends or [b for b in available_backends() if b != "numpy"]
+    rows: list[dict[str, Any]] = []
+    cam = SpikeCamera.realistic(height=height, width=width)
+    if "sensor" in stages:
+        rows += measure_sensor(height, width, steps, numpy_steps, devices, repeats, streams)
+    if "render" in stages and devices:
+        rows += measure_render(scene, light, spp, cam, devices, render_frames, repeats, keyframe_every)
+    if "pipeline" in stages and devices:
+        rows += measure_pipeline(scene, light, spp, cam, devices, pipeline_steps, min(numpy_steps, pipeline_steps),
+                                 repeats, keyframe_every)
+    return {"height": height, "width": width, "machine": machine_info(),
+            "real_time_pixel_steps_per_s": REAL_TIME_PIXEL_STEPS_PER_S, "results": rows}
 
 
 def format_table(res: dict[str, Any]) -> str:
-    lines = [f"sensor throughput at {res['width']}x{res['height']} (pixel-steps/s; ratios measured in this run)",
-             f"{'model':<10} {'backend':<7} {'keyframes':>9} {'steps':>6} {'pixel-steps/s':>14} {'x NumPy':>8} {'x real time':>11}"]
+    m = res["machine"]
+    lines = [f"machine: {m['cpu']}, {m['cores']} cores" + (f", GPU {m['gpu']}" if "gpu" in m else ", no GPU")
+             + f"; Dr.Jit {m['drjit']}",
+             f"throughput at {res['width']}x{res['height']} in pixel-steps/s; ratios measured in this run "
+             f"(real time = {REAL_TIME_PIXEL_STEPS_PER_S:.0e})",
+             f"{'stage':<9} {'what':<52} {'device':<11} {'pixel-steps/s':>13} {'x reference':>11} {'x real time':>11}"]
     for r in res["results"]:
-        k = "every" if r["keyframe_every"] == 1 else f"1/{r['keyframe_every']}"
-        lines.append(f"{r['model']:<10} {r['backend']:<7} {k:>9} {r['steps']:>6} {r['pixel_steps_per_s']:>14.3e} "
-                     f"{r['vs_numpy']:>8.1f} {r['vs_real_time']:>11.3f}")
+        ref = "" if r["vs_reference"] is None else f"{r['vs_reference']:.1f}"
+        note = f"  (render {r['render_share']:.0%})" if "render_share" in r else ""
+        note += f"  ({r['seconds_per_render'] * 1e3:.0f} ms/render)" if "seconds_per_render" in r else ""
+        lines.append(f"{r['stage']:<9} {r['what']:<52} {r['device']:<11} {r['pixel_steps_per_s']:>13.3e} "
+                     f"{ref:>11} {r['vs_real_time']:>11.3f}{note}")
+    lines.append("reference: the NumPy sensor (sensor stage); host frames into the NumPy sensor (pipeline stage)")
     return "\n".join(lines)
 
 
 def run(args: argparse.Namespace) -> int:
-    res = measure(args.height, args.width, steps=args.steps, numpy_steps=args.numpy_steps,
-                  backends=args.backends, repeats=args.repeats)
-    if args.json:
-        print(json.dumps(res, indent=2))
-    else:
-        print(format_table(res))
+    res = measure(tuple(args.stages), args.height, args.width, steps=args.steps, numpy_steps=args.numpy_steps,
+                  backends=args.backends, repeats=args.repeats, streams=args.streams, scene=args.scene,
+                  light=args.light, spp=args.spp, keyframe_every=args.keyframe_every,
+                  pipeline_steps=args.pipeline_steps)
+    print(json.dumps(res, indent=2) if args.json else format_table(res))
     return 0
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("bench", help="sensor throughput: NumPy reference vs Dr.Jit, and vs real time")
-    p.add_argument("--height", type=int, default=250)
-    p.add_argument("--width", type=int, default=400)
-    p.add_argument("--steps", type=int, default=1024, help="steps per Dr.Jit run")
-    p.add_argument("--numpy-steps", type=int, default=64, help="steps per NumPy run (it is slow)")
+    p = sub.add_parser("bench", help="throughput of the sensor, the renderer and both together, as ratios "
+                                     "against the NumPy reference and real time")
+    p.add_argument("--stages", nargs="+", choices=STAGES, default=list(STAGES))
+    p.add_argument("--height", type=positive_int, default=250)
+    p.add_argument("--width", type=positive_int, default=400)
+    p.add_argument("--steps", type=positive_int, default=1024, help="steps per Dr.Jit sensor run")
+    p.add_argument("--numpy-steps", type=positive_int, default=64, help="steps per NumPy run (it is slow)")
+    p.add_argument("--streams", type=positive_int, default=1, help="also time this many streams in one launch")
     p.add_argument("--backends", nargs="*", choices=["llvm", "cuda"], help="default: every available one")
-    p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--repeats", type=positive_int, default=3)
+    p.add_argument("--scene", type=bundled_scene, default="fan", help="render and pipeline stages")
+    p.add_argument("--light", choices=["normal", "low"], default="normal")
+    p.add_argument("--spp", type=positive_int, default=4)
+    p.add_argument("--keyframe-every", type=positive_int, default=8, help="steps one render serves")
+    p.add_argument("--pipeline-steps", type=positive_int, default=129)
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=run)

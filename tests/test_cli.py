@@ -47,11 +47,21 @@ def test_bad_input_is_one_clear_line(tmp_path, capsys):
 
 
 def test_bench_reports_ratios(capsys):
-    assert main(["bench", "--height", "8", "--width", "32", "--steps", "16", "--numpy-steps", "8",
-                 "--repeats", "1", "--json"]) == 0
+    assert main(["bench", "--height", "8", "--width", "32", "--steps", "16", "--numpy-steps", "8", "--streams", "2",
+                 "--pipeline-steps", "9", "--keyframe-every", "4", "--repeats", "1", "--json"]) == 0
     res = json.loads(capsys.readouterr().out)
-    models = {(r["model"], r["backend"]) for r in res["results"]}
-    assert ("noiseless", "numpy") in models and ("realistic", "numpy") in models
-    for r in res["results"]:
+    assert res["machine"]["cpu"] and res["machine"]["cores"] >= 1
+    rows = res["results"]
+    stages = {r["stage"] for r in rows}
+    assert stages == {"sensor", "render", "pipeline"}
+    ref = {r["what"].split(",")[0]: r["pixel_steps_per_s"] for r in rows if r["device"] == "numpy"}
+    assert set(ref) == {"noiseless", "realistic"}
+    for r in rows:
         assert r["pixel_steps_per_s"] > 0
         assert r["vs_real_time"] == pytest.approx(r["pixel_steps_per_s"] / 4e9)
+        if r["stage"] == "sensor":   # each against the NumPy reference of its own camera model
+            assert r["vs_reference"] == pytest.approx(r["pixel_steps_per_s"] / ref[r["what"].split(",")[0]])
+        if r["stage"] == "pipeline" and "render_share" in r:
+            assert 0 < r["render_share"] <= 1
+    assert any("2 streams per launch" in r["what"] for r in rows)
+    assert any("frames stay on the device" in r["what"] for r in rows)
