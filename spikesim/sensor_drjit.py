@@ -33,9 +33,6 @@ from .fixed_pattern import PixelParameters
 
 #: Steps whose spikes one lane collects in one output word.
 WORD_STEPS = 32
-#: Pixels each CPU lane runs (independent accumulator chains to interleave; measured, see
-#: docs/performance.md). A GPU runs one pixel per thread.
-PIXELS_PER_LANE_CPU = 2
 
 # Philox4x32 constants (Salmon et al., "Parallel random numbers: as easy as 1, 2, 3", SC 2011).
 _PHILOX_M = (0xD2511F53, 0xCD9E8D57)
@@ -127,8 +124,7 @@ class DrJitSensor:
     """
 
     def __init__(self, camera: SpikeCamera, params: PixelParameters | Sequence[PixelParameters],
-                 seed: int | Sequence[int], backend: str = "llvm", steps_per_launch: int | None = None,
-                 pixels_per_lane: int | None = None):
+                 seed: int | Sequence[int], backend: str = "llvm", steps_per_launch: int | None = None):
         if camera.shot_noise == "poisson":
             raise ValueError("shot_noise='poisson' is implemented by the NumPy reference only; "
                              "use shot_noise='gaussian' with the Dr.Jit backends")
@@ -147,7 +143,6 @@ class DrJitSensor:
         # few steps per launch (measured: 32 steps 2.2x faster than 2048); a GPU wants long
         # launches so the Python-side launch cost (~0.1 ms) stays small.
         self.steps_per_launch = int(steps_per_launch or (WORD_STEPS if backend == "llvm" else 32 * WORD_STEPS))
-        self.pixels_per_lane = int(pixels_per_lane or (PIXELS_PER_LANE_CPU if backend == "llvm" else 1))
 
         def lanes(arrays: list):
             if arrays[0] is None:
@@ -203,7 +198,7 @@ class DrJitSensor:
         offset = first_step & 1 if cam.has_temporal_noise else 0
         span = offset + num_steps
         state = (self._acc, self._comp, self._fired)
-        bad = dr.opaque(m.Bool, False, -(-SP // self.pixels_per_lane))  # one per lane
+        bad = dr.opaque(m.Bool, False, SP)
         fixed = (self._gain, self._dark, self._threshold, self._key_hi, self._key_lo, self._pixel)
         op = lambda v: dr.opaque(m.UInt32, v)  # noqa: E731
         words = []
@@ -241,45 +236,19 @@ class DrJitSensor:
         bit i of word w is step base + 32 w + i; base is the first step, rounded down to even
         when temporal noise pairs the steps).
 
-        Each lane runs `pixels_per_lane` (K) pixels, one from each of K contiguous blocks of the
-        S P pixels: loads stay contiguous across lanes, and a lane has K independent accumulator
-        chains to interleave. With one pixel per lane the CPU loop is latency-bound on that chain
-        (llvm-mca: 46 cycles per step for 12 cycles of work, noiseless); GPUs hide the latency
-        with more threads instead (K = 1).
-
         Frozen (dr.freeze): traced once per input layout, then replayed without Python tracing,
         which otherwise costs more than a short launch computes (0.3-1.6 ms, measured). So every
         value that changes between calls is an opaque 1-wide array in `control`, and every size
         in the code is fixed per sensor."""
         cam, m, Float, UInt32 = self.camera, self.m, self.Float, self.m.UInt32
-        SP, K = self.width_lanes, self.pixels_per_lane
-        L = -(-SP // K)                   # lanes; lane l runs pixels l, L + l, 2 L + l, ...
+        SP = self.width_lanes
         row0, key_phase, k, n, offset, pair_lo, pair_hi = control
         gain, dark, thr, key_hi, key_lo, pixel = fixed
         span = offset + n                 # steps from base; `offset` (0 or 1) are not ours
         num_words = (span + (WORD_STEPS - 1)) >> 5
-        lane = dr.arange(UInt32, L)
-        index = [j * L + lane for j in range(K)]            # each sub-pixel's place among the S P
-        real = [None if (j + 1) * L <= SP else index[j] < SP for j in range(K)]   # None: all real
+        lane = dr.arange(UInt32, SP)
         words = dr.empty(UInt32, self.steps_per_launch // WORD_STEPS * SP)
 
-        def split(x):
-            """The K per-sub-pixel columns of an (S P) array (padding lanes read 0)."""
-            if x is None or K == 1:
-                return [x] * K
-            return [dr.gather(type(x), x, index[j], True if real[j] is None else real[j]) for j in range(K)]
-
-        def join(cols, like):
-            """The (S P) array of K columns."""
-            if K == 1:
-                return cols[0]
-            out = dr.empty(type(like), SP)
-            for j in range(K):
-                dr.scatter(out, cols[j], index[j], True if real[j] is None else real[j], mode=dr.ReduceMode.Permute)
-            return out
-
-        gains, darks, thrs = split(gain), split(dark), split(thr)
-        khis, klos, pixels = split(key_hi), split(key_lo), split(pixel)
         shot = cam.shot_noise == "gaussian"
         comparator = cam.comparator_noise > 0
         pairs = shot or comparator        # one Philox call serves two steps
@@ -287,21 +256,20 @@ class DrJitSensor:
         inv_ne = 1.0 / cam.threshold_electrons
         retain = 1.0 - cam.reset_loss
         sigma_c = cam.comparator_noise
+        threshold = thr if thr is not None else Float(1.0)
 
-        def read_y(j, row, r, active):
-            """Sub-pixel j's y at this step: keyframe row (and the next, weighted r / k), bounded,
-            and whether a value read was invalid. `active` (None: always) masks reads past the
-            block and padding lanes."""
-            mask = active if real[j] is None else (real[j] if active is None else active & real[j])
-            y = Float(dr.gather(m.Float32, block, row + index[j], True if mask is None else mask))
+        def read_y(row, r, active):
+            """y of this step: keyframe row (and the next, weighted r / k), bounded, and whether a
+            value read was invalid. `active` (None: always) masks reads past the block."""
+            y = Float(dr.gather(m.Float32, block, row + lane, True if active is None else active))
             invalid = ~((y >= 0.0) & (y < math.inf))
             if interpolate:
-                later = r > 0 if mask is None else mask & (r > 0)
-                yb = Float(dr.gather(m.Float32, block, row + SP + index[j], later))
+                later = r > 0 if active is None else active & (r > 0)
+                yb = Float(dr.gather(m.Float32, block, row + SP + lane, later))
                 w = Float(r) / Float(k)
                 invalid |= ~((yb >= 0.0) & (yb < math.inf))
                 y = dr.select(later, y * (1.0 - w) + yb * w, y)
-            return dr.minimum(y, Y_MAX), invalid if mask is None else invalid & mask
+            return dr.minimum(y, Y_MAX), invalid
 
         def next_row(row, r):
             if not interpolate:
@@ -313,11 +281,11 @@ class DrJitSensor:
         def keep(active, new, old):
             return new if active is None else dr.select(active, new, old)
 
-        def step(j, y, z, acc, comp, fired):
-            """One readout step of sub-pixel j, in the order of sensor_numpy."""
-            e = y * gains[j] if gain is not None else y
+        def step(y, z, acc, comp, fired):
+            """One readout step, in the order of sensor_numpy."""
+            e = y * gain if gain is not None else y
             if dark is not None:
-                e = e + darks[j]
+                e = e + dark
             if shot:
                 e = e + dr.sqrt(e * inv_ne) * Float(z[0])
             if reset_loss:
@@ -326,52 +294,46 @@ class DrJitSensor:
             u = e - comp
             total = acc + u
             comp = (total - acc) - u
-            threshold = thrs[j] if thr is not None else Float(1.0)
             f = (total >= threshold + sigma_c * Float(z[1])) if comparator else (total >= threshold)
             total = dr.select(f, total - threshold, total)
             return f, dr.minimum(dr.maximum(total, -threshold), threshold + threshold), comp
 
         def inner_body(i, bits, row, r, acc, comp, fired, bad, w):
-            bits, acc, comp, fired = list(bits), list(acc), list(comp), list(fired)
             local = w * WORD_STEPS + i    # step index from base
-            noise = [[(None, None)] for _ in range(K)]
             if pairs:
                 c = pair_lo + (local >> 1)
                 carry = dr.select(c < pair_lo, UInt32(1), UInt32(0))
-                for j in range(K):
-                    u = philox4x32(m, (khis[j], klos[j]), (pixels[j], c, pair_hi + carry, UInt32(0)))
-                    noise[j] = [_box_muller(m, _uniform(m, u[0]), _uniform(m, u[1])),
-                                _box_muller(m, _uniform(m, u[2]), _uniform(m, u[3]))]
-            for half in range(2 if pairs else 1):
+                u = philox4x32(m, (key_hi, key_lo), (pixel, c, pair_hi + carry, UInt32(0)))
+                halves = [(0, _box_muller(m, _uniform(m, u[0]), _uniform(m, u[1]))),
+                          (1, _box_muller(m, _uniform(m, u[2]), _uniform(m, u[3])))]
+            else:
+                halves = [(0, (None, None))]
+            for half, z in halves:
                 # Only the first and last pair of a launch have a half that is not ours.
                 active = (local + half >= offset) & (local + half < span) if pairs else None
-                for j in range(K):
-                    y, invalid = read_y(j, row, r, active)
-                    f, acc2, comp2 = step(j, y, noise[j][half], acc[j], comp[j], fired[j])
-                    if active is not None:
-                        f = f & active
-                    acc[j], comp[j] = keep(active, acc2, acc[j]), keep(active, comp2, comp[j])
-                    if reset_loss:
-                        fired[j] = keep(active, f, fired[j])
-                    bad |= invalid
-                    bits[j] |= dr.select(f, UInt32(1) << (i + half), UInt32(0))
+                y, invalid = read_y(row, r, active)
+                f, acc2, comp2 = step(y, z, acc, comp, fired)
+                if active is not None:
+                    f, invalid = f & active, invalid & active
+                acc, comp = keep(active, acc2, acc), keep(active, comp2, comp)
+                if reset_loss:
+                    fired = keep(active, f, fired)
+                bad |= invalid
+                bits |= dr.select(f, UInt32(1) << (i + half), UInt32(0))
                 row2, r2 = next_row(row, r)
                 row, r = keep(active, row2, row), keep(active, r2, r)
-            return i + (2 if pairs else 1), bits, row, r, acc, comp, fired, bad, w
+            return i + len(halves), bits, row, r, acc, comp, fired, bad, w
 
         def word_body(w, row, r, acc, comp, fired, bad):
             limit = dr.minimum(span - w * WORD_STEPS, UInt32(WORD_STEPS))
             _, bits, row, r, acc, comp, fired, bad, _ = dr.while_loop(
-                (UInt32(0), [UInt32(0) for _ in range(K)], row, r, acc, comp, fired, bad, w),
+                (UInt32(0), UInt32(0), row, r, acc, comp, fired, bad, w),
                 lambda i, *rest: i < limit, inner_body)
-            for j in range(K):
-                dr.scatter(words, bits[j], w * SP + index[j], True if real[j] is None else real[j])
+            dr.scatter(words, bits, w * SP + lane)
             return w + 1, row, r, acc, comp, fired, bad
 
-        state = (split(acc), split(comp), split(fired))
-        _, _, _, accs, comps, fireds, bad = dr.while_loop(
-            (UInt32(0), row0, key_phase, *state, bad), lambda w, *rest: w < num_words, word_body)
-        acc, comp, fired = join(accs, acc), join(comps, comp), join(fireds, fired)
+        _, _, _, acc, comp, fired, bad = dr.while_loop(
+            (UInt32(0), row0, key_phase, acc, comp, fired, bad), lambda w, *rest: w < num_words, word_body)
         # Evaluate the loop's outputs with its side effect (the words): else the packing
         # forces the scatter alone and the loop runs a second time for the state.
         dr.eval(words, acc, comp, fired, bad)
