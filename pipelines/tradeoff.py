@@ -38,6 +38,7 @@ from typing import Any, BinaryIO, Callable, Sequence
 import numpy as np
 
 from pipelines.argtypes import add_device_argument, bundled_scene, nonnegative_int, output_dir, positive_int
+from spikesim.config_io import read_json_object
 
 log = logging.getLogger(__name__)
 
@@ -593,12 +594,9 @@ def _save_npz(path: Path, **arrays: np.ndarray) -> None:
 
 def _read_json(path: Path) -> dict[str, Any]:
     try:
-        data = json.loads(path.read_text())
+        return read_json_object(path, "cache file")
     except ValueError as exc:
         raise ValueError(f"{path}: damaged cache file ({exc}); delete it to measure that run again") from exc
-    if not isinstance(data, dict):
-        raise ValueError(f"{path}: damaged cache file (not a JSON object); delete it to measure that run again")
-    return data
 
 
 def _load_npz(path: Path, *keys: str) -> dict[str, np.ndarray]:

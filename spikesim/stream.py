@@ -24,6 +24,8 @@ from typing import Any, Iterable, Iterator
 
 import numpy as np
 
+from .config_io import read_json_object
+
 
 def frame_bytes(height: int, width: int) -> int:
     return (height * width + 7) // 8
@@ -293,17 +295,7 @@ def read_sidecar(dat_path: str | Path) -> dict[str, Any] | None:
     path = sidecar_path(dat_path)
     if not path.exists():
         return None
-    return _read_json_object(path, "sidecar")
-
-
-def _read_json_object(path: Path, what: str) -> dict[str, Any]:
-    try:
-        data = json.loads(path.read_text())
-    except ValueError as exc:
-        raise ValueError(f"{what} {path} is not valid JSON: {exc}") from None
-    if not isinstance(data, dict):
-        raise ValueError(f"{what} {path} is not a JSON object")
-    return data
+    return read_json_object(path, "sidecar")
 
 
 # ---- which geometry a file was recorded with ---------------------------------------------------
@@ -325,7 +317,7 @@ def recorded_geometry(dat_path: str | Path) -> dict[str, Any] | None:
         source = p.parent / DATASET_META
         if p.name != DATASET_STREAM or not source.is_file():
             return None
-    info = _read_json_object(source, "stream description")
+    info = read_json_object(source, "stream description")
     try:
         geometry = {k: int(info[k]) for k in ("height", "width")}
         geometry["header_columns"] = int(info.get("header_columns", 0))

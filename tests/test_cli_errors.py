@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipelines.cli import main
+from cli_testing import run_cli
 
 H, W = 8, 16
 SIM = f"--height {H} --width {W} --backend numpy --quiet"
@@ -185,10 +185,6 @@ CASES = [
 ]
 
 
-def run_cli(argv: list[str], capsys) -> tuple[int, str]:
-    """Exit status and stderr of one in-process run."""
-    rc = main(argv)
-    return rc, capsys.readouterr().err
 
 
 def assert_one_error_line(err: str, names: str) -> None:

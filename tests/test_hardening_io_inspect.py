@@ -11,6 +11,7 @@ from pipelines import inspect_cmd
 from pipelines.cli import main
 from spikesim.stats import summary
 from spikesim.stream import DatReader, SpikeStream, write_dat, write_sidecar
+from cli_testing import run_cli, one_line
 
 
 def structured_stream(n=300, h=10, w=24, seed=0):
@@ -87,19 +88,8 @@ def test_inspect_memory_is_bounded_independently_of_the_stream_length(tmp_path, 
 
 
 # ---- errors -------------------------------------------------------------------------------------
-def run_cli(argv, capsys):
-    capsys.readouterr()
-    try:
-        code = main([str(a) for a in argv])
-    except SystemExit as exc:  # argparse refusing a value
-        code = exc.code
-    return code, capsys.readouterr().err
 
 
-def one_line(err):
-    lines = [line for line in err.splitlines() if line.strip()]
-    assert len(lines) == 1 and "Traceback" not in err, err
-    return lines[0]
 
 
 @pytest.fixture

@@ -14,7 +14,7 @@ from model.arch import build_model
 from model.checkpoint import load_checkpoint, model_from_checkpoint, save_checkpoint
 from model.config import ExperimentConfig, ModelConfig, TrainConfig
 from modeltest_fakes import make_scene
-from pipelines.cli import main
+from cli_testing import run_cli
 
 TINY = ModelConfig(window=7, num_features=8, num_blocks=1, deform_groups=2)
 
@@ -67,13 +67,6 @@ def config_file(tmp_path_factory):
     return p
 
 
-def run_cli(argv, capsys):
-    capsys.readouterr()
-    try:
-        rc = main([str(a) for a in argv])
-    except SystemExit as exc:  # argparse refusing a value
-        rc = exc.code
-    return rc, capsys.readouterr().err
 
 
 def assert_one_line(err: str, *words: str) -> None:

@@ -9,7 +9,7 @@ import pytest
 
 from modeltest_fakes import make_scene
 from pipelines import reconstruct as rc
-from pipelines.cli import main
+from cli_testing import run_cli, one_line
 
 
 @pytest.fixture
@@ -19,19 +19,8 @@ def dat(tmp_path):
     return write_dat(tmp_path / "s.dat", SpikeStream.from_bool(sc.spike_array))
 
 
-def run_cli(argv, capsys):
-    capsys.readouterr()
-    try:
-        rc_ = main([str(a) for a in argv])
-    except SystemExit as exc:  # argparse refusing a value
-        rc_ = exc.code
-    return rc_, capsys.readouterr().err
 
 
-def one_line(err):
-    lines = [line for line in err.splitlines() if line.strip()]
-    assert len(lines) == 1 and "Traceback" not in err, err
-    return lines[0]
 
 
 def parser_error(err):
