@@ -89,7 +89,8 @@ class SceneJob:
     source: dict[str, Any]
     """{"type": "scene", "scene": name-or-xml, "motion": path|None, "lights": path|None, "light": str}
     or {"type": "pattern", "peak_y": float} (the built-in pattern, no renderer)
-    or {"type": "random", "index": int} (an RLLR random scene, built from the seed)."""
+    or {"type": "random", "index": int, "scene_seed": int, "lamps_lux": [lo, hi]} (an RLLR random
+    scene, built from the seed; lamps_lux absent: the range before the saturation study)."""
     camera: dict[str, Any]
     render: dict[str, Any]
     num_steps: int
@@ -187,7 +188,10 @@ def plan_llr(preset: Preset, seed: int = 0, camera: Any | None = None, scenes: l
 
 def plan_rllr(preset: Preset, seed: int = 0, camera: Any | None = None, count: int | None = None,
               source: str = "random", quality: str | None = None) -> list[SceneJob]:
-    """RLLR: random scenes, each darkened by a random factor in (0, 1) (paper, "RLLR")."""
+    """RLLR: random scenes, each darkened by a random factor in (0, 1) (paper, "RLLR"). A random
+    scene's job records its lamps' range (scenes.random_scene.LAMPS_LUX), so scenes built with
+    another range are not taken for finished ones."""
+    from scenes.random_scene import LAMPS_LUX
     rng = np.random.default_rng(np.random.SeedSequence([seed, 7]))
     n = preset.rllr_scenes if count is None else count
     gt = tuple(range(0, preset.rllr_steps, preset.rllr_gt_stride))
@@ -198,7 +202,8 @@ def plan_rllr(preset: Preset, seed: int = 0, camera: Any | None = None, count: i
             factor = float(rng.uniform(0.0, 1.0))
         name = f"rllr_{i:04d}"
         s = scene_seed(seed, name, source)
-        src = {"type": "random", "index": i, "scene_seed": s} if source == "random" else {"type": "pattern", "peak_y": 0.3, "pattern_seed": s}
+        src = ({"type": "random", "index": i, "scene_seed": s, "lamps_lux": list(LAMPS_LUX)} if source == "random"
+               else {"type": "pattern", "peak_y": 0.3, "pattern_seed": s})
         jobs.append(SceneJob(name=name, source=src, camera=_camera_dict(preset, camera),
                              render=_render_dict(preset, s), num_steps=preset.rllr_steps, gt_steps=gt,
                              light_power_factor=factor, seed=s, keyframe_every=preset.keyframe_every,
