@@ -10,6 +10,7 @@ saturated fraction does not depend on the resolution beyond pixel sampling; the 
 the paper-size set (100 scenes) within about 10 minutes of one CPU. docs/scenes.md reports it:
 
     python -m pipelines.rllr_lighting --preset paper --out results/rllr_lighting.json
+    python -m pipelines.rllr_lighting --preset paper --lamps-lux 100 1000   # the range before
 """
 from __future__ import annotations
 
@@ -25,7 +26,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from pipelines.argtypes import nonnegative_int, output_file, positive_int
+from pipelines.argtypes import nonnegative_int, output_file, positive_float, positive_int
 
 #: Illuminance at the subject of the LLR scenes' lighting conditions (docs/scenes.md, section 2).
 LLR_LOW_LUX = (3.5, 10.0)
@@ -103,6 +104,11 @@ def run(args: argparse.Namespace) -> int:
     from pipelines.generate import PRESETS, plan_rllr
 
     jobs = plan_rllr(PRESETS[args.preset], seed=args.seed, count=args.count)
+    if args.lamps_lux is not None:  # another range for the same scenes: only their light level changes
+        lo, hi = args.lamps_lux
+        if lo > hi:
+            raise ValueError(f"--lamps-lux {lo:g} {hi:g}: the low end is above the high end")
+        jobs = [dataclasses.replace(j, source={**j.source, "lamps_lux": [lo, hi]}) for j in jobs]
     steps = args.steps or [0, PRESETS[args.preset].rllr_steps // 2, PRESETS[args.preset].rllr_steps - 1]
     records, t0 = [], time.perf_counter()
     frames = {}
@@ -146,6 +152,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=nonnegative_int, default=0, help="dataset seed, as generate's --seed")
     p.add_argument("--count", type=positive_int, help="scenes (default: the preset's; paper 100)")
     p.add_argument("--steps", type=nonnegative_int, nargs="+", help="ground-truth steps per scene (default: first, middle, last)")
+    p.add_argument("--lamps-lux", type=positive_float, nargs=2, metavar=("LOW", "HIGH"),
+                   help="measure another range of the lamps' illuminance at the subject (default: the one "
+                        "generate uses, scenes.random_scene.LAMPS_LUX; 100 1000 was the range before)")
     p.add_argument("--height", type=positive_int, default=64)
     p.add_argument("--width", type=positive_int, default=100)
     p.add_argument("--gt-spp", type=positive_int, default=16, help="samples per pixel of the ground truth (default 16)")
@@ -157,8 +166,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run the study; bad input ends in one line naming the flag or file, status 2."""
     args = build_parser().parse_args(argv)
-    return run(args)
+    try:
+        return run(args)
+    except (ValueError, OSError) as exc:
+        print(f"rllr_lighting: error: {exc}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

@@ -72,3 +72,8 @@ def test_study_command_refuses_bad_arguments(capsys):
     with pytest.raises(SystemExit) as e:
         rl.main(["--count", "0"])
     assert e.value.code == 2 and "--count" in capsys.readouterr().err
+
+
+def test_study_refuses_an_inverted_lamp_range(capsys):
+    assert rl.main(["--count", "1", "--lamps-lux", "250", "30", "--quiet"]) == 2
+    assert "--lamps-lux 250 30" in capsys.readouterr().err
