@@ -122,6 +122,17 @@ def train_seeds(configs: Sequence[tuple[str, Any]], seeds: Sequence[int], steps:
     return done
 
 
+def check_samples(configs: Sequence[tuple[str, Any]], train_scenes: Sequence[Any]) -> None:
+    """Every config finds training samples in the data, checked before any run trains (so a
+    config that cannot train does not fail after the others have)."""
+    from model.data import SequenceDataset
+    for label, exp in configs:
+        try:
+            SequenceDataset(train_scenes, exp.model.window, exp.train.num_windows, exp.train.crop)
+        except ValueError as exc:
+            raise ValueError(f"--configs {label}: {exc}") from None
+
+
 def run_name(label: str, seed: int) -> str:
     return f"{label}#{seed}"
 
@@ -242,6 +253,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         raise ValueError(f"--configs: all configs must use one window length to be compared, got {sorted(windows)}")
     window = windows.pop()
     train_scenes, test_scenes = open_scenes(args.data), open_scenes(args.test_data)
+    check_samples(args.configs, train_scenes)
     out = Path(args.out)
     checkpoints = train_seeds(args.configs, seeds, args.steps, train_scenes, out, str(dev), args.precision,
                               progress=not args.quiet)

@@ -119,3 +119,15 @@ def test_compare_names_an_unknown_config_in_the_parser(tmp_path, capsys):
     assert main(["compare", "--data", "d", "--test-data", "d", "--steps", "1", "--out", str(tmp_path / "o"),
                  "--configs", "nope"]) == 2
     assert "argument --configs" in capsys.readouterr().err
+
+
+def test_compare_checks_every_config_before_training_any(tmp_path, capsys):
+    _write_dataset(tmp_path / "d", ["a_low"], 0)  # 4 windows of 7 steps: too short for K = 21
+    e = _config(tmp_path / "e.json", "e")
+    long = json.loads(e.read_text())
+    long["name"], long["train"]["num_windows"] = "long", 21
+    (tmp_path / "long.json").write_text(json.dumps(long))
+    assert main(["compare", "--data", str(tmp_path / "d"), "--test-data", str(tmp_path / "d"), "--steps", "1",
+                 "--device", "cpu", "--out", str(tmp_path / "o"), "--configs", f"E={e}", str(tmp_path / "long.json")]) == 2
+    err = capsys.readouterr().err
+    assert "--configs long: no scene has 21 consecutive windows" in err and not (tmp_path / "o" / "runs").exists()
