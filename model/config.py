@@ -11,6 +11,7 @@ from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
+from .precision import PRECISIONS
 from .representations import INTERVAL_TRANSFORMS
 
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs" / "model"
@@ -112,6 +113,9 @@ class TrainConfig:
       scene (1 = every step that has ground truth).
     val_fraction / val_scenes: the validation split (scene names win over the fraction).
     val_crop: centre crop for validation PSNR (None = full frames).
+    precision: "auto" (bf16 autocast on a GPU that supports it, fp16 on an older one, fp32 on the
+      CPU), "bf16", "fp16" (autocast with a GradScaler) or "fp32" (model/precision.py). Configs
+      written before it had `amp` (true: "auto", false: "fp32"), still read.
     """
 
     num_windows: int = 21
@@ -133,7 +137,7 @@ class TrainConfig:
     ckpt_every: int = 1
     max_steps: int | None = None
     num_workers: int = 0
-    amp: bool = True
+    precision: str = "auto"
     grad_clip: float | None = None
     seed: int = 0
 
@@ -162,12 +166,19 @@ class TrainConfig:
                  f"train.num_workers must be an integer >= 0, got {self.num_workers!r}")
         _require(self.grad_clip is None or self.grad_clip > 0, f"train.grad_clip must be > 0, got {self.grad_clip}")
         _require(isinstance(self.seed, int), f"train.seed must be an integer, got {self.seed!r}")
+        _require(self.precision in PRECISIONS, f"train.precision must be one of {PRECISIONS}, got {self.precision!r}")
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> "TrainConfig":
+        if isinstance(data, dict) and "amp" in data:  # written before `precision` (checkpoints, configs)
+            data = dict(data)
+            amp = data.pop("amp")
+            if not isinstance(amp, bool):
+                raise ValueError(f"train config: amp must be a boolean, got {amp!r}")
+            data.setdefault("precision", "auto" if amp else "fp32")
         return _from_dict(cls, data, "train config")
 
 

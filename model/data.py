@@ -3,6 +3,11 @@ window centre, read from scenes in the project's dataset layout (docs/CONTRACTS.
 
 A scene is anything with SceneRecord's methods: .name, .num_steps, .height, .width, .gt_steps,
 .spikes(start, stop) -> bool (n, H, W), .ground_truth(step) -> float32 (H, W).
+
+Ground truth is clipped at the sensor's saturation (spikesim.dataset.SATURATION_Y, y = 1 spike per
+step) in every sample: a pixel fires at most once per readout step, so above y = 1 its stream is
+all ones whatever the light, and a target above it is one no spike stream can show. The authors'
+ground truth is at most 1 by construction; ours is rendered radiance and is not.
 """
 from __future__ import annotations
 
@@ -14,6 +19,8 @@ from typing import Any, Protocol, Sequence
 import numpy as np
 import torch
 from torch.utils.data import Dataset
+
+from spikesim.dataset import SATURATION_Y
 
 
 class Scene(Protocol):
@@ -86,13 +93,18 @@ class SequenceDataset(Dataset):
     Training (random_crop=True): each item draws its crop position from a generator seeded by
     (seed, epoch, index), so a run is reproducible whatever the worker count; with
     samples_per_epoch the sequence itself is drawn the same way. Validation (random_crop=False):
-    a centre crop (or the full frame when crop is None).
+    a centre crop (or the full frame when crop is None). Ground truth is clipped to
+    [0, saturation] (the module's docstring says why).
     """
 
     def __init__(self, scenes: Sequence[Scene], window: int, num_windows: int, crop: int | None,
                  random_crop: bool = True, seed: int = 0, start_stride: int = 1,
-                 samples_per_epoch: int | None = None, max_per_scene: int | None = None) -> None:
+                 samples_per_epoch: int | None = None, max_per_scene: int | None = None,
+                 saturation: float = SATURATION_Y) -> None:
+        if not saturation > 0:
+            raise ValueError(f"saturation must be > 0 (expected spikes per step), got {saturation!r}")
         self.scenes = list(scenes)
+        self.saturation = float(saturation)
         self.window, self.num_windows, self.crop = window, num_windows, crop
         self.random_crop, self.seed, self.samples_per_epoch = random_crop, seed, samples_per_epoch
         self.epoch = 0
@@ -135,6 +147,7 @@ class SequenceDataset(Dataset):
         spikes = spikes[:, y0:y0 + ch, x0:x0 + cw].reshape(k, t, ch, cw)
         gt = np.stack([np.asarray(sc.ground_truth(ref.first_centre + i * t), dtype=np.float32)[y0:y0 + ch, x0:x0 + cw]
                        for i in range(k)])
+        np.clip(gt, 0.0, self.saturation, out=gt)
         return {"spikes": torch.from_numpy(spikes.astype(np.uint8)), "gt": torch.from_numpy(gt),
                 "scene": sc.name, "first_centre": ref.first_centre, "first_step": start,
                 "y0": y0, "x0": x0}

@@ -19,6 +19,7 @@ _SUBCOMMANDS = (
     "pipelines.render_cmd",
     "pipelines.train",
     "pipelines.evaluate",
+    "pipelines.compare",
     "pipelines.reconstruct",
     "pipelines.tradeoff",
 )
@@ -30,7 +31,7 @@ _COMMAND_MODULE = {
     "demo": "pipelines.demo", "simulate": "pipelines.simulate_cmd", "inspect": "pipelines.inspect_cmd",
     "bench": "pipelines.bench", "golden": "pipelines.golden_stats", "generate": "pipelines.generate",
     "verify": "pipelines.generate", "render": "pipelines.render_cmd", "train": "pipelines.train",
-    "evaluate": "pipelines.evaluate", "reconstruct": "pipelines.reconstruct", "tradeoff": "pipelines.tradeoff",
+    "evaluate": "pipelines.evaluate", "compare": "pipelines.compare", "reconstruct": "pipelines.reconstruct", "tradeoff": "pipelines.tradeoff",
 }
 
 

@@ -31,8 +31,9 @@ from pipelines.argtypes import add_device_argument, existing_file, nonnegative_i
 from pipelines.generate_jobs import _FrameSource, run_job  # noqa: F401  (_FrameSource: tests patch it here)
 from pipelines.generate_lock import output_lock
 from spikesim._drjit import resolve_device
-from spikesim.dataset import (MANIFEST, META, check_scene, check_scene_name, holds_only_scene_files, inside_root,
-                              read_manifest, remove_inside, scene_folders, write_manifest)
+from spikesim.dataset import (MANIFEST, META, SATURATION_WARN_FRACTION, SATURATION_Y, check_scene, check_scene_name,
+                              holds_only_scene_files, inside_root, read_manifest, remove_inside, scene_folders,
+                              scene_saturation, write_manifest)
 
 log = logging.getLogger("spikesim.generate")
 
@@ -88,7 +89,8 @@ class SceneJob:
     source: dict[str, Any]
     """{"type": "scene", "scene": name-or-xml, "motion": path|None, "lights": path|None, "light": str}
     or {"type": "pattern", "peak_y": float} (the built-in pattern, no renderer)
-    or {"type": "random", "index": int} (an RLLR random scene, built from the seed)."""
+    or {"type": "random", "index": int, "scene_seed": int, "lamps_lux": [lo, hi]} (an RLLR random
+    scene, built from the seed; lamps_lux absent: the range before the saturation study)."""
     camera: dict[str, Any]
     render: dict[str, Any]
     num_steps: int
@@ -186,7 +188,10 @@ def plan_llr(preset: Preset, seed: int = 0, camera: Any | None = None, scenes: l
 
 def plan_rllr(preset: Preset, seed: int = 0, camera: Any | None = None, count: int | None = None,
               source: str = "random", quality: str | None = None) -> list[SceneJob]:
-    """RLLR: random scenes, each darkened by a random factor in (0, 1) (paper, "RLLR")."""
+    """RLLR: random scenes, each darkened by a random factor in (0, 1) (paper, "RLLR"). A random
+    scene's job records its lamps' range (scenes.random_scene.LAMPS_LUX), so scenes built with
+    another range are not taken for finished ones."""
+    from scenes.random_scene import LAMPS_LUX
     rng = np.random.default_rng(np.random.SeedSequence([seed, 7]))
     n = preset.rllr_scenes if count is None else count
     gt = tuple(range(0, preset.rllr_steps, preset.rllr_gt_stride))
@@ -197,7 +202,8 @@ def plan_rllr(preset: Preset, seed: int = 0, camera: Any | None = None, count: i
             factor = float(rng.uniform(0.0, 1.0))
         name = f"rllr_{i:04d}"
         s = scene_seed(seed, name, source)
-        src = {"type": "random", "index": i, "scene_seed": s} if source == "random" else {"type": "pattern", "peak_y": 0.3, "pattern_seed": s}
+        src = ({"type": "random", "index": i, "scene_seed": s, "lamps_lux": list(LAMPS_LUX)} if source == "random"
+               else {"type": "pattern", "peak_y": 0.3, "pattern_seed": s})
         jobs.append(SceneJob(name=name, source=src, camera=_camera_dict(preset, camera),
                              render=_render_dict(preset, s), num_steps=preset.rllr_steps, gt_steps=gt,
                              light_power_factor=factor, seed=s, keyframe_every=preset.keyframe_every,
@@ -331,8 +337,21 @@ def generate(jobs: list[SceneJob], root: str | Path, workers: int | None = None,
                 results = generate_local(todo, root, workers, show_progress, device)
         manifest = write_manifest(root, {**(info or {}), "jobs": {j.name: j.digest for j in jobs}},
                                   scenes=_passing_scenes(root, names, check))
+    saturation = {name: scene_saturation(root, name) for name in names}
+    _warn_saturated(saturation)
     return {"root": str(root), "generated": results, "skipped": len(jobs) - len(todo),
-            "seconds": time.perf_counter() - t0, "manifest": str(manifest)}
+            "seconds": time.perf_counter() - t0, "manifest": str(manifest), "saturation": saturation}
+
+
+def _warn_saturated(saturation: dict[str, float | None]) -> None:
+    """A warning for each scene whose ground truth lies above the sensor's saturation in more than
+    SATURATION_WARN_FRACTION of its pixels: targets no spike stream can show (model/data.py clips
+    them; docs/model.md)."""
+    for name, fraction in saturation.items():
+        if fraction is not None and fraction > SATURATION_WARN_FRACTION:
+            log.warning("%s: %.1f %% of its ground-truth pixels are above the sensor's saturation (y > %g spike "
+                        "per step), more than %g %%: its light is brighter than the camera can show",
+                        name, 100 * fraction, SATURATION_Y, 100 * SATURATION_WARN_FRACTION)
 
 
 # ---- command line ---------------------------------------------------------------------------------
@@ -400,11 +419,31 @@ def run(args: argparse.Namespace) -> int:
                       info={"kind": args.kind, "preset": dataclasses.asdict(preset), "seed": args.seed},
                       overwrite_stale=args.overwrite, show_progress=not args.quiet, check=args.check,
                       command="spikesim " + shlex.join(sys.argv[1:]), device=device)
+    saturation = report["saturation"]
     for r in report["generated"]:
-        print(f"  {r['name']}: {r['seconds']:.1f} s, {r['bytes'] / 1e6:.2f} MB")
+        print(f"  {r['name']}: {r['seconds']:.1f} s, {r['bytes'] / 1e6:.2f} MB, "
+              f"{_percent(saturation.get(r['name']))} of ground-truth pixels saturated")
     print(f"{args.out}: {len(report['generated'])} scene(s) generated, {report['skipped']} already complete, "
           f"{report['seconds']:.1f} s; manifest {report['manifest']}")
+    print(saturation_summary(saturation))
     return 0
+
+
+def _percent(fraction: float | None) -> str:
+    return "n/a" if fraction is None else f"{100 * fraction:.2f} %"
+
+
+def saturation_summary(saturation: dict[str, float | None]) -> str:
+    """One line on the ground truth above the sensor's saturation, over the dataset's scenes."""
+    known = {k: v for k, v in saturation.items() if v is not None}
+    if not known:
+        return "ground truth above saturation: not recorded (scenes written before it was)"
+    over = sorted((k for k, v in known.items() if v > SATURATION_WARN_FRACTION), key=lambda k: -known[k])
+    worst = max(known, key=lambda k: known[k])
+    text = (f"ground truth above saturation (y > {SATURATION_Y:g}): mean {_percent(float(np.mean(list(known.values()))))} "
+            f"of pixels over {len(known)} scene(s), most {_percent(known[worst])} ({worst}); "
+            f"{len(over)} scene(s) above {100 * SATURATION_WARN_FRACTION:g} %")
+    return text + (f": {', '.join(over[:10])}{' ...' if len(over) > 10 else ''}" if over else "")
 
 
 VERIFY_INTACT, VERIFY_DAMAGED, VERIFY_EXTRAS = 0, 1, 3

@@ -40,8 +40,10 @@ class _FrameSource:
             from spikesim.camera import SpikeCamera
             from spikesim.render import SceneRenderer
             if src["type"] == "random":
-                from scenes.random_scene import build_random_scene
-                scene, motion, lights, light = build_random_scene(int(src["scene_seed"]), workdir / "random_scene")
+                from scenes.random_scene import LAMPS_LUX_BEFORE_STUDY, build_random_scene
+                scene, motion, lights, light = build_random_scene(
+                    int(src["scene_seed"]), workdir / "random_scene",
+                    lamps_lux=tuple(src.get("lamps_lux", LAMPS_LUX_BEFORE_STUDY)))
             else:
                 scene, motion, lights, light = src["scene"], src.get("motion"), src.get("lights"), src["light"]
             render = {k: v for k, v in job.render.items()}

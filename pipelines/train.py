@@ -4,7 +4,8 @@ The default config ("full") is the paper's recipe: 41-step windows, 64x64 random
 K = 21 consecutive windows, Adam (0.9, 0.99), lr 1e-4 x0.1 at epoch 70 of 100, L1 summed over the
 K windows. Writes <out>/last.pt (every ckpt_every epochs and on stopping; atomic), <out>/best.pt
 (best validation PSNR), <out>/train_log.csv, <out>/val_log.csv, <out>/tb/ (TensorBoard) and
-<out>/config.json; `--resume` continues from <out>/last.pt exactly where it stopped.
+<out>/config.json; `--resume` continues from <out>/last.pt exactly where it stopped. Precision:
+bf16 autocast on GPUs that support it, fp32 on the CPU, `--precision` to choose (model/precision.py).
 """
 from __future__ import annotations
 
@@ -30,6 +31,7 @@ from model.config import ExperimentConfig, available_configs, load_config
 from model.data import Scene, SequenceDataset, open_scenes, split_scenes
 from model.losses import build_loss
 from model.metrics import psnr, ssim
+from model.precision import PRECISIONS, autocast, grad_scaler, resolve_precision
 from model.representations import tfp_windows
 from pipelines.argtypes import nonnegative_int, positive_float, positive_int
 
@@ -180,8 +182,8 @@ def run_training(experiment: ExperimentConfig, train_scenes: Sequence[Scene], va
     model = build_model(mc).to(dev)
     opt = torch.optim.Adam(model.parameters(), lr=tc.lr, betas=tuple(tc.betas))
     sched = torch.optim.lr_scheduler.MultiStepLR(opt, milestones=list(tc.lr_milestones), gamma=tc.lr_gamma)
-    use_amp = tc.amp and dev.type == "cuda"
-    scaler = torch.amp.GradScaler("cuda", enabled=use_amp)
+    precision = resolve_precision(tc.precision, dev)
+    scaler = grad_scaler(precision, dev)
     loss_fn = build_loss(tc.loss)
 
     train_ds = SequenceDataset(train_scenes, mc.window, tc.num_windows, tc.crop, random_crop=True,
@@ -215,7 +217,7 @@ def run_training(experiment: ExperimentConfig, train_scenes: Sequence[Scene], va
         save_checkpoint(path, model, experiment, opt, sched, scaler, epoch_, step,
                         extra={"batch_in_epoch": batch_, "best_val_psnr": best})
 
-    print(f"[train] {experiment.name}: {count_parameters(model):,} parameters, device {dev}, "
+    print(f"[train] {experiment.name}: {count_parameters(model):,} parameters, device {dev}, {precision}, "
           f"{len(train_ds)} samples/epoch from {len(train_scenes)} scenes, "
           f"{len(val_ds) if val_ds else 0} validation samples", file=sys.stderr)
     model.train()
@@ -233,7 +235,7 @@ def run_training(experiment: ExperimentConfig, train_scenes: Sequence[Scene], va
             t0 = time.perf_counter()
             spikes = batch["spikes"].to(dev, non_blocking=True)
             gt = batch["gt"].to(dev, non_blocking=True)
-            with torch.autocast(dev.type, enabled=use_amp):
+            with autocast(precision, dev):
                 pred = model(spikes)
             loss = loss_fn(pred.float(), gt)
             if not torch.isfinite(loss):
@@ -277,7 +279,7 @@ def run_training(experiment: ExperimentConfig, train_scenes: Sequence[Scene], va
             checkpoint(last_path, epoch, batch_in_epoch)
     tb.close()
     elapsed = time.perf_counter() - t_start
-    return {"steps": step, "epoch": epoch, "last_loss": last_loss, "best_val_psnr": best,
+    return {"steps": step, "epoch": epoch, "last_loss": last_loss, "best_val_psnr": best, "precision": precision,
             "samples_per_s": samples_seen / elapsed if elapsed > 0 else math.nan, "out": str(out)}
 
 
@@ -286,16 +288,19 @@ def _apply_overrides(exp: ExperimentConfig, args: argparse.Namespace) -> Experim
                "num_windows": "num_windows", "crop": "crop", "lr": "lr", "seed": "seed",
                "num_workers": "num_workers", "samples_per_epoch": "samples_per_epoch", "val_crop": "val_crop"}
     changes = {field: getattr(args, arg) for arg, field in mapping.items() if getattr(args, arg, None) is not None}
+    if getattr(args, "precision", None) is not None:
+        changes["precision"] = args.precision
     if getattr(args, "no_amp", False):
-        changes["amp"] = False
+        changes["precision"] = "fp32"
     return dataclasses.replace(exp, train=dataclasses.replace(exp.train, **changes)) if changes else exp
 
 
 def cmd_train(args: argparse.Namespace) -> int:
-    resolve_device(args.device)  # before any work: a missing GPU is one line, not a late traceback
+    dev = resolve_device(args.device)  # before any work: a missing GPU is one line, not a late traceback
     if args.threads:
         torch.set_num_threads(args.threads)
     exp = _apply_overrides(load_config(args.config), args)
+    resolve_precision(exp.train.precision, dev)  # bf16 on a GPU without it: one line, before any work
     scenes = open_scenes(args.data)
     if args.val_data:
         train_scenes, val_scenes = scenes, open_scenes(args.val_data)
@@ -331,6 +336,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     g.add_argument("--seed", type=nonnegative_int)
     g.add_argument("--num-workers", type=nonnegative_int)
     g.add_argument("--samples-per-epoch", type=positive_int)
-    g.add_argument("--no-amp", action="store_true", help="no mixed precision on CUDA")
+    prec = g.add_mutually_exclusive_group()
+    prec.add_argument("--precision", choices=PRECISIONS,
+                      help="auto (the config's default: bf16 autocast on a GPU that supports it, fp16 on an older "
+                           "one, fp32 on the CPU), bf16, fp16 (autocast + GradScaler) or fp32")
+    prec.add_argument("--no-amp", action="store_true", help="the same as --precision fp32")
     p.set_defaults(func=cmd_train)
     return p

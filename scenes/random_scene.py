@@ -13,8 +13,17 @@ What is random, and the ranges (chosen to resemble everyday high-speed scenes at
   across the view, or both;
 - one lighting condition "normal": 1-2 lamps (rectangle panel, point or spot) with a spectrum
   drawn from CIE A (incandescent), D65 (daylight), FL2 / FL11 (fluorescent), LED-B3 (white LED),
-  giving 100-1000 lux at the subject (indoor to bright-indoor levels, as the LLR normal lights).
+  together giving an illuminance at the subject drawn log-uniformly from LAMPS_LUX (30-250 lx:
+  dim to ordinary indoor light, up to the LLR normal lights' 110-250 lx).
 RLLR's darkening by a random factor in (0, 1) is applied by the dataset job, not here.
+
+Why 30-250 lx and not brighter: above y = 1 spike per step the sensor saturates, and a ground
+truth above it is a target no spike stream can show. Measured over the 100 scenes of
+`generate rllr --preset paper` (`python -m pipelines.rllr_lighting`, docs/scenes.md section 10):
+with 100-1000 lx, 1.3 % of all ground-truth pixels were saturated and 13 scenes had more than 1 %
+(one 51 %); with 30-250 lx, 0.02 % and none above 1 %, while 20 % of the scenes (darkened) lie at
+or below the LLR low lights' 3.5-10 lx. The bright end is set by the brightest scenes: a bright
+surface facing a lamp reaches y = 1 near 250-300 lx at the subject.
 """
 from __future__ import annotations
 
@@ -25,6 +34,11 @@ from pathlib import Path
 import numpy as np
 
 SPECTRA = ("A", "D65", "FL2", "FL11", "LED-B3")
+LAMPS_LUX = (30.0, 250.0)
+"""Range of the lamps' illuminance at the subject, before RLLR's darkening (log-uniform)."""
+LAMPS_LUX_BEFORE_STUDY = (100.0, 1000.0)
+"""The range before the saturation study: jobs planned without a range still build with it, so
+a scene folder stays reproducible from its recorded job."""
 _TEXTURE_SIZE = 256
 
 
@@ -93,8 +107,14 @@ def _trimesh_object(rng: np.random.Generator, size: float):
     return trimesh.convex.convex_hull(pts)
 
 
-def build_random_scene(seed: int, folder: str | Path, resolution: tuple[int, int] = (250, 400)) -> tuple[Path, Path, Path, str]:
-    """Write a random scene into `folder`; returns (xml, motion, lights, light name)."""
+def build_random_scene(seed: int, folder: str | Path, resolution: tuple[int, int] = (250, 400),
+                       lamps_lux: tuple[float, float] = LAMPS_LUX) -> tuple[Path, Path, Path, str]:
+    """Write a random scene into `folder`; returns (xml, motion, lights, light name). The lamps'
+    illuminance at the subject is drawn log-uniformly from `lamps_lux` with one random draw, so
+    the range changes the level and nothing else of the scene."""
+    lo_lux, hi_lux = (float(v) for v in lamps_lux)
+    if not 0 < lo_lux <= hi_lux:
+        raise ValueError(f"lamps_lux={lamps_lux!r}: expected 0 < low <= high (lux)")
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 1234]))
     folder = Path(folder)
     (folder / "textures").mkdir(parents=True, exist_ok=True)
@@ -168,7 +188,7 @@ def build_random_scene(seed: int, folder: str | Path, resolution: tuple[int, int
     (folder / "motion.json").write_text(json.dumps({"version": 1, "description": f"random motions, seed {seed}",
                                                     "start_time_s": 0.0, "objects": objects}, indent=1))
     subject = [0.0, 0.0, 1.0]
-    lux = float(np.exp(rng.uniform(np.log(100.0), np.log(1000.0))))
+    lux = float(np.exp(rng.uniform(np.log(lo_lux), np.log(hi_lux))))
     n_lamps = int(rng.integers(1, 3))
     emitters = []
     for k in range(n_lamps):
@@ -186,10 +206,11 @@ def build_random_scene(seed: int, folder: str | Path, resolution: tuple[int, int
             e["beam_deg"] = 35.0
         emitters.append(e)
     lights = {"normal": {"description": f"{n_lamps} random lamp(s), {lux:.0f} lx at the subject",
-                         "reference": "indoor 100-1000 lx (EN 12464-1 office/task lighting ranges)",
+                         "reference": f"log-uniform {lo_lux:g}-{hi_lux:g} lx at the subject (dim to ordinary indoor "
+                                      "light, kept below the sensor's saturation: scenes/random_scene.py)",
                          "subject": {"at": subject, "normal": [0, -1, 0]}, "emitters": emitters}}
     (folder / "lights.json").write_text(json.dumps(lights, indent=1))
     return folder / "scene.xml", folder / "motion.json", folder / "lights.json", "normal"
 
 
-__all__ = ["build_random_scene", "SPECTRA"]
+__all__ = ["build_random_scene", "SPECTRA", "LAMPS_LUX", "LAMPS_LUX_BEFORE_STUDY"]

@@ -1,10 +1,13 @@
 """The on-disk layout of a spike dataset (LLR, RLLR or a user's own), and its integrity checks.
 
-    <root>/manifest.json                 name, preset, and per scene: files with bytes + sha256
+    <root>/manifest.json                 name, preset, and per scene: files with bytes + sha256, and
+                                         the share of ground-truth pixels above saturation
     <root>/.spikesim.lock                held by the `generate` run writing here (pid, command)
     <root>/<scene>/spikes.dat            the stream, PKU .dat (flipped: the real-camera convention)
     <root>/<scene>/meta.json             camera, seed, geometry, num_steps, flip, gt_steps, windows,
-                                         light and every other parameter needed to reproduce it
+                                         light and every other parameter needed to reproduce it;
+                                         gt_saturation: the share of ground-truth pixels above
+                                         SATURATION_Y (y = 1), counted when written
     <root>/<scene>/gt/step_{n:06d}.exr   ground truth y at step n (linear float32)
     <root>/<scene>/checksums.json        bytes + sha256 of each file above, recorded when written
 
@@ -41,6 +44,14 @@ LOCK_FILE = ".spikesim.lock"
 LAYOUT_VERSION = 2
 """2: each scene records its own checksums (checksums.json)."""
 
+SATURATION_Y = 1.0
+"""The sensor's saturation in y (expected spikes per readout step): a pixel fires at most once
+per step, so above y = 1 its stream is all ones whatever the light, and ground truth above it is
+a target no spike stream can show (model/data.py clips it there)."""
+SATURATION_WARN_FRACTION = 0.01
+"""`generate` warns about a scene whose ground truth has more than this share of pixels above
+saturation."""
+
 _PLAIN_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.+-]{0,127}")
 _SHA256 = re.compile(r"[0-9a-f]{64}")
 _GT_FILE = re.compile(r"step_\d{6}\.exr")
@@ -48,6 +59,12 @@ _GT_FILE = re.compile(r"step_\d{6}\.exr")
 
 def gt_name(step: int) -> str:
     return f"step_{int(step):06d}.exr"
+
+
+def saturated_fraction(y: np.ndarray, saturation: float = SATURATION_Y) -> float:
+    """The share of pixels of ground truth `y` above `saturation`."""
+    y = np.asarray(y)
+    return float(np.count_nonzero(y > saturation) / y.size) if y.size else 0.0
 
 
 def check_scene_name(name: str) -> str:
@@ -171,6 +188,36 @@ class SceneRecord:
         return read_exr(self.path / GT_DIR / gt_name(step))
 
 
+class _SaturationCount:
+    """How much of a scene's ground truth lies above the sensor's saturation, counted image by
+    image as the images are written (a scene's ground truth is never all in memory)."""
+
+    def __init__(self) -> None:
+        self.above, self.pixels, self.max_y = 0, 0, 0.0
+
+    def add(self, img: np.ndarray) -> None:
+        y = np.asarray(img)
+        self.above += int(np.count_nonzero(y > SATURATION_Y))
+        self.pixels += int(y.size)
+        if y.size:
+            self.max_y = max(self.max_y, float(np.max(y)))
+
+    def record(self) -> dict[str, Any]:
+        """meta.json's "gt_saturation": the share of ground-truth pixels above saturation."""
+        return {"saturation_y": SATURATION_Y, "pixels": self.pixels,
+                "saturated_fraction": self.above / self.pixels if self.pixels else 0.0, "max_y": self.max_y}
+
+
+def scene_saturation(root: str | Path, name: str) -> float | None:
+    """The saturated share of a scene's ground truth as its meta.json records it (None: a scene
+    written before it was recorded, or a meta.json that cannot be read)."""
+    try:
+        meta = json.loads(inside_root(root, name, META).read_text())
+        return float(meta["gt_saturation"]["saturated_fraction"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
 def write_scene(root: str | Path, name: str, stream: SpikeStream | Path, ground_truth: dict[int, np.ndarray] | Iterable[tuple[int, np.ndarray]],
                 meta: dict[str, Any], flip: bool = True) -> SceneRecord:
     """Write a complete scene folder atomically (built as `.<name>.part`, then renamed), with the
@@ -198,15 +245,18 @@ def write_scene(root: str | Path, name: str, stream: SpikeStream | Path, ground_
             n = DatReader(tmp / SPIKES, h, w, flip=flip).num_steps
         items = ground_truth.items() if isinstance(ground_truth, dict) else ground_truth
         steps = []
+        saturation = _SaturationCount()
         for step, img in items:
             if np.asarray(img).shape != (h, w):
                 raise ValueError(f"scene {name}: ground truth at step {step} has shape {np.asarray(img).shape}, stream is {h}x{w}")
             if not 0 <= int(step) < n:
                 raise ValueError(f"scene {name}: ground truth step {step} outside the stream's {n} steps")
             write_exr(tmp / GT_DIR / gt_name(step), img)
+            saturation.add(img)
             steps.append(int(step))
         full_meta = {**meta, "name": name, "height": h, "width": w, "num_steps": n, "flip": flip,
-                     "gt_steps": sorted(steps), "layout_version": LAYOUT_VERSION}
+                     "gt_steps": sorted(steps), "gt_saturation": saturation.record(),
+                     "layout_version": LAYOUT_VERSION}
         _write_json(tmp / META, full_meta)
         _write_json(tmp / CHECKSUMS, {"layout_version": LAYOUT_VERSION, "files": _file_checksums(tmp)})
         os.replace(tmp, final)
@@ -338,7 +388,8 @@ def write_manifest(root: str | Path, info: dict[str, Any] | None = None, scenes:
     listed = {name: {f"{name}/{rel}": want for rel, want in read_scene_checksums(root, name).items()}
               for name in sorted(scenes)}
     data = {**(info or {}), "layout_version": LAYOUT_VERSION, "scenes": listed,
-            "total_bytes": sum(f["bytes"] for files in listed.values() for f in files.values())}
+            "total_bytes": sum(f["bytes"] for files in listed.values() for f in files.values()),
+            "gt_saturated_fraction": {name: scene_saturation(root, name) for name in listed}}
     path = inside_root(root, MANIFEST, follow=False)
     _write_json(path, data)
     return root / MANIFEST
@@ -447,4 +498,5 @@ def open_dataset(root: str | Path) -> list[SceneRecord]:
 __all__ = ["SceneRecord", "DatasetCheck", "write_scene", "write_manifest", "read_manifest", "read_scene_checksums",
            "check_scene", "check_dataset", "verify", "open_dataset", "inside_root", "check_scene_name",
            "holds_only_scene_files", "scene_folders", "remove_inside", "gt_name", "MANIFEST", "SPIKES", "META", "GT_DIR",
-           "CHECKSUMS", "LOCK_FILE"]
+           "CHECKSUMS", "LOCK_FILE", "SATURATION_Y", "SATURATION_WARN_FRACTION", "saturated_fraction",
+           "scene_saturation"]

@@ -1,0 +1,292 @@
+"""`spikesim compare`: compare methods or ablations the way a difference can be trusted: each
+config trained with several seeds (at least 3) for the same number of steps, every run evaluated
+on the same test set, and each score reported as mean +- standard deviation over the seeds.
+
+A difference between two configs is called only where it exceeds the spread: |mean_a - mean_b|
+greater than std_a + std_b (the sample standard deviations over seeds). Below that, the table
+says "within spread": a reordering by another seed would be no surprise.
+
+    spikesim compare --data rllr --test-data llr --configs E=tiny A=tiny_ablation_a \\
+        --seeds 0 1 2 --steps 150 --out runs/compare
+
+Writes <out>/runs/<label>/seed<k>/ (training runs, resumable: a finished run is kept, an
+unfinished one continued), <out>/metrics.csv (every run on every scene, evaluate's rows),
+<out>/compare.csv, <out>/compare.json and <out>/compare.md.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+import itertools
+import json
+import math
+import os
+import shlex
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from pipelines.argtypes import nonnegative_int, output_dir, positive_int
+
+MIN_SEEDS = 3
+BASELINES = ("tfp", "tfi")
+
+
+@dataclass(frozen=True)
+class SeedStat:
+    """One score of one config over its seeds."""
+
+    label: str
+    group: str
+    metric: str
+    mean: float
+    std: float
+    values: tuple[float, ...]
+
+    @property
+    def n(self) -> int:
+        return len(self.values)
+
+
+def seed_stat(label: str, group: str, metric: str, values: Sequence[float]) -> SeedStat:
+    """Mean and sample standard deviation (ddof 1; 0 for a single value, as for TFP/TFI, which
+    have no seed)."""
+    v = np.asarray(values, dtype=np.float64)
+    with np.errstate(invalid="ignore"):  # an infinite PSNR (a perfect frame) has no spread: nan
+        std = float(v.std(ddof=1)) if v.size > 1 else 0.0
+    return SeedStat(label, group, metric, float(v.mean()), std, tuple(float(x) for x in v))
+
+
+def difference_holds(a: SeedStat, b: SeedStat) -> bool:
+    """Whether a and b differ by more than their spreads together: |mean_a - mean_b| > std_a + std_b."""
+    if not (math.isfinite(a.mean) and math.isfinite(b.mean)):
+        return False
+    return abs(a.mean - b.mean) > a.std + b.std
+
+
+def config_spec(text: str) -> tuple[str, Any]:
+    """argparse type: LABEL=CONFIG or CONFIG (a named config or a JSON file); (label, config)."""
+    from model.config import load_config
+    label, _, name = text.rpartition("=") if "=" in text else ("", "", text)
+    try:
+        exp = load_config(name)
+    except (OSError, ValueError, TypeError) as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    label = label or exp.name
+    if not label or any(c in label for c in "/\\#") or label.startswith(".") or label.upper().startswith("ALL"):
+        raise argparse.ArgumentTypeError(f"{text!r}: a label is a plain name (no /, \\ or #, not starting "
+                                         "with a dot or ALL)")
+    return label, exp
+
+
+def run_dir(out: Path, label: str, seed: int) -> Path:
+    return out / "runs" / label / f"seed{seed}"
+
+
+def _steps_done(last: Path) -> int | None:
+    """Steps of a run's last checkpoint, None when there is none."""
+    if not last.exists():
+        return None
+    from model.checkpoint import load_checkpoint
+    return int(load_checkpoint(last)["step"])
+
+
+def train_seeds(configs: Sequence[tuple[str, Any]], seeds: Sequence[int], steps: int, train_scenes: Sequence[Any],
+                out: Path, device: str = "auto", precision: str | None = None, progress: bool = False) -> dict[tuple[str, int], Path]:
+    """Train every (config, seed) for exactly `steps` steps; returns each run's last checkpoint.
+    A finished run is kept; an unfinished one is continued (--resume); one past `steps` is refused."""
+    from pipelines.train import run_training
+
+    done: dict[tuple[str, int], Path] = {}
+    for (label, exp), seed in itertools.product(configs, seeds):
+        train = dataclasses.replace(exp.train, seed=int(seed), max_steps=steps,
+                                    **({"precision": precision} if precision else {}))
+        run = dataclasses.replace(exp, name=f"{label}_seed{seed}", train=train)
+        folder = run_dir(out, label, seed)
+        last = folder / "last.pt"
+        have = _steps_done(last)
+        if have is not None and have > steps:
+            raise ValueError(f"{last} has {have} steps, more than --steps {steps}: choose another --out")
+        if have != steps:
+            print(f"[compare] training {label} seed {seed} for {steps} steps"
+                  + (f" (continuing from step {have})" if have else ""), file=sys.stderr)
+            summary = run_training(run, train_scenes, [], folder, device, resume=have is not None, progress=progress)
+            if summary["steps"] != steps:
+                raise ValueError(f"config {label}: its {exp.train.epochs} epochs end after {summary['steps']} steps, "
+                                 f"before --steps {steps}; raise its epochs or lower --steps")
+        done[(label, seed)] = last
+    return done
+
+
+def check_samples(configs: Sequence[tuple[str, Any]], train_scenes: Sequence[Any]) -> None:
+    """Every config finds training samples in the data, checked before any run trains (so a
+    config that cannot train does not fail after the others have)."""
+    from model.data import SequenceDataset
+    for label, exp in configs:
+        try:
+            SequenceDataset(train_scenes, exp.model.window, exp.train.num_windows, exp.train.crop)
+        except ValueError as exc:
+            raise ValueError(f"--configs {label}: {exc}") from None
+
+
+def run_name(label: str, seed: int) -> str:
+    return f"{label}#{seed}"
+
+
+def evaluate_runs(checkpoints: dict[tuple[str, int], Path], test_scenes: Sequence[Any], window: int,
+                  baselines: Sequence[str] = BASELINES, device: str = "cpu", chunk: int = 8,
+                  progress: bool = False) -> list[Any]:
+    """evaluate's rows for every run (method names label#seed) and the baselines."""
+    from model.methods import MapMethod, ModelMethod
+    from pipelines.evaluate import evaluate
+
+    methods: list[Any] = [MapMethod(b.upper(), b, window) for b in baselines]
+    methods += [ModelMethod(run_name(label, seed), path, chunk, device) for (label, seed), path in checkpoints.items()]
+    return evaluate(test_scenes, methods, window, progress=progress)
+
+
+def aggregate(rows: Sequence[Any], labels: Sequence[str], baselines: Sequence[str] = BASELINES) -> list[SeedStat]:
+    """Per label, group (ALL_low, ALL_normal, ALL) and metric: the statistics over seeds."""
+    from model.metrics import METRICS
+    from pipelines.evaluate import ALL
+
+    groups = [g for g in dict.fromkeys(r.scene for r in rows) if g.startswith(ALL)]
+    stats = []
+    for group in groups:
+        for label in [b.upper() for b in baselines] + list(labels):
+            mine = [r for r in rows if r.scene == group and (r.method == label or r.method.startswith(label + "#"))]
+            for metric in METRICS:
+                stats.append(seed_stat(label, group, metric, [r.value(metric) for r in mine]))
+    return stats
+
+
+def _fmt(s: SeedStat, fmt: str) -> str:
+    body = fmt.format(s.mean)
+    return body if s.n == 1 else f"{body} ± {fmt.format(s.std)}"
+
+
+def markdown(stats: Sequence[SeedStat], labels: Sequence[str], baselines: Sequence[str], seeds: Sequence[int],
+             steps: int) -> str:
+    """Per group, a table of mean +- std over seeds; then every pair of configs, with the
+    difference called only where it exceeds the spread."""
+    from model.metrics import METRICS
+    from pipelines.evaluate import ALL
+
+    cols = [b.upper() for b in baselines] + list(labels)
+    by = {(s.label, s.group, s.metric): s for s in stats}
+    groups = list(dict.fromkeys(s.group for s in stats))
+    groups = [g for g in groups if g != ALL] + [ALL]
+    lines = [f"{len(seeds)} training seeds ({', '.join(map(str, seeds))}) x {steps} steps per config; mean ± "
+             f"standard deviation over seeds (TFP/TFI have no seed). A difference is called only where "
+             f"|mean_a - mean_b| > std_a + std_b.", ""]
+    for g in groups:
+        title = "All scenes" if g == ALL else f"{g.split('_', 1)[1].capitalize()} light"
+        lines += [f"**{title}**", "", "| Metric | " + " | ".join(cols) + " |", "|---|" + "---|" * len(cols)]
+        for key, (_, label, fmt) in METRICS.items():
+            lines.append(f"| {label} | " + " | ".join(_fmt(by[(c, g, key)], fmt) for c in cols) + " |")
+        lines.append("")
+    pairs = list(itertools.combinations(labels, 2))
+    if pairs:
+        lines += ["| Groups | Metric | " + " | ".join(f"{a} - {b}" for a, b in pairs) + " |",
+                  "|---|---|" + "---|" * len(pairs)]
+        for g in groups:
+            for key, (_, label, fmt) in METRICS.items():
+                cells = []
+                for a, b in pairs:
+                    sa, sb = by[(a, g, key)], by[(b, g, key)]
+                    d = fmt.format(sa.mean - sb.mean)
+                    cells.append(f"**{d}**" if difference_holds(sa, sb) else f"{d} (within spread)")
+                lines.append(f"| {g} | {label} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def _write_text(path: Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.part")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+def write_comparison(stats: Sequence[SeedStat], rows: Sequence[Any], text: str, meta: dict[str, Any], out: Path) -> None:
+    """compare.csv, compare.json, compare.md and every run's per-scene metrics.csv, each written whole."""
+    from pipelines.evaluate import write_results
+    out.mkdir(parents=True, exist_ok=True)
+    write_results(rows, list(dict.fromkeys(r.method for r in rows)), out)
+    tmp = out / ".compare.csv.part"
+    with tmp.open("w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["label", "group", "metric", "mean", "std", "seeds", "values"])
+        for s in stats:
+            w.writerow([s.label, s.group, s.metric, f"{s.mean:.6f}", f"{s.std:.6f}", s.n,
+                        " ".join(f"{v:.6f}" for v in s.values)])
+    os.replace(tmp, out / "compare.csv")
+    _write_text(out / "compare.json", json.dumps({**meta, "stats": [dataclasses.asdict(s) for s in stats]}, indent=1))
+    _write_text(out / "compare.md", text)
+
+
+def cmd_compare(args: argparse.Namespace) -> int:
+    import torch
+
+    from model.data import open_scenes
+    from model.precision import resolve_precision
+    from pipelines.train import resolve_device
+
+    dev = resolve_device(args.device)
+    if args.precision:
+        resolve_precision(args.precision, dev)
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    seeds = list(dict.fromkeys(args.seeds))
+    if len(seeds) < MIN_SEEDS:
+        raise ValueError(f"--seeds: a comparison needs at least {MIN_SEEDS} distinct training seeds, got {seeds}")
+    labels = [label for label, _ in args.configs]
+    if len(set(labels)) != len(labels):
+        raise ValueError(f"--configs: labels must be unique, got {labels}; name them with LABEL=CONFIG")
+    taken = sorted(set(labels) & {b.upper() for b in args.baselines})
+    if taken:
+        raise ValueError(f"--configs: label(s) {', '.join(taken)} name a baseline; choose others with LABEL=CONFIG")
+    windows = {exp.model.window for _, exp in args.configs}
+    if len(windows) != 1:
+        raise ValueError(f"--configs: all configs must use one window length to be compared, got {sorted(windows)}")
+    window = windows.pop()
+    train_scenes, test_scenes = open_scenes(args.data), open_scenes(args.test_data)
+    check_samples(args.configs, train_scenes)
+    out = Path(args.out)
+    checkpoints = train_seeds(args.configs, seeds, args.steps, train_scenes, out, str(dev), args.precision,
+                              progress=not args.quiet)
+    rows = evaluate_runs(checkpoints, test_scenes, window, args.baselines, str(dev), progress=not args.quiet)
+    stats = aggregate(rows, labels, args.baselines)
+    text = markdown(stats, labels, args.baselines, seeds, args.steps)
+    meta = {"command": "spikesim " + shlex.join(sys.argv[1:]), "data": str(args.data),
+            "test_data": str(args.test_data), "seeds": seeds, "steps": args.steps,
+            "configs": {label: exp.to_dict() for label, exp in args.configs}}
+    write_comparison(stats, rows, text, meta, out)
+    print(text)
+    print(f"[compare] wrote {out / 'compare.md'}, {out / 'compare.csv'} and {out / 'metrics.csv'}", file=sys.stderr)
+    return 0
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """Register `compare` on the CLI's subparsers."""
+    p = subparsers.add_parser("compare", help="train configs with several seeds for equal steps; mean ± std",
+                              description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--data", required=True, help="training dataset root (every scene trains)")
+    p.add_argument("--test-data", required=True, help="test dataset root (evaluate's frames)")
+    p.add_argument("--configs", nargs="+", required=True, type=config_spec, metavar="[LABEL=]CONFIG",
+                   help="named configs or JSON files, each labelled (default label: the config's name)")
+    p.add_argument("--seeds", nargs="+", type=nonnegative_int, default=[0, 1, 2],
+                   help=f"training seeds, at least {MIN_SEEDS} (default: 0 1 2)")
+    p.add_argument("--steps", type=positive_int, required=True, help="training steps of every run (equal for all)")
+    p.add_argument("--baselines", nargs="*", choices=BASELINES, default=list(BASELINES),
+                   help="seedless baselines in the tables (default: tfp tfi)")
+    p.add_argument("--out", type=output_dir, required=True, help="folder for the runs and the tables")
+    p.add_argument("--precision", choices=("bf16", "fp16", "fp32"),
+                   help="training precision of every run (default: each config's, auto)")
+    p.add_argument("--device", default="auto", help="auto (CUDA when present), cpu, cuda, cuda:N or mps")
+    p.add_argument("--threads", type=nonnegative_int, default=0, help="torch CPU threads (0: torch's default)")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=cmd_compare)
+    return p

@@ -1,0 +1,133 @@
+"""`spikesim compare`: configs trained with >= 3 seeds for equal steps, evaluated on one test set,
+reported as mean +- std over seeds, with differences called only beyond the spread."""
+from __future__ import annotations
+
+import csv
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+sys.path.insert(0, str(Path(__file__).parent / "model"))  # modeltest_fakes
+
+from modeltest_fakes import make_scene  # noqa: E402
+from pipelines import compare as cmp  # noqa: E402
+from pipelines.cli import main  # noqa: E402
+
+
+@pytest.fixture(autouse=True)
+def _one_thread():
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+def test_seed_statistics_and_the_spread_rule():
+    s = cmp.seed_stat("E", "ALL", "psnr", [30.0, 31.0, 32.0])
+    assert s.mean == 31.0 and s.std == pytest.approx(1.0) and s.n == 3  # sample std (ddof 1)
+    near = cmp.seed_stat("D", "ALL", "psnr", [31.5, 32.0, 32.5])      # 0.5 apart, spreads 1 + 0.5
+    far = cmp.seed_stat("A", "ALL", "psnr", [27.0, 27.5, 28.0])       # 3.5 apart
+    assert not cmp.difference_holds(s, near) and cmp.difference_holds(s, far)
+    assert cmp.seed_stat("TFP", "ALL", "psnr", [25.0]).std == 0.0
+    assert not cmp.difference_holds(s, cmp.seed_stat("X", "ALL", "psnr", [float("inf")] * 3))
+
+
+def _write_dataset(root: Path, names: list[str], seed0: int) -> None:
+    from spikesim.dataset import write_scene
+    from spikesim.stream import SpikeStream
+    for i, name in enumerate(names):
+        light = 0.05 if name.endswith("_low") else 0.3
+        sc = make_scene(name, 12, 16, 7 * 4, brightness=light, velocity=0.2, seed=seed0 + i)
+        write_scene(root, name, SpikeStream.from_bool(sc.spike_array), {n: sc.gt[n] for n in (3, 10, 17, 24)}, meta={})
+
+
+def _config(path: Path, name: str, **model) -> Path:
+    path.write_text(json.dumps({"name": name, "model": {"window": 7, "num_features": 8, "num_blocks": 1,
+                                                         "deform_groups": 2, **model},
+                                "train": {"num_windows": 3, "crop": 8, "batch_size": 2, "epochs": 100, "lr": 3e-3,
+                                          "lr_milestones": [99], "samples_per_epoch": 2, "val_every": 100}}))
+    return path
+
+
+def test_compare_end_to_end(tmp_path, capsys):
+    _write_dataset(tmp_path / "train", ["a_normal", "b_low"], 0)
+    _write_dataset(tmp_path / "test", ["c_low", "c_normal"], 10)
+    e = _config(tmp_path / "e.json", "e")
+    a = _config(tmp_path / "a.json", "a", representation="spike", adf=False, aif=False)
+    out = tmp_path / "cmp"
+    argv = ["compare", "--data", str(tmp_path / "train"), "--test-data", str(tmp_path / "test"),
+            "--configs", f"E={e}", f"A={a}", "--seeds", "0", "1", "2", "--steps", "2", "--device", "cpu",
+            "--quiet", "--out", str(out)]
+    assert main(argv) == 0
+    text = capsys.readouterr().out
+    # equal steps for every run
+    from model.checkpoint import load_checkpoint
+    steps = {(lab, s): int(load_checkpoint(out / "runs" / lab / f"seed{s}" / "last.pt")["step"])
+             for lab in ("E", "A") for s in (0, 1, 2)}
+    assert set(steps.values()) == {2}
+    stats = {(r["label"], r["group"], r["metric"]): r for r in csv.DictReader((out / "compare.csv").open())}
+    e_all = stats[("E", "ALL", "psnr")]
+    values = [float(v) for v in e_all["values"].split()]
+    assert e_all["seeds"] == "3" and len(set(values)) == 3  # seeds differ
+    assert float(e_all["mean"]) == pytest.approx(np.mean(values), abs=1e-5)
+    assert float(e_all["std"]) == pytest.approx(np.std(values, ddof=1), abs=1e-5)
+    assert stats[("TFP", "ALL_low", "psnr_8bit")]["seeds"] == "1"
+    # the per-run scores behind them are evaluate's
+    rows = {(r["scene"], r["method"]): r for r in csv.DictReader((out / "metrics.csv").open())}
+    assert float(rows[("ALL", "E#1")]["psnr"]) == pytest.approx(values[1], abs=1e-5)
+    # tables: low, normal, then all; mean ± std; every pair's differences with the spread rule
+    assert text.index("**Low light**") < text.index("**Normal light**") < text.index("**All scenes**")
+    assert " ± " in text and "| Groups | Metric | E - A |" in text
+    assert ("within spread" in text) or ("**" in text.split("| Groups |")[1])
+    # a second run keeps the finished runs
+    before = (out / "runs" / "E" / "seed0" / "last.pt").stat().st_mtime_ns
+    assert main(argv) == 0
+    assert (out / "runs" / "E" / "seed0" / "last.pt").stat().st_mtime_ns == before
+
+
+@pytest.mark.parametrize("flags,msg", [
+    (["--seeds", "0", "1"], "at least 3"),
+    (["--seeds", "0", "0", "1"], "at least 3"),
+    (["--configs", "TFP=tiny"], "baseline"),
+    (["--configs", "x=tiny", "x=tiny_ablation_a"], "unique"),
+])
+def test_compare_refuses_comparisons_that_would_not_hold(tmp_path, capsys, flags, msg):
+    _write_dataset(tmp_path / "d", ["a_low"], 0)
+    base = {"--configs": ["tiny", "tiny_ablation_a"], "--seeds": ["0", "1", "2"]}
+    for i in range(0, len(flags)):
+        if flags[i].startswith("--"):
+            vals = []
+            for f in flags[i + 1:]:
+                if f.startswith("--"):
+                    break
+                vals.append(f)
+            base[flags[i]] = vals
+    argv = ["compare", "--data", str(tmp_path / "d"), "--test-data", str(tmp_path / "d"), "--steps", "1",
+            "--device", "cpu", "--out", str(tmp_path / "o")]
+    for k, v in base.items():
+        argv += [k, *v]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert msg in err and "Traceback" not in err and not (tmp_path / "o" / "runs").exists()
+
+
+def test_compare_names_an_unknown_config_in_the_parser(tmp_path, capsys):
+    assert main(["compare", "--data", "d", "--test-data", "d", "--steps", "1", "--out", str(tmp_path / "o"),
+                 "--configs", "nope"]) == 2
+    assert "argument --configs" in capsys.readouterr().err
+
+
+def test_compare_checks_every_config_before_training_any(tmp_path, capsys):
+    _write_dataset(tmp_path / "d", ["a_low"], 0)  # 4 windows of 7 steps: too short for K = 21
+    e = _config(tmp_path / "e.json", "e")
+    long = json.loads(e.read_text())
+    long["name"], long["train"]["num_windows"] = "long", 21
+    (tmp_path / "long.json").write_text(json.dumps(long))
+    assert main(["compare", "--data", str(tmp_path / "d"), "--test-data", str(tmp_path / "d"), "--steps", "1",
+                 "--device", "cpu", "--out", str(tmp_path / "o"), "--configs", f"E={e}", str(tmp_path / "long.json")]) == 2
+    err = capsys.readouterr().err
+    assert "--configs long: no scene has 21 consecutive windows" in err and not (tmp_path / "o" / "runs").exists()
