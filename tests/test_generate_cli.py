@@ -7,6 +7,7 @@ import os
 import sys
 import types
 
+import numpy as np
 import pytest
 
 from pipelines.cli import build_parser, main
@@ -193,5 +194,11 @@ def test_fan_low_has_the_same_bytes_alone_or_with_other_scenes(tmp_path):
     generate(plan_llr(preset, seed=2, scenes=["fan"], lights=("low",)), tmp_path / "alone", workers=1, show_progress=False)
     generate(plan_llr(preset, seed=2, scenes=["ball", "fan"], lights=("low",)), tmp_path / "both", workers=1,
              show_progress=False)
-    for f in ("spikes.dat", "meta.json", "gt/step_000020.exr"):
+    for f in ("spikes.dat", "meta.json"):
         assert (tmp_path / "alone" / "fan_low" / f).read_bytes() == (tmp_path / "both" / "fan_low" / f).read_bytes(), f
+    # Ground truth: equal to within 2 ulp. Mitsuba's CPU renders can differ by one ulp in a rare
+    # pixel depending on what the process rendered before (measured: 1 pixel of 96 in 1 of 12 runs
+    # of this test, never in 60 repeats in one fresh process); docs/performance.md, limits.
+    from spikesim.imageio import read_exr
+    f = "fan_low/gt/step_000020.exr"
+    np.testing.assert_array_max_ulp(read_exr(tmp_path / "alone" / f), read_exr(tmp_path / "both" / f), maxulp=2)
