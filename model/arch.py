@@ -1,4 +1,4 @@
-"""The bidirectional recurrent reconstruction network (paper, section Method; DESIGN.md 5).
+"""The bidirectional recurrent reconstruction network (paper, section Method; docs/design.md section 5).
 
 For windows i = 0..K-1 of a sequence:
     F_i   = f(Rep_i)                                    16 residual blocks on the representation

@@ -1,4 +1,4 @@
-"""Small building blocks shared by the representation, fusion and head (DESIGN.md 5)."""
+"""Small building blocks shared by the representation, fusion and head (docs/design.md section 5)."""
 from __future__ import annotations
 
 import torch
@@ -24,7 +24,7 @@ def double_conv(in_ch: int, out_ch: int, mid_ch: int | None = None) -> nn.Sequen
 
 class ResidualBlock(nn.Module):
     """x + conv(relu(conv(x))), no batch norm; weights Kaiming-normal scaled by 0.1 so a deep
-    stack starts close to the identity (DESIGN.md 5; EDVR / BasicSR ResidualBlockNoBN)."""
+    stack starts close to the identity (docs/design.md section 5; EDVR / BasicSR ResidualBlockNoBN)."""
 
     def __init__(self, channels: int, init_scale: float = 0.1) -> None:
         super().__init__()

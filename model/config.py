@@ -2,7 +2,7 @@
 named experiment files in configs/model/*.json that pair them.
 
 Defaults are the paper's (section Implementation Details) and the authors' released network
-(DESIGN.md 5); every ablation is a field, so a named config is data, never a code edit.
+(docs/design.md section 5); every ablation is a field, so a named config is data, never a code edit.
 """
 from __future__ import annotations
 

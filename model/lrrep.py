@@ -1,5 +1,5 @@
 """The per-window representation in front of the feature extractor (paper, Light-robust
-Representation; DESIGN.md 5), and its ablation stand-ins (spike branch alone, TFP, TFI)."""
+Representation; docs/design.md section 5), and its ablation stand-ins (spike branch alone, TFP, TFI)."""
 from __future__ import annotations
 
 import torch

@@ -1,6 +1,6 @@
 """PCD alignment: Pyramid, Cascading and Deformable convolution (EDVR, Wang et al. 2019), in the
-three-level form of the authors' released code (DESIGN.md 5): the recurrent state (neighbour) is
-aligned to the current window's features (reference)."""
+three-level form of the authors' released code (docs/design.md section 5): the recurrent state
+(neighbour) is aligned to the current window's features (reference)."""
 from __future__ import annotations
 
 import torch

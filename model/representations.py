@@ -52,7 +52,7 @@ def _last_spike(s: torch.Tensor, dim: int) -> tuple[torch.Tensor, torch.Tensor]:
 # ---------------------------------------------------------------------------------------------
 
 def tfp(spikes: torch.Tensor) -> torch.Tensor:
-    """Texture from playback: spikes in the window / window length (DESIGN.md 5, "Baselines").
+    """Texture from playback: spikes in the window / window length (docs/model.md, "Representations").
 
     spikes: (T, H, W) or (B, T, H, W). Returns float32 (H, W) or (B, H, W) on the y scale
     (expected spikes per step), the same scale as the ground truth.
@@ -87,7 +87,7 @@ def tfi(spikes: torch.Tensor) -> torch.Tensor:
 
 
 # ---------------------------------------------------------------------------------------------
-# LISI / GISI (paper, "GISI transform"; DESIGN.md 5, facts from the authors' released code)
+# LISI / GISI (paper, "GISI transform"; docs/design.md section 5, facts from the authors' released code)
 # ---------------------------------------------------------------------------------------------
 
 @dataclass
@@ -209,7 +209,8 @@ def backward_spike_times(spikes: torch.Tensor, first_step: int = 0,
 
 def gisi(spikes: torch.Tensor, first_step: int = 0, last: LastSpike | None = None,
          nxt: NextSpike | None = None) -> tuple[torch.Tensor, LastSpike, NextSpike]:
-    """Global inter-spike interval per window (paper eq. of Fig. "GISI transform"; DESIGN.md 5).
+    """Global inter-spike interval per window (paper eq. of Fig. "GISI transform";
+    docs/design.md section 5).
 
     GISI_i = (first spike at or after centre_i, carried backward from later windows)
            - (last spike strictly before centre_i, carried forward from earlier windows),
@@ -266,8 +267,9 @@ def tfi_windows(spikes: torch.Tensor) -> torch.Tensor:
 def transform_interval(interval: torch.Tensor, mode: IntervalTransform) -> torch.Tensor:
     """How an interval map (GISI or LISI, in steps, >= 1) is fed to the network.
 
-    "raw": as the authors feed it (DESIGN.md 5). "inverse": 1 / interval, a rate on the y scale
-    (the TFI of the carried interval), bounded in (0, 1], so the conv sees inputs of order one.
+    "raw": as the authors feed it (docs/design.md section 5). "inverse": 1 / interval, a rate on
+    the y scale (the TFI of the carried interval), bounded in (0, 1], so the conv sees inputs of
+    order one.
     """
     if mode == "raw":
         return interval

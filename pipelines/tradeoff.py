@@ -9,8 +9,8 @@ plus the draft and balanced quality presets (spikesim.quality) and the combinati
 adaptive tolerance they were chosen among (COMBOS). For each run: render and simulate
 wall time and their ratios to the reference (timed in the same process; a resumed process re-times
 8 reference frames and scales the reference by them), and the
-error against the reference stream (DESIGN.md section 4: "each knob's cost and its error against a
-high-quality reference"). Every run uses the reference's sensor seed and render seed, so the
+error against the reference stream (docs/design.md section 4: each knob's cost and its error against
+a high-quality reference). Every run uses the reference's sensor seed and render seed, so the
 sensor's temporal noise (Philox keyed by seed, pixel and step) is common to both and the difference
 measures the knob; two extra runs give the noise floor: the reference with another sensor seed,
 and with another sensor and render seed.
@@ -43,7 +43,7 @@ from spikesim.config_io import read_json_object
 log = logging.getLogger(__name__)
 
 PROBE_FRAMES = 8  # reference frames re-timed in each process that resumes a study
-WINDOW = 41  # the paper's window: 2 * 20 + 1 steps (DESIGN.md section 5)
+WINDOW = 41  # the paper's window: 2 * 20 + 1 steps (docs/design.md section 5)
 KNOBS = ("spp", "keyframes", "adaptive", "variant", "noise", "precision", "quality", "combos")
 #: Combined settings the presets were chosen among (spp, adaptive tolerance in px): the fast knobs
 #: together (mono when the light has one spectrum, float32, every noise term).

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Set up everything the project needs on a fresh machine, idempotently:
-#  - libLLVM >= 17 for Dr.Jit's CPU backend (Debian's libllvm19; DESIGN.md section 6),
+#  - libLLVM >= 17 for Dr.Jit's CPU backend (Debian's libllvm19; docs/design.md section 6),
 #  - a virtual environment in .venv with torch pinned to the CPU build (requirements/cpu.txt)
 #    and this project installed in editable mode with its test extras.
 # Sourcing is not needed: scripts/demo.sh and scripts/test.sh call it.

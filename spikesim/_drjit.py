@@ -1,7 +1,7 @@
 """Import Dr.Jit with its LLVM backend pointed at a libLLVM that works.
 
 Dr.Jit 1.5's CPU backend needs libLLVM >= 17; older ones crash with "Cannot select: fminimum"
-(DESIGN.md section 6). Debian's `libllvm19` works, but Dr.Jit does not find it by itself, so the
+(docs/design.md section 6). Debian's `libllvm19` works, but Dr.Jit does not find it by itself, so the
 path is set here, before the first `import drjit`, unless the user set DRJIT_LIBLLVM_PATH.
 """
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """The spike camera's configuration: geometry, readout and every noise term.
 
 Units: light and charge are measured in thresholds. A pixel's input `y` is the expected number of
-spikes per readout step (photo-current x readout period / threshold, DESIGN.md section 2), so the
+spikes per readout step (photo-current x readout period / threshold, docs/design.md section 2), so the
 nominal threshold is 1 and every noise magnitude below is a fraction of it.
 
 Each noise term is its own documented option (in the manner of v2e); a magnitude of 0 (or
@@ -54,7 +54,7 @@ class SpikeCamera:
     """
 
     height: int = 250
-    """Rows of the sensor (400 x 250 is the PKU spike camera; DESIGN.md section 2)."""
+    """Rows of the sensor (400 x 250 is the PKU spike camera; docs/design.md section 2)."""
     width: int = 400
     """Columns of the sensor."""
     readout_period_s: float = 25e-6
@@ -129,7 +129,7 @@ class SpikeCamera:
 
     @property
     def dark_per_step(self) -> float:
-        """Mean dark current in thresholds per readout step (d in DESIGN.md section 2)."""
+        """Mean dark current in thresholds per readout step (d in docs/design.md section 2)."""
         return self.dark_current_hz * self.readout_period_s
 
     @property

@@ -12,7 +12,7 @@ import numpy as np
 from .camera import SpikeCamera
 
 # Per-pixel thresholds are kept inside [0.5, 1.5] x nominal: beyond 10 sigma of the published
-# spreads (DESIGN.md section 2), so it only guards against a non-positive threshold.
+# spreads (docs/design.md section 2), so it only guards against a non-positive threshold.
 _THRESHOLD_RANGE = (0.5, 1.5)
 
 # Independent streams of the seed's SeedSequence: fixed patterns, then initial state;

@@ -44,7 +44,7 @@ def noise_effect(camera: SpikeCamera, term: str, y: float, window: int = 41) -> 
     """Relative effect of one noise term on the spike count of a `window`-step window at light y.
 
     With c = (y + d) W the expected count (d: dark thresholds per step; the long-run rate of an
-    integrate-and-fire pixel is y + d, DESIGN.md section 2), each term changes the count by:
+    integrate-and-fire pixel is y + d, docs/design.md section 2), each term changes the count by:
     - dark_current_hz: d W of c (additive dark charge)            -> d / (y + d)
     - dark_current_spread: its pixel-to-pixel CV times that       -> cv d / (y + d)
     - gain_spread (PRNU): rate g y + d, g ~ 1 +- sigma_g          -> sigma_g y / (y + d)

@@ -1,6 +1,6 @@
 """Spike streams in memory (bit-packed) and on disk in the PKU `.dat` format.
 
-The `.dat` layout (DESIGN.md section 3): frames one after another; each frame row-scanned,
+The `.dat` layout (docs/design.md section 3): frames one after another; each frame row-scanned,
 8 pixels per byte, least significant bit first; rows stored bottom-up (vertically flipped) by
 real cameras and the readers of their recordings (Spk2ImgNet, WGSE, SSML, SpikeCV). The group's
 simulators (SPCS, SCSim) and the LR-Rep authors' loader use top-down rows: pass `flip=False` for

@@ -2,11 +2,18 @@
 one test's kernels and memory do not leak into the next."""
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
 
-SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+#: Optional test data that is not part of the repository: `spk2imgnet-sample/`, one spike stream
+#: of the Spk2ImgNet synthetic test set (`203_part1_key_id151.dat`, 301 frames of 250 x 400, rows
+#: flipped) and its 8-bit ground truth at frame 151 (`203_part1_key_id151.png`), as published in
+#: the Spike-Zoo and WGSE repositories. Looked for in $SPIKESIM_TEST_DATA, else in `shared/data`
+#: beside the repository's folder; the tests that need it skip when it is absent.
+SHARED_DATA = Path(os.environ.get("SPIKESIM_TEST_DATA")
+                   or Path(__file__).resolve().parents[2] / "shared" / "data")
 
 
 from sensor_testing import HAS_LLVM
@@ -25,6 +32,7 @@ def _clean_drjit():
 @pytest.fixture
 def shared_data() -> Path:
     if not SHARED_DATA.is_dir():
-        pytest.skip(f"shared test data not found at {SHARED_DATA} (see ../shared/data/README.md)")
+        pytest.skip(f"optional test data not found at {SHARED_DATA}: set SPIKESIM_TEST_DATA to a folder "
+                    "holding spk2imgnet-sample/ (see tests/conftest.py)")
     return SHARED_DATA
 

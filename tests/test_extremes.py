@@ -1,4 +1,4 @@
-"""The model at its extremes (DESIGN.md section 2): no light, saturating light, very long
+"""The model at its extremes (docs/design.md section 2): no light, saturating light, very long
 streams, bad parameters and bad frames."""
 import numpy as np
 import pytest

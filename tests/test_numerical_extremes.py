@@ -43,7 +43,7 @@ def _constant(camera: SpikeCamera, y: np.ndarray, n: int, seed: int = 0, chunk: 
 @requires_llvm
 @pytest.mark.parametrize("precision", ["float32", "float64"])
 def test_noiseless_rate_is_min_y_plus_d_from_dark_to_1e6(precision):
-    # DESIGN.md section 2: with constant light and no noise the long-run rate is exactly y + d,
+    # docs/design.md section 2: with constant light and no noise the long-run rate is exactly y + d,
     # at most one spike per step (saturation). 10^5 steps, 0 to 1e6 spikes/step.
     n = 100_000
     cam = SpikeCamera.noiseless(height=1, width=32, dark_current_hz=94.0, precision=precision)

@@ -1,4 +1,4 @@
-"""The sensor against analytic expectations (DESIGN.md section 2)."""
+"""The sensor against analytic expectations (docs/design.md section 2)."""
 import math
 
 import numpy as np

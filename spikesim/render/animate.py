@@ -1,6 +1,6 @@
 """Apply a motion file to a loaded scene through `mi.traverse` parameter updates.
 
-Never re-parses XML (DESIGN.md section 4). Analytic shapes, instances and moving emitters expose
+Never re-parses XML (docs/design.md section 4). Analytic shapes, instances and moving emitters expose
 `<id>.to_world`, which is set to M(t) @ rest; meshes bake their transform into
 `<id>.vertex_positions`, which are recomputed from the rest-pose vertices (and normals rotated
 with them). Matrices enter Dr.Jit through `dr.make_opaque`, so a new pose per frame reuses the

@@ -9,7 +9,7 @@ from spikesim._drjit import DEVICE_CHOICES, DEVICES, dr, resolve_device  # noqa:
 
 import mitsuba as mi
 
-#: Our variant names -> the Mitsuba variant suffix (DESIGN.md section 4: mono is the fast path,
+#: Our variant names -> the Mitsuba variant suffix (docs/scenes.md section 5: mono is the fast path,
 #: spectral weighted by the silicon response is the accurate one, rgb is for previews only).
 VARIANTS = {"mono": "ad_mono", "spectral": "ad_spectral", "rgb": "ad_rgb"}
 def variant_name(variant: str, device: str = "llvm") -> str:
@@ -30,7 +30,7 @@ def use_variant(name: str) -> None:
 
 
 def clear_caches() -> None:
-    """What Mitsuba's own test suite does between tests (DESIGN.md section 4): sync, flush the
+    """What Mitsuba's own test suite does between tests (docs/design.md section 4): sync, flush the
     kernel and malloc caches, clear the kernel history."""
     dr.sync_thread()
     dr.flush_kernel_cache()

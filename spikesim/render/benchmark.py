@@ -4,8 +4,9 @@
     python -m spikesim.render.benchmark --only timing --scenes fan
     python -m spikesim.render.benchmark --only images --images docs/images   # docs/scenes.md figures
 
-DESIGN.md section 4 asks for each knob's cost and its error: samples per pixel, mono against
-spectral, keyframes every k steps, and the share of time spent rendering against simulating spikes.
+Each knob's cost and its error are measured (docs/design.md section 4): samples per pixel, mono
+against spectral, keyframes every k steps, and the share of time spent rendering against
+simulating spikes.
 Errors are relative RMS: sqrt(mean((y - ref)^2)) / mean(ref), over the whole frame.
 """
 from __future__ import annotations

@@ -9,9 +9,9 @@ The chain (each factor a field below, each with its source):
    into each light's scalar emission.)
 2. Camera equation, object far from the lens: sensor-plane irradiance
    E_q = L_q * pi * tau * cos^4(theta) / (4 N^2)
-   (DESIGN.md section 4; e.g. Ray, *Applied Photographic Optics*, 3rd ed., section 8.3).
+   (docs/scenes.md section 4; e.g. Ray, *Applied Photographic Optics*, 3rd ed., section 8.3).
 3. Electrons per readout step: e = E_q * pitch^2 * fill_factor * T.
-4. y = e / threshold_electrons (DESIGN.md section 2: y is expected spikes per step).
+4. y = e / threshold_electrons (docs/design.md section 2: y is expected spikes per step).
 
 Default assumptions (documented in docs/scenes.md, chosen with spikesim.camera.SpikeCamera's
 estimate): a 20 um pixel (the 400 x 250 array is then 8 x 5 mm), fill factor 0.3, a silicon
@@ -156,7 +156,7 @@ class Exposure:
 
     def white_surface_y(self, illuminance_lux: float, spectrum: str = "D65", reflectance: float = 1.0) -> float:
         """Analytic y of a Lambertian surface of reflectance rho under illuminance E (on axis):
-        L_q = rho * E * k_q / pi (DESIGN.md section 4), then the chain above."""
+        L_q = rho * E * k_q / pi (docs/design.md section 4), then the chain above."""
         e_q = illuminance_lux * self.pixel.electrons_per_lumen_second(spectrum)
         return reflectance * e_q / math.pi * self.y_per_radiance
 

@@ -6,7 +6,7 @@ specification in real units; see docs/scenes.md for the schema and the levels us
 
 Units inside the renderer: the photometric value (cd, cd/m^2 or lx) times the spectrum's
 electron yield (PixelResponse.electrons_per_lumen_second) gives the electron-weighted quantity the
-film records (exposure.py). Radiometric relations used (DESIGN.md section 4):
+film records (exposure.py). Radiometric relations used (docs/design.md section 4):
 isotropic point lamp I = F / (4 pi); Lambertian area light L = F / (pi A); sky of uniform
 luminance L gives E = pi L on an unobstructed plane; illuminance from a point source
 E = I cos(theta) / d^2 (inverse-square law).

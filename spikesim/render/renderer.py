@@ -2,12 +2,12 @@
 
 One scene is loaded once and re-rendered many times: motion is applied by parameter updates and
 every frame reuses the compiled kernels, so memory stays flat over thousands of frames
-(DESIGN.md section 4). Frames are yielded one at a time, never held as a sequence.
+(docs/design.md section 4). Frames are yielded one at a time, never held as a sequence.
 
-Time sampling. Step n integrates light over [n T, (n + 1) T) (DESIGN.md section 2), so the frame
+Time sampling. Step n integrates light over [n T, (n + 1) T) (docs/design.md section 2), so the frame
 for step n is the mean over that interval: a render at its midpoint, or, when objects move more
 than `blur_threshold_px` pixels within the step, the mean of s renders at sub-step midpoints
-(Mitsuba 3.9 has no motion blur of its own, DESIGN.md section 4). Ground truth at step n is the
+(Mitsuba 3.9 has no motion blur of its own, docs/design.md section 4). Ground truth at step n is the
 same quantity rendered with many more samples.
 """
 from __future__ import annotations

@@ -9,9 +9,9 @@ light file so that their power is physical (lights.py). Loading does, in order:
    by its sensor reflectance under the lighting's spectrum (reflectance.py), so that the fast path
    weights colours as the silicon pixel does rather than by luminance;
 3. replace the film by the variant's film at the requested resolution, always with the `box`
-   reconstruction filter (DESIGN.md section 4: a Gaussian filter mixes neighbouring pixels);
+   reconstruction filter (docs/design.md section 4: a Gaussian filter mixes neighbouring pixels);
 4. append the lighting condition's emitters;
-5. load once with `mi.load_string` (re-loading scenes in a loop leaks, DESIGN.md section 4), with
+5. load once with `mi.load_string` (re-loading scenes in a loop leaks, docs/design.md section 4), with
    `optimize=False`: Mitsuba 3.7+ otherwise merges meshes that share a BSDF into one shape, and
    a merged wheel could no longer be moved on its own (mitsuba3 issue #1796).
 """

@@ -5,7 +5,7 @@ photometric unit (1 lm, 1 cd, 1 lx or 1 cd/m^2) is K_m * integral S V = 1; the a
 quantity is then (photometric value) x S(lambda). colour-science supplies the CIE tables.
 
 Why our own integrals: colour-science's `luminous_flux`/`luminous_efficacy` integrate over the
-spectrum's own range only (DESIGN.md section 4), so everything here is integrated on one fixed
+spectrum's own range only (docs/design.md section 4), so everything here is integrated on one fixed
 grid, 360-830 nm, which is also Mitsuba's spectral range (MI_CIE_MIN/MI_CIE_MAX).
 """
 from __future__ import annotations

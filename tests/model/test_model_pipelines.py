@@ -1,5 +1,5 @@
 """evaluate / reconstruct pipelines end to end on tiny streams, the CLI hooks, and TFP on a real
-stream from another simulator (the Spk2ImgNet sample in ../shared/data)."""
+stream from another simulator (the Spk2ImgNet sample: optional test data, see tests/conftest.py)."""
 from __future__ import annotations
 
 import argparse
