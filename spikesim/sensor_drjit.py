@@ -220,12 +220,6 @@ class DrJitSensor:
         self._acc, self._comp, self._fired = state
         return DevicePacked(out, self.num_streams, num_steps, cam.height, cam.width)
 
-    def run(self, keyframes: np.ndarray, phase: int, keyframe_every: int, num_steps: int,
-            first_step: int) -> np.ndarray:
-        """NumPy in, NumPy out (one stream): the interface the NumPy reference shares."""
-        packed = self.run_device(self.keyframe_block(keyframes), 0, phase, keyframe_every, num_steps, first_step)
-        return packed.to_numpy()[0]
-
     def _words_per_frame(self) -> int:
         return (self.camera.num_pixels + WORD_STEPS - 1) // WORD_STEPS
 
@@ -345,7 +339,7 @@ class DrJitSensor:
         of Warren, Hacker's Delight, section 7-3). Sizes are literals (fixed per sensor), so the
         divisions compile to multiply-shifts. Frozen like the launch: `idx` (one per lane) and
         `out` are made by the caller, so no size inside depends on a width."""
-        m, UInt32 = self.m, self.m.UInt32
+        UInt32 = self.m.UInt32
         SP, S, P, G = self.width_lanes, self.num_streams, self.camera.num_pixels, self._words_per_frame()
         offset, span, total = control
         num_blocks = (span + (WORD_STEPS - 1)) >> 5
