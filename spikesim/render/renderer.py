@@ -24,7 +24,6 @@ from .animate import Animator
 from .backend import DEVICE_CHOICES, dr, mi, resolve_device, use_variant, variant_name
 from .errors import LightError
 from .exposure import Exposure, Optics, PixelResponse
-from .lights import load_lights
 from .motion import MotionSpec, load_motion
 from .projection import PinholeCamera
 from .mono import spectrum_mix
@@ -129,9 +128,9 @@ class SceneRenderer:
             given["resolution"] = (int(camera.height), int(camera.width))
         self.settings = RenderSettings.from_dict({**base, **given})
         self.files = SceneFiles.resolve(scene, motion=motion, lights=lights)
-        conditions = load_lights(self.files.lights)
+        conditions = self.files.lightings()
         if light not in conditions:
-            raise LightError(self.files.lights, f"has no lighting {light!r} (it has {sorted(conditions)})")
+            raise LightError(self.files.lights or self.files.xml, f"has no lighting {light!r} (it has {sorted(conditions)})")
         self.light = light
         self.lighting = conditions[light]
         self.motion = load_motion(self.files.motion) if self.files.motion else MotionSpec.static()

@@ -1,10 +1,13 @@
 """Scene loading: a Mitsuba XML file, made ready for one variant, with its lights added.
 
-The XML holds geometry, materials, the integrator and the camera; lights come from the scene's
-light file so that their power is physical (lights.py). Loading does, in order:
+The XML holds geometry, materials, the integrator and the camera. Lights come from the scene's
+light file, where their power is given in photometric units (lights.py), or, when there is no
+light file, from the XML's own emitters, read in Mitsuba's radiometric units (scene_emitters.py).
+A light file overrides the XML's emitters: they are removed (an emitting shape stays as geometry).
+Loading does, in order:
 
 1. parse the XML and check what Mitsuba would only report obscurely: a missing texture or mesh
-   file, emitters written into the XML (their units would be meaningless), not exactly one sensor;
+   file, not exactly one sensor; take the XML's emitters out;
 2. for the mono variant, replace every colour (RGB values and bitmap textures of reflectances)
    by its sensor reflectance under the lighting's spectrum (reflectance.py), so that the fast path
    weights colours as the silicon pixel does rather than by luminance;
@@ -26,7 +29,8 @@ from . import spectra
 from .backend import mi
 from .errors import SceneError
 from .exposure import PixelResponse
-from .lights import LightingCondition
+from .lights import LightingCondition, load_lights
+from .scene_emitters import XML_LIGHTING, XML_LIGHTING_ALIASES, emitting_elements, has_emitters, xml_lighting
 from .mono import to_sensor_reflectance
 
 #: Film channel holding the electron-weighted radiance in the spectral variant.
@@ -35,18 +39,19 @@ SPECTRAL_CHANNEL = "electrons"
 
 @dataclass(frozen=True)
 class SceneFiles:
-    """The files that make a scene: XML, motion (optional) and lights."""
+    """The files that make a scene: XML, motion (optional) and lights (None: the XML's own emitters)."""
 
     name: str
     xml: Path
     motion: Path | None
-    lights: Path
+    lights: Path | None
 
     @classmethod
     def resolve(cls, scene: str | Path, motion: str | Path | None = None,
                 lights: str | Path | None = None) -> "SceneFiles":
         """`scene` is a bundled scene's name (scenes.scene_path) or a path to an XML file; the
-        motion and light files default to `motion.json` and `lights.json` beside it."""
+        motion and light files default to `motion.json` and `lights.json` beside it; without a
+        light file the XML's own emitters light the scene."""
         p = Path(scene)
         if p.suffix.lower() != ".xml" and not p.exists():
             from scenes import SCENES, scene_path
@@ -61,10 +66,22 @@ class SceneFiles:
         if motion is not None and not m.is_file():
             raise SceneError(m, "motion file does not exist")
         lt = Path(lights) if lights is not None else p.parent / "lights.json"
-        if not lt.is_file():
-            raise SceneError(lt, "light file does not exist (every scene needs its lights.json)")
+        if lights is not None and not lt.is_file():
+            raise SceneError(lt, "light file does not exist")
+        if not lt.is_file() and not has_emitters(p):
+            raise SceneError(p, f"has no emitter and there is no light file ({lt.name} beside it): "
+                                "add Mitsuba emitters to the XML or write a lights.json")
         name = p.parent.name if p.name == "scene.xml" else p.stem
-        return cls(name=name, xml=p.resolve(), motion=m.resolve() if m.is_file() else None, lights=lt.resolve())
+        return cls(name=name, xml=p.resolve(), motion=m.resolve() if m.is_file() else None,
+                   lights=lt.resolve() if lt.is_file() else None)
+
+    def lightings(self) -> dict[str, LightingCondition]:
+        """The scene's lighting conditions by name: the light file's, or the XML's own emitters as
+        `scene` (alias `normal`)."""
+        if self.lights is not None:
+            return load_lights(self.lights)
+        lighting = xml_lighting(self.xml)
+        return {XML_LIGHTING: lighting, **{alias: lighting for alias in XML_LIGHTING_ALIASES}}
 
     def digests(self) -> dict[str, str]:
         """sha256 of each file, so a description pins exactly what was rendered."""
@@ -107,6 +124,23 @@ def _int_param(el: ET.Element, name: str) -> int | None:
     return None
 
 
+def _take_out_emitters(xml_path: Path, root: ET.Element, lit_by_xml: bool) -> None:
+    """Remove the XML's emitters: the lighting (from the light file, or the same emitters converted
+    to the project's units by scene_emitters.xml_lighting) is appended afterwards."""
+    top = emitting_elements(root)
+    known = {id(em) for _, em in top}
+    for el in root.iter():
+        if el.tag == "emitter" and id(el) not in known:
+            raise SceneError(xml_path, f"has an <emitter type={el.get('type')!r}> nested below the top level or "
+                                       "a top-level shape; only those two places are supported")
+    for holder, em in top:
+        if holder is em or lit_by_xml:  # an XML-lit scene re-appends the emitting shape, converted
+            if holder in list(root):
+                root.remove(holder)
+        else:
+            holder.remove(em)  # overridden by the light file: the shape stays as geometry
+
+
 def prepare_xml(xml_path: Path, variant: str, lighting: LightingCondition, pixel: PixelResponse,
                 resolution: tuple[int, int] | None = None) -> tuple[str, str, tuple[int, int]]:
     """The XML text Mitsuba loads, the sensor's id, and the film (height, width)."""
@@ -118,10 +152,8 @@ def prepare_xml(xml_path: Path, variant: str, lighting: LightingCondition, pixel
     if root.tag != "scene":
         raise SceneError(xml_path, f"root element is <{root.tag}>, expected <scene>")
     base = xml_path.parent
+    _take_out_emitters(xml_path, root, lit_by_xml=lighting.name == XML_LIGHTING and lighting.source == xml_path)
     for el in root.iter():
-        if el.tag == "emitter":
-            raise SceneError(xml_path, f"contains an <emitter type={el.get('type')!r}>: lights belong in the "
-                                       "scene's lights.json, where their power is given in physical units")
         if el.tag == "string" and el.get("name") == "filename":
             value = el.get("value", "")
             if "$" in value:

@@ -37,9 +37,11 @@ def test_missing_texture_names_the_texture(make_scene):
     assert str(info.value).startswith(str(xml)) and "does not exist" in str(info.value)
 
 
-def test_emitters_in_the_xml_are_refused(make_scene):
-    xml = make_scene(BALL + '<emitter type="point"><point name="position" value="0,0,1"/></emitter>')
-    with pytest.raises(SceneError, match="lights.json"):
+def test_nested_emitters_in_the_xml_are_refused(make_scene):
+    # emitters are read at the top level or on a top-level shape; deeper ones would be silently lost
+    xml = make_scene('<shapegroup id="g"><shape type="sphere"><emitter type="area">'
+                     '<spectrum name="radiance" value="1"/></emitter></shape></shapegroup>')
+    with pytest.raises(SceneError, match="nested below the top level"):
         _renderer(xml)
 
 
