@@ -22,17 +22,31 @@ class Method(Protocol):
         ...
 
 
+def black_windows(windows: torch.Tensor) -> torch.Tensor:
+    """The floor every table shows: an all-black image, whatever the spikes."""
+    return torch.zeros(windows.shape[:1] + windows.shape[2:], dtype=torch.float32)
+
+
+def mean_windows(windows: torch.Tensor) -> torch.Tensor:
+    """A constant image at the window's mean firing rate: right overall light, no structure."""
+    rate = tfp_windows(windows).mean(dim=(-2, -1), keepdim=True)
+    return rate.expand(windows.shape[:1] + windows.shape[2:]).contiguous()
+
+
+#: Methods that map each window to an image on its own: the paper's baselines and two floors.
+MAP_METHODS = {"tfp": tfp_windows, "tfi": tfi_windows, "black": black_windows, "mean": mean_windows}
+
 @dataclass
 class MapMethod:
-    """TFP or TFI of each window on its own (the paper's baselines)."""
+    """TFP or TFI of each window on its own (the paper's baselines), or a trivial floor."""
 
     name: str
-    kind: str  # "tfp" | "tfi"
+    kind: str  # a key of MAP_METHODS
     window: int = 41
     chunk: int = 64
 
     def frames(self, source: WindowSource) -> Iterator[tuple[int, torch.Tensor]]:
-        fn = tfp_windows if self.kind == "tfp" else tfi_windows
+        fn = MAP_METHODS[self.kind]
         for a in range(0, source.num_windows, self.chunk):
             b = min(a + self.chunk, source.num_windows)
             maps = fn(source.windows(a, b))
@@ -61,11 +75,15 @@ class ModelMethod:
 
 
 def method_from_spec(spec: str, window: int = 41, chunk: int = 8, device: str = "cpu") -> Method:
-    """"tfp", "tfi", or a checkpoint path; "label=..." names the method in tables."""
+    """"tfp", "tfi", "black", "mean", or a checkpoint path; "label=..." names the method in tables."""
     label, _, body = spec.rpartition("=") if "=" in spec else ("", "", spec)
-    if body in ("tfp", "tfi"):
-        return MapMethod(label or body.upper(), body, window)
+    if body in MAP_METHODS:
+        return MapMethod(label or (body.upper() if body in ("tfp", "tfi") else body), body, window)
+    if body == "lrrep":  # the name shipped weights will load by; none ship yet
+        raise ValueError("method 'lrrep': no trained weights ship with this version (training at the paper's "
+                         "scale needs a GPU, docs/model.md); train a model with `spikesim train` and pass "
+                         "LABEL=path/to/best.pt")
     path = Path(body.removeprefix("ckpt:"))
     if not path.is_file():
-        raise ValueError(f"method {spec!r}: expected 'tfp', 'tfi' or an existing checkpoint file")
+        raise ValueError(f"method {spec!r}: expected one of {', '.join(MAP_METHODS)} or an existing checkpoint file")
     return ModelMethod(label or path.parent.name or path.stem, path, chunk, device)

@@ -12,7 +12,14 @@ cannot report y > 1: saturation is one spike per step, and peers clamp their out
   own peak (its 99.5th percentile) instead of 1, i.e. both images divided by the scene's light
   level. In the other two an image dark enough scores high whatever it shows (an all-black image
   scores about 60 dB on a low-light scene in the 8-bit convention); here it scores what it
-  would in normal light.
+  would in normal light. Per frame it keeps the plain PSNR's order (a constant shift), so it
+  judges scenes of different light on one scale but does not stop a black image from beating a
+  noisier reconstruction of a dark frame.
+- Aligned (`psnr_aligned`): the light-normalised PSNR after the least-squares gain and offset that
+  best map the prediction onto the ground truth, per frame. A black or constant image scores
+  exactly the floor 20 log10(level / std(gt)); any image correlated with the ground truth (rho)
+  scores 10 log10(1 / (1 - rho^2)) dB above it, so no image without structure can win. It rewards
+  structure only: brightness errors are what the other columns measure.
 """
 from __future__ import annotations
 
@@ -28,7 +35,9 @@ AUTHORS_CONVENTION = ("8-bit (the authors' metric code, the convention of the pa
                       "[0, 1], quantised by floor(255 y), data range 255; SSIM: scikit-image's default "
                       "structural_similarity (7x7 uniform window, sample covariance).")
 NORMALISED_CONVENTION = ("light-normalised: as ours, with the data range set to the ground truth's 99.5th "
-                         "percentile (its light level) instead of 1.")
+                         "percentile (its light level) instead of 1. Aligned: light-normalised PSNR after the "
+                         "least-squares gain and offset from prediction to ground truth (a black or constant "
+                         "image scores the floor, 20 log10(level / std(gt))).")
 PEAK_PERCENTILE = 99.5
 PEAK_FLOOR = 1e-4
 """The smallest light level the normalised metrics divide by (y; 0.1 spike per 1000 steps), so an
@@ -109,6 +118,17 @@ def ssim_norm(pred: np.ndarray, target: np.ndarray) -> float:
                                        use_sample_covariance=False))
 
 
+def psnr_aligned(pred: np.ndarray, target: np.ndarray) -> float:
+    """Light-normalised PSNR of a + b pred, with a and b fitted to the ground truth by least squares."""
+    p, t = _prepare(pred, target)
+    p, t = p.ravel(), t.ravel()
+    pc, tc = p - p.mean(), t - t.mean()
+    var_p = float(pc @ pc)
+    gain = float(pc @ tc) / var_p if var_p > 0 else 0.0  # a constant prediction: offset only
+    mse = float(np.mean((tc - gain * pc) ** 2))
+    return math.inf if mse == 0 else 10.0 * math.log10(light_level(t) ** 2 / mse)
+
+
 #: Every metric evaluate reports, in table order: name -> (function, label, format).
 METRICS = {
     "psnr": (psnr, "PSNR", "{:.3f}"),
@@ -117,4 +137,5 @@ METRICS = {
     "ssim_8bit": (ssim_8bit, "SSIM 8-bit", "{:.5f}"),
     "psnr_norm": (psnr_norm, "PSNR light-norm.", "{:.3f}"),
     "ssim_norm": (ssim_norm, "SSIM light-norm.", "{:.5f}"),
+    "psnr_aligned": (psnr_aligned, "PSNR aligned", "{:.3f}"),
 }

@@ -2,7 +2,12 @@
 condition (low, then normal) and overall, as tables like the paper's Table 1 (CSV + Markdown), in
 three conventions (ours, the authors' 8-bit one, light-normalised: model/metrics.py).
 
-Which frames: per scene, the longest run of consecutive windows (T steps each, centres T apart)
+Two inputs: a dataset in the project's layout (`--data`), or one external pair (`--dat` stream +
+`--gt` image at step `--center`, e.g. a Spk2ImgNet sample or a user's own recording). Trivial
+floors `black` and `mean` can be listed beside the methods, so every table shows what an image
+with no structure scores.
+
+Which frames (`--data`): per scene, the longest run of consecutive windows (T steps each, centres T apart)
 whose centres all have ground truth, starting at the earliest such centre (an LLR scene: its 21
 windows). Every method sees exactly these windows; a network sees the whole run as one sequence
 (exact chunked streaming inference, model/streaming.py). Ground truth is clipped at the sensor's
@@ -12,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import json
 import math
 import os
 import sys
@@ -26,7 +32,8 @@ from model.data import Scene, open_scenes
 from model.methods import Method, method_from_spec
 from model.metrics import AUTHORS_CONVENTION, METRIC_CONVENTION, METRICS, NORMALISED_CONVENTION
 from model.streaming import StepWindows
-from pipelines.argtypes import nonnegative_int, positive_int
+from pipelines.argtypes import existing_file, nonnegative_int, positive_float, positive_int
+from pipelines.inspect_cmd import header_columns_arg
 from spikesim.dataset import SATURATION_Y
 
 ALL = "ALL"
@@ -65,6 +72,7 @@ class Score:
     ssim_8bit: float = math.nan
     psnr_norm: float = math.nan
     ssim_norm: float = math.nan
+    psnr_aligned: float = math.nan
 
     def value(self, metric: str) -> float:
         return float(getattr(self, metric))
@@ -137,6 +145,55 @@ def evaluate(scenes: Sequence[Scene], methods: Sequence[Method], window: int, pr
     return rows
 
 
+def evaluate_pair(dat: Path, gt: np.ndarray, center: int, methods: Sequence[Method], window: int,
+                  height: int | None = None, width: int | None = None, header_columns: int | None = None,
+                  flip: bool | None = None) -> tuple[list[Score], dict]:
+    """Scores of each method on the window of `dat` centred on step `center` against `gt` (y);
+    geometry as recorded beside the stream where not given. Returns the rows and what was read."""
+    from model.streaming import StepWindows
+    from spikesim.stream import DatReader, detect_header_columns, stream_geometry
+
+    height, width, flip = stream_geometry(dat, height, width, flip)
+    if header_columns is None:
+        header_columns = detect_header_columns(dat, height, width)
+    if gt.shape != (height, width):
+        raise ValueError(f"--gt is {gt.shape[0]} x {gt.shape[1]} but the stream is read as {height} x {width}; "
+                         "check --height/--width (or the image)")
+    reader = DatReader(dat, height, width, flip=flip, header_columns=header_columns)
+    half = window // 2
+    if center - half < 0 or center + (window - half) > reader.num_steps:
+        raise ValueError(f"--center {center}: a {window}-step window around it needs steps {center - half}.."
+                         f"{center + window - half - 1}, but {dat} has steps 0..{reader.num_steps - 1}")
+    source = StepWindows(lambda a, b: reader.read(a, b).unpack(), center - half, window, 1)
+    target = np.clip(gt.astype(np.float32), 0.0, SATURATION_Y)
+    rows = []
+    for m in methods:
+        (_, frame), = list(m.frames(source))
+        pred = frame.numpy() if isinstance(frame, torch.Tensor) else np.asarray(frame)
+        rows.append(Score(dat.stem, m.name, frames=1, **{k: fn(pred, target) for k, (fn, _, _) in METRICS.items()}))
+    rows += [pooled([r], ALL, r.method) for r in rows]
+    read = {"dat": str(dat), "center": center, "window": window, "height": height, "width": width,
+            "header_columns": header_columns, "flip": flip, "gt_mean_y": float(target.mean())}
+    return rows, read
+
+
+def scores_json(rows: Sequence[Score], methods: Sequence[str], extra: dict | None = None) -> dict:
+    """{"methods": {label: metrics over all frames}, "groups": {ALL_low: ...}, "scenes": {...}}:
+    every metric convention of model/metrics.py, with the frame counts."""
+    def metrics(r: Score) -> dict:
+        return {**{k: r.value(k) for k in METRICS}, "frames": r.frames}
+    out: dict = {"methods": {r.method: metrics(r) for r in rows if r.scene == ALL},
+                 "groups": {}, "scenes": {}, "conventions": {"psnr/ssim": METRIC_CONVENTION,
+                                                             "psnr_8bit/ssim_8bit": AUTHORS_CONVENTION,
+                                                             "psnr_norm/ssim_norm/psnr_aligned": NORMALISED_CONVENTION}}
+    for r in rows:
+        if r.scene != ALL:
+            key = "groups" if r.scene.startswith(ALL + "_") else "scenes"
+            out[key].setdefault(r.scene, {})[r.method] = metrics(r)
+    out["methods"] = {m: out["methods"][m] for m in methods}
+    return {**out, **(extra or {})}
+
+
 def _cell(value: float, fmt: str, best: bool) -> str:
     text = fmt.format(value)
     return f"**{text}**" if best else text
@@ -165,7 +222,7 @@ def markdown_table(rows: Sequence[Score], methods: Sequence[str]) -> str:
             continue
         title = "All scenes" if cond is None else f"{cond.capitalize()} light"
         lines += [f"**{title}** ({present[0].frames} frames)", ""] + _group_table(rows, methods, group) + [""]
-    lines += ["| Scene | frames | " + " | ".join(f"{m} PSNR / SSIM | {m} 8-bit | {m} light-norm." for m in methods) + " |",
+    lines += ["| Scene | frames | " + " | ".join(f"{m} PSNR / SSIM | {m} 8-bit | {m} light-norm. / aligned" for m in methods) + " |",
               "|---|---|" + "---|" * (3 * len(methods))]
     scenes = [r.scene for r in rows if not r.scene.startswith(ALL) and r.method == methods[0]]
     for sc in scenes:
@@ -174,7 +231,7 @@ def markdown_table(rows: Sequence[Score], methods: Sequence[str]) -> str:
         for m in methods:
             r = by[m]
             cells += [f"{r.psnr:.3f} / {r.ssim:.5f}", f"{r.psnr_8bit:.3f} / {r.ssim_8bit:.5f}",
-                      f"{r.psnr_norm:.3f} / {r.ssim_norm:.5f}"]
+                      f"{r.psnr_norm:.3f} / {r.ssim_norm:.5f} / {r.psnr_aligned:.3f}"]
         lines.append(f"| {sc} | {by[methods[0]].frames} | " + " | ".join(cells) + " |")
     lines += ["", f"Metric conventions. PSNR, SSIM: {METRIC_CONVENTION} {AUTHORS_CONVENTION} "
                   f"{NORMALISED_CONVENTION} Ground truth clipped at saturation (y = {SATURATION_Y:g}). "
@@ -209,6 +266,13 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     if args.threads:
         torch.set_num_threads(args.threads)
     methods = [method_from_spec(s, args.window, args.chunk, device) for s in args.methods]
+    names = [m.name for m in methods]
+    if len(set(names)) != len(names):
+        raise ValueError(f"method names must be unique, got {names}; name them with label=spec")
+    if args.dat is not None:
+        return _evaluate_pair_cmd(args, methods, names)
+    if args.gt is not None or args.center is not None:
+        raise ValueError("--gt and --center go with --dat (one external stream), not with --data")
     scenes = open_scenes(args.data)
     if args.scenes:
         wanted = set(args.scenes)
@@ -217,21 +281,71 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
             raise ValueError(f"--scenes: {', '.join(missing)} not in {args.data} (it has "
                              f"{', '.join(s.name for s in scenes)})")
         scenes = [s for s in scenes if s.name in wanted]
-    rows = evaluate(scenes, methods, args.window, progress=not args.quiet)
-    names = [m.name for m in methods]
+    rows = evaluate(scenes, methods, args.window, progress=not (args.quiet or args.json))
     csv_path, md_path = write_results(rows, names, Path(args.out))
-    print(markdown_table(rows, names))
+    if args.json:
+        print(json.dumps(_json_safe(scores_json(rows, names, {"data": str(args.data)})), indent=2))
+    else:
+        print(markdown_table(rows, names))
     print(f"[evaluate] wrote {csv_path} and {md_path}", file=sys.stderr)
     return 0
+
+
+def _evaluate_pair_cmd(args: argparse.Namespace, methods: Sequence[Method], names: Sequence[str]) -> int:
+    from spikesim.imageio import read_image_y
+
+    if args.gt is None or args.center is None:
+        raise ValueError("--dat needs --gt IMAGE and --center STEP (the step the image shows)")
+    header = None if args.header_columns == "auto" else args.header_columns
+    gt = read_image_y(args.gt, args.gt_scale)
+    rows, read = evaluate_pair(Path(args.dat), gt, args.center, methods, args.window, args.height, args.width,
+                               header, False if args.no_flip else None)
+    if args.json:
+        doc = scores_json(rows, names, {"input": {**read, "gt": str(args.gt), "gt_scale": args.gt_scale}})
+        print(json.dumps(_json_safe(doc), indent=2))
+    else:
+        print(_pair_table(rows, names, read))
+    return 0
+
+
+def _json_safe(doc: object) -> object:
+    """inf (a perfect PSNR) as the string "inf": JSON has no infinity."""
+    if isinstance(doc, dict):
+        return {k: _json_safe(v) for k, v in doc.items()}
+    if isinstance(doc, float) and not math.isfinite(doc):
+        return str(doc)
+    return doc
+
+
+def _pair_table(rows: Sequence[Score], methods: Sequence[str], read: dict) -> str:
+    lines = [f"{read['dat']}: window of {read['window']} steps centred on step {read['center']}, "
+             f"{read['height']} x {read['width']}, flip {read['flip']}; ground truth mean y {read['gt_mean_y']:.4f}", ""]
+    lines += _group_table(rows, methods, ALL)
+    lines += ["", f"Metric conventions. PSNR, SSIM: {METRIC_CONVENTION} {AUTHORS_CONVENTION} {NORMALISED_CONVENTION}"]
+    return "\n".join(lines) + "\n"
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Register `evaluate` on the CLI's subparsers."""
     p = subparsers.add_parser("evaluate", help="PSNR / SSIM of methods on a dataset (Table 1)",
                               description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--data", required=True, help="dataset root (project layout)")
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--data", help="dataset root (project layout)")
+    src.add_argument("--dat", type=existing_file, help="one external spike stream (.dat); needs --gt and --center")
+    p.add_argument("--gt", type=existing_file, help="with --dat: the ground-truth image (PNG/JPEG/TIFF, EXR or .npy)")
+    p.add_argument("--center", type=nonnegative_int, help="with --dat: the step the ground truth shows (0-based)")
+    p.add_argument("--gt-scale", type=positive_float, default=1.0,
+                   help="with --dat: ground truth in y = S x image / full scale (8/16-bit) or S x value (EXR, .npy); "
+                        "Spk2ImgNet's simulator uses 0.6")
+    p.add_argument("--height", type=positive_int, help="with --dat: rows (default: as recorded beside it, else 250)")
+    p.add_argument("--width", type=positive_int, help="with --dat: columns without header (default: as recorded, else 400)")
+    p.add_argument("--header-columns", type=header_columns_arg, default="auto",
+                   help="with --dat: columns to drop at the end of each row (auto: as recorded, else detected)")
+    p.add_argument("--no-flip", action="store_true",
+                   help="with --dat: rows stored top-down (SPCS/SCSim); default as recorded, else bottom-up")
     p.add_argument("--methods", nargs="+", default=["tfp", "tfi"],
-                   help="tfp, tfi, or checkpoint paths; 'label=spec' names a column (default: tfp tfi)")
+                   help="tfp, tfi, black, mean (floors), or checkpoint paths; 'label=spec' names a column")
+    p.add_argument("--json", action="store_true", help="print the scores as JSON (every metric convention)")
     p.add_argument("--scenes", nargs="+", help="only these scenes")
     p.add_argument("--out", default="results/evaluate", help="folder for metrics.csv and metrics.md")
     p.add_argument("--window", type=positive_int, default=41, help="steps per window (default 41)")

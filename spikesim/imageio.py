@@ -49,6 +49,41 @@ def read_exr(path: str | Path) -> np.ndarray:
         raise ValueError(f"{path} is not a readable EXR image: {exc}") from exc
 
 
+def read_image_y(path: str | Path, scale: float = 1.0) -> np.ndarray:
+    """A ground-truth image of someone else's data as y (spikes per step): an EXR or .npy is taken
+    as y times `scale`; an 8- or 16-bit image (PNG, JPEG, TIFF) as `scale` x value / full scale,
+    e.g. scale 0.6 for Spk2ImgNet, whose simulator fires at 0.6 of the image intensity. Colour
+    images become their luminance (Rec. 709 weights, on the stored values)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"ground-truth image {path} does not exist")
+    suffix = path.suffix.lower()
+    if suffix == ".exr":
+        y = read_exr(path)
+    elif suffix == ".npy":
+        y = np.load(path, allow_pickle=False).astype(np.float32)
+    else:
+        from PIL import Image, UnidentifiedImageError
+
+        try:
+            with Image.open(path) as im:
+                arr = np.asarray(im)
+        except (UnidentifiedImageError, OSError) as exc:
+            raise ValueError(f"{path} is not a readable image: {exc}") from None
+        full = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0}.get(arr.dtype)
+        if full is None:
+            raise ValueError(f"{path}: {arr.dtype} pixels; expected an 8- or 16-bit image")
+        arr = arr.astype(np.float32) / full
+        if arr.ndim == 3:
+            arr = arr[..., :3] @ np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
+        y = arr
+    if y.ndim != 2:
+        raise ValueError(f"{path}: expected a single (H, W) image, got shape {y.shape}")
+    if not np.isfinite(y).all():
+        raise ValueError(f"{path} has NaN or Inf pixels")
+    return (y * np.float32(scale)).astype(np.float32)
+
+
 def to_display(y: np.ndarray, gamma: float = 2.2, scale: float | None = None, percentile: float | None = None) -> np.ndarray:
     """Linear y -> 8-bit display values: y * scale, clipped to [0, 1], encoded with 1/gamma.
 

@@ -78,7 +78,7 @@ def test_light_normalised_scores_do_not_depend_on_the_light_level():
 
 
 def test_every_metric_is_listed_for_evaluate():
-    assert list(METRICS) == ["psnr", "ssim", "psnr_8bit", "ssim_8bit", "psnr_norm", "ssim_norm"]
+    assert list(METRICS) == ["psnr", "ssim", "psnr_8bit", "ssim_8bit", "psnr_norm", "ssim_norm", "psnr_aligned"]
 
 
 def test_evaluate_reports_low_then_normal_then_all(tmp_path):
@@ -103,5 +103,20 @@ def test_evaluate_reports_low_then_normal_then_all(tmp_path):
     assert "| PSNR 8-bit |" in table and "| SSIM light-norm. |" in table and "floor(255 y)" in table
     csv_path, _ = ev.write_results(rows, ["TFP", "TFI"], tmp_path)
     head = next(csv.reader(csv_path.open()))
-    assert head == ["scene", "method", "psnr", "ssim", "psnr_8bit", "ssim_8bit", "psnr_norm", "ssim_norm", "frames"]
+    assert head == ["scene", "method", "psnr", "ssim", "psnr_8bit", "ssim_8bit", "psnr_norm", "ssim_norm", "psnr_aligned",
+                    "frames"]
     assert ev.light_condition("rllr_0001") is None and ev.light_condition("car_normal") == "normal"
+
+
+def test_aligned_psnr_floor_is_shared_by_every_image_without_structure():
+    rng = np.random.default_rng(3)
+    gt = rng.random((32, 48)) * 0.01
+    from model.metrics import light_level, psnr_aligned
+    floor = 20 * np.log10(light_level(gt) / gt.std())
+    for flat in (np.zeros_like(gt), np.full_like(gt, 0.3), np.full_like(gt, gt.mean())):
+        assert psnr_aligned(flat, gt) == pytest.approx(floor, abs=1e-9)
+    # any image correlated with the ground truth scores 10 log10(1 / (1 - rho^2)) above the floor,
+    # whatever its gain or offset
+    noisy = 5.0 * (gt + rng.normal(0, 0.01, gt.shape)) + 0.1
+    rho = np.corrcoef(np.clip(noisy, 0, 1).ravel(), gt.ravel())[0, 1]
+    assert psnr_aligned(noisy, gt) == pytest.approx(floor + 10 * np.log10(1 / (1 - rho ** 2)), rel=1e-9)
