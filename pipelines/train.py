@@ -14,6 +14,7 @@ import csv
 import dataclasses
 import json
 import math
+import os
 import random
 import sys
 import time
@@ -170,22 +171,67 @@ def _resume(last_path: Path, dev: torch.device, mc: Any, model: torch.nn.Module,
                          f"{text[0] if text else type(exc).__name__}") from None
 
 
-def run_training(experiment: ExperimentConfig, train_scenes: Sequence[Scene], val_scenes: Sequence[Scene],
-                 out_dir: str | Path, device: str = "auto", resume: bool = False,
-                 progress: bool = True) -> dict[str, Any]:
-    """Train; returns a summary (steps, last loss, best validation PSNR, throughput)."""
-    out = Path(out_dir)
-    dev = resolve_device(device)
-    out.mkdir(parents=True, exist_ok=True)
+@dataclasses.dataclass
+class _Distributed:
+    """This process's place in a `torchrun` job (rank 0 of 1 without one). Every rank computes the
+    same global batches (a pure function of seed and epoch) and takes every world-th sample of
+    each, so the run equals one process with the same global batch size, within float rounding."""
+
+    rank: int = 0
+    world: int = 1
+
+    @property
+    def is_main(self) -> bool:
+        return self.rank == 0
+
+    @classmethod
+    def from_env(cls, dev: torch.device) -> tuple["_Distributed", torch.device]:
+        world = int(os.environ.get("WORLD_SIZE", "1"))
+        if world == 1:
+            return cls(), dev
+        import torch.distributed as tdist
+
+        if dev.type == "cuda":
+            dev = torch.device("cuda", int(os.environ.get("LOCAL_RANK", "0")))
+            torch.cuda.set_device(dev)
+        if not tdist.is_initialized():
+            tdist.init_process_group("nccl" if dev.type == "cuda" else "gloo")
+        return cls(tdist.get_rank(), tdist.get_world_size()), dev
+
+    def shard(self, batch: list[int]) -> list[int]:
+        return batch[self.rank::self.world]
+
+
+@dataclasses.dataclass
+class _Run:
+    """What one training run holds: the model (and its DDP wrapper), optimiser, schedule, scaler."""
+
+    model: torch.nn.Module
+    forward: torch.nn.Module
+    opt: Any
+    sched: Any
+    scaler: Any
+    loss_fn: Any
+    precision: str
+
+
+def _build_run(experiment: ExperimentConfig, dev: torch.device, dist: _Distributed) -> _Run:
     tc, mc = experiment.train, experiment.model
     seed_everything(tc.seed)
     model = build_model(mc).to(dev)
+    forward = model
+    if dist.world > 1:
+        from torch.nn.parallel import DistributedDataParallel
+        forward = DistributedDataParallel(model, device_ids=[dev.index] if dev.type == "cuda" else None)
     opt = torch.optim.Adam(model.parameters(), lr=tc.lr, betas=tuple(tc.betas))
     sched = torch.optim.lr_scheduler.MultiStepLR(opt, milestones=list(tc.lr_milestones), gamma=tc.lr_gamma)
     precision = resolve_precision(tc.precision, dev)
-    scaler = grad_scaler(precision, dev)
-    loss_fn = build_loss(tc.loss)
+    return _Run(model, forward, opt, sched, grad_scaler(precision, dev), build_loss(tc.loss), precision)
 
+
+def _datasets(experiment: ExperimentConfig, train_scenes: Sequence[Scene],
+              val_scenes: Sequence[Scene]) -> tuple[SequenceDataset, SequenceDataset | None]:
+    tc, mc = experiment.train, experiment.model
     train_ds = SequenceDataset(train_scenes, mc.window, tc.num_windows, tc.crop, random_crop=True,
                                seed=tc.seed, start_stride=tc.start_stride, samples_per_epoch=tc.samples_per_epoch)
     val_ds = None
@@ -193,70 +239,133 @@ def run_training(experiment: ExperimentConfig, train_scenes: Sequence[Scene], va
         per_scene = max(1, tc.val_max_samples // len(val_scenes))
         val_ds = SequenceDataset(val_scenes, mc.window, tc.num_windows, tc.val_crop, random_crop=False,
                                  seed=tc.seed, max_per_scene=per_scene)
+    return train_ds, val_ds
 
-    epoch, batch_in_epoch, step, best = 0, 0, 0, -math.inf
-    last_path, best_path = out / "last.pt", out / "best.pt"
+
+def _start_or_resume(out: Path, resume: bool, experiment: ExperimentConfig, run: _Run, dev: torch.device,
+                     dist: _Distributed) -> tuple[int, int, int, float]:
+    """(epoch, batch in epoch, step, best validation PSNR) to start from."""
+    last_path = out / "last.pt"
     if resume:
-        epoch, batch_in_epoch, step, best = _resume(last_path, dev, mc, model, opt, sched, scaler)
-    else:
-        if last_path.exists():
-            raise FileExistsError(f"{last_path} exists: pass --resume to continue that run, or choose another --out")
+        return _resume(last_path, dev, experiment.model, run.model, run.opt, run.sched, run.scaler)
+    if last_path.exists():
+        raise FileExistsError(f"{last_path} exists: pass --resume to continue that run, or choose another --out")
+    if dist.is_main:
         for stale in ("train_log.csv", "val_log.csv", "best.pt"):
             (out / stale).unlink(missing_ok=True)
-    (out / "config.json").write_text(json.dumps(experiment.to_dict(), indent=2))
+        (out / "config.json").write_text(json.dumps(experiment.to_dict(), indent=2))
+    return 0, 0, 0, -math.inf
 
-    train_log = _CsvLog(out / "train_log.csv", ["time", "epoch", "step", "loss", "lr", "samples_per_s"])
-    val_log = _CsvLog(out / "val_log.csv", ["time", "epoch", "step", "psnr", "ssim", "psnr_tfp", "ssim_tfp"])
-    tb = _Tensorboard(out / "tb")
-    try:
-        from tqdm import tqdm
-    except ImportError:  # progress bars are a nicety
-        tqdm = None
 
-    def checkpoint(path: Path, epoch_: int, batch_: int) -> None:
-        save_checkpoint(path, model, experiment, opt, sched, scaler, epoch_, step,
-                        extra={"batch_in_epoch": batch_, "best_val_psnr": best})
+def _total_steps(tc: Any, batches_per_epoch: int) -> int:
+    total = tc.epochs * batches_per_epoch
+    return min(total, tc.max_steps) if tc.max_steps is not None else total
 
-    print(f"[train] {experiment.name}: {count_parameters(model):,} parameters, device {dev}, {precision}, "
-          f"{len(train_ds)} samples/epoch from {len(train_scenes)} scenes, "
-          f"{len(val_ds) if val_ds else 0} validation samples", file=sys.stderr)
-    model.train()
-    last_loss, t_start, samples_seen = math.nan, time.perf_counter(), 0
-    stopped = False
+
+class _Timer:
+    """Where the time goes: waiting for the next batch versus the step itself (samples/s and the
+    data-wait share tell whether the loader or the model bounds training)."""
+
+    def __init__(self) -> None:
+        self.wait = self.busy = 0.0
+        self.samples = 0
+        self._mark = time.perf_counter()
+
+    def batch_arrived(self) -> float:
+        now = time.perf_counter()
+        waited, self._mark = now - self._mark, now
+        self.wait += waited
+        return waited
+
+    def step_done(self, samples: int) -> float:
+        now = time.perf_counter()
+        took, self._mark = now - self._mark, now
+        self.busy += took
+        self.samples += samples
+        return took
+
+    def summary(self) -> dict[str, float]:
+        total = self.wait + self.busy
+        return {"samples_per_s": self.samples / total if total > 0 else math.nan,
+                "data_wait_share": self.wait / total if total > 0 else math.nan}
+
+
+def _train_step(run: _Run, batch: dict, dev: torch.device, tc: Any, step: int, dist: _Distributed) -> float:
+    """One optimiser step; returns the loss of the whole (global) batch."""
+    spikes = batch["spikes"].to(dev, non_blocking=True)
+    gt = batch["gt"].to(dev, non_blocking=True)
+    with autocast(run.precision, dev):
+        pred = run.forward(spikes)
+    loss = run.loss_fn(pred.float(), gt)
+    if not torch.isfinite(loss):
+        raise FloatingPointError(f"loss became {loss.item()} at step {step}")
+    run.opt.zero_grad(set_to_none=True)
+    run.scaler.scale(loss).backward()
+    if tc.grad_clip is not None:
+        run.scaler.unscale_(run.opt)
+        torch.nn.utils.clip_grad_norm_(run.model.parameters(), tc.grad_clip)
+    run.scaler.step(run.opt)
+    run.scaler.update()
+    if dist.world > 1:  # each rank saw its share: log the mean over the global batch
+        import torch.distributed as tdist
+        loss = loss.detach().clone()
+        tdist.all_reduce(loss)
+        loss /= dist.world
+    return float(loss.item())
+
+
+def run_training(experiment: ExperimentConfig, train_scenes: Sequence[Scene], val_scenes: Sequence[Scene],
+                 out_dir: str | Path, device: str = "auto", resume: bool = False,
+                 progress: bool = True) -> dict[str, Any]:
+    """Train; returns a summary (steps, last loss, best validation PSNR, samples/s, data-wait share).
+    Under `torchrun` each process trains its share of every batch (DDP); rank 0 writes."""
+    from spikesim.progress import progress_bar
+
+    out = Path(out_dir)
+    dist, dev = _Distributed.from_env(resolve_device(device))
+    tc = experiment.train
+    if tc.batch_size % dist.world:
+        raise ValueError(f"batch size {tc.batch_size} does not split over {dist.world} processes")
+    out.mkdir(parents=True, exist_ok=True)
+    run = _build_run(experiment, dev, dist)
+    train_ds, val_ds = _datasets(experiment, train_scenes, val_scenes)
+    epoch, batch_in_epoch, step, best = _start_or_resume(out, resume, experiment, run, dev, dist)
+    logs = _Logs(out, enabled=dist.is_main)
+    batches_per_epoch = sum(1 for i in range(0, len(train_ds), tc.batch_size)
+                            if min(tc.batch_size, len(train_ds) - i) >= dist.world)
+    if dist.is_main:
+        print(f"[train] {experiment.name}: {count_parameters(run.model):,} parameters, device {dev}"
+              f"{f' x {dist.world} processes' if dist.world > 1 else ''}, {run.precision}, {len(train_ds)} "
+              f"samples/epoch from {len(train_scenes)} scenes, {len(val_ds) if val_ds else 0} validation samples",
+              file=sys.stderr)
+
+    def checkpoint(path: Path) -> None:
+        if dist.is_main:
+            save_checkpoint(path, run.model, experiment, run.opt, run.sched, run.scaler, epoch, step,
+                            extra={"batch_in_epoch": batch_in_epoch, "best_val_psnr": best})
+
+    bar = progress_bar(total=_total_steps(tc, batches_per_epoch), initial=step, desc=f"train {experiment.name}",
+                       unit="step", quiet=not (progress and dist.is_main))
+    timer, last_loss, stopped = _Timer(), math.nan, False
+    run.model.train()
     while epoch < tc.epochs and not stopped:
         train_ds.set_epoch(epoch)
         order = _epoch_order(len(train_ds), tc.seed, epoch)
-        batches = [order[i:i + tc.batch_size] for i in range(0, len(order), tc.batch_size)]
-        loader = DataLoader(train_ds, batch_sampler=batches[batch_in_epoch:], num_workers=tc.num_workers,
-                            worker_init_fn=_worker_init, pin_memory=dev.type == "cuda")
-        bar = tqdm(loader, desc=f"epoch {epoch + 1}/{tc.epochs}", initial=batch_in_epoch, total=len(batches),
-                   disable=not progress, file=sys.stderr) if tqdm else loader
-        for batch in bar:
-            t0 = time.perf_counter()
-            spikes = batch["spikes"].to(dev, non_blocking=True)
-            gt = batch["gt"].to(dev, non_blocking=True)
-            with autocast(precision, dev):
-                pred = model(spikes)
-            loss = loss_fn(pred.float(), gt)
-            if not torch.isfinite(loss):
-                raise FloatingPointError(f"loss became {loss.item()} at step {step}")
-            opt.zero_grad(set_to_none=True)
-            scaler.scale(loss).backward()
-            if tc.grad_clip is not None:
-                scaler.unscale_(opt)
-                torch.nn.utils.clip_grad_norm_(model.parameters(), tc.grad_clip)
-            scaler.step(opt)
-            scaler.update()
+        # a last batch too small to give every process a sample is skipped by all of them alike
+        batches = [dist.shard(b) for b in (order[i:i + tc.batch_size] for i in range(0, len(order), tc.batch_size))
+                   if len(b) >= dist.world]
+        loader = DataLoader(train_ds, batch_sampler=batches[batch_in_epoch:],
+                            num_workers=tc.num_workers, worker_init_fn=_worker_init, pin_memory=dev.type == "cuda")
+        for batch in loader:
+            waited = timer.batch_arrived()
+            last_loss = _train_step(run, batch, dev, tc, step, dist)
+            took = timer.step_done(batch["spikes"].shape[0] * dist.world)
             step += 1
             batch_in_epoch += 1
-            samples_seen += spikes.shape[0]
-            last_loss = float(loss.item())
-            rate = spikes.shape[0] / max(time.perf_counter() - t0, 1e-9)
-            train_log.write({"time": time.time(), "epoch": epoch, "step": step, "loss": last_loss,
-                             "lr": opt.param_groups[0]["lr"], "samples_per_s": rate})
-            tb.scalar("train/loss", last_loss, step)
-            if tqdm:
-                bar.set_postfix(loss=f"{last_loss:.4f}")
+            logs.train_step(epoch, step, last_loss, run.opt.param_groups[0]["lr"],
+                            batch["spikes"].shape[0] * dist.world / max(waited + took, 1e-9), waited)
+            bar.update(1)
+            bar.set_postfix(loss=f"{last_loss:.4f}", refresh=False)
             if tc.max_steps is not None and step >= tc.max_steps:
                 stopped = True
                 break
@@ -264,23 +373,66 @@ def run_training(experiment: ExperimentConfig, train_scenes: Sequence[Scene], va
             epoch, batch_in_epoch = epoch + 1, 0
             with warnings.catch_warnings():  # a run resumed exactly at an epoch's end steps no batch first
                 warnings.filterwarnings("ignore", message="Detected call of `lr_scheduler.step")
-                sched.step()
-        if val_ds is not None and (stopped or epoch % tc.val_every == 0):
-            scores = validate(model, val_ds, dev)
-            val_log.write({"time": time.time(), "epoch": epoch, "step": step, **scores})
-            for k, v in scores.items():
-                tb.scalar(f"val/{k}", v, step)
-            print(f"[train] epoch {epoch} step {step}: loss {last_loss:.4f}, val PSNR {scores['psnr']:.2f} dB "
-                  f"(TFP {scores['psnr_tfp']:.2f}), SSIM {scores['ssim']:.4f}", file=sys.stderr)
+                run.sched.step()
+        if dist.is_main and val_ds is not None and (stopped or epoch % tc.val_every == 0):
+            scores = validate(run.model, val_ds, dev)
+            logs.validation(epoch, step, scores)
+            bar.write(f"[train] epoch {epoch} step {step}: loss {last_loss:.4f}, val PSNR {scores['psnr']:.2f} dB "
+                      f"(TFP {scores['psnr_tfp']:.2f}), SSIM {scores['ssim']:.4f}", file=sys.stderr)
             if scores["psnr"] > best:
                 best = scores["psnr"]
-                checkpoint(best_path, epoch, batch_in_epoch)
+                checkpoint(out / "best.pt")
         if stopped or epoch % tc.ckpt_every == 0 or epoch >= tc.epochs:
-            checkpoint(last_path, epoch, batch_in_epoch)
-    tb.close()
-    elapsed = time.perf_counter() - t_start
-    return {"steps": step, "epoch": epoch, "last_loss": last_loss, "best_val_psnr": best, "precision": precision,
-            "samples_per_s": samples_seen / elapsed if elapsed > 0 else math.nan, "out": str(out)}
+            checkpoint(out / "last.pt")
+    bar.close()
+    logs.close()
+    fingerprint = _weights_fingerprint(run.model)
+    if dist.world > 1:
+        import torch.distributed as tdist
+        seen = [None] * dist.world
+        tdist.all_gather_object(seen, fingerprint)  # also: no rank leaves while rank 0 still writes
+        if len(set(seen)) != 1:
+            raise RuntimeError(f"DDP ranks ended with different weights (fingerprints {seen}): a bug")
+    return {"steps": step, "weights_sha256": fingerprint, "epoch": epoch, "last_loss": last_loss, "best_val_psnr": best, "precision": run.precision,
+            "processes": dist.world, **timer.summary(), "out": str(out)}
+
+
+def _weights_fingerprint(model: torch.nn.Module) -> str:
+    """sha256 of the parameters' bytes: equal on every rank of a correct DDP run."""
+    import hashlib
+
+    h = hashlib.sha256()
+    for _, v in sorted(model.state_dict().items()):
+        h.update(v.detach().cpu().contiguous().numpy().tobytes())
+    return h.hexdigest()
+
+
+class _Logs:
+    """train_log.csv, val_log.csv and TensorBoard, written by one process only."""
+
+    def __init__(self, out: Path, enabled: bool) -> None:
+        self.enabled = enabled
+        if enabled:
+            self.train = _CsvLog(out / "train_log.csv",
+                                 ["time", "epoch", "step", "loss", "lr", "samples_per_s", "data_wait_s"])
+            self.val = _CsvLog(out / "val_log.csv", ["time", "epoch", "step", "psnr", "ssim", "psnr_tfp", "ssim_tfp"])
+            self.tb = _Tensorboard(out / "tb")
+
+    def train_step(self, epoch: int, step: int, loss: float, lr: float, rate: float, waited: float) -> None:
+        if self.enabled:
+            self.train.write({"time": time.time(), "epoch": epoch, "step": step, "loss": loss, "lr": lr,
+                              "samples_per_s": rate, "data_wait_s": waited})
+            self.tb.scalar("train/loss", loss, step)
+
+    def validation(self, epoch: int, step: int, scores: dict[str, float]) -> None:
+        if self.enabled:
+            self.val.write({"time": time.time(), "epoch": epoch, "step": step, **scores})
+            for k, v in scores.items():
+                self.tb.scalar(f"val/{k}", v, step)
+
+    def close(self) -> None:
+        if self.enabled:
+            self.tb.close()
 
 
 def _apply_overrides(exp: ExperimentConfig, args: argparse.Namespace) -> ExperimentConfig:
