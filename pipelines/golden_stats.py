@@ -1,160 +1,126 @@
-"""Golden statistics of the realistic preset: a regression guard for the simulator.
+"""`spikesim golden`: check a camera model's spike statistics against a stored reference.
 
-A fixed scene (four bands of constant light, from darkness to bright) is simulated with the
-realistic camera and a fixed seed, and a few statistics are measured per band, each with its
-standard error from batch means over pixel blocks. The stored file is rewritten only by
-`spikesim golden --write`; tests compare a fresh run against it within 5 combined standard
-errors, on every backend.
+Without options it checks the built-in realistic camera against the project's reference. With
+`--camera FILE` it checks your camera (or, unchanged, your changed simulator code) against the
+project's reference or your own (`--reference`); `--write --camera FILE -o REF.json` stores a new
+reference; `--power` measures which change of each noise term the check detects
+(spikesim/golden.py says what the statistics are and why; docs/sensor.md has the table).
 """
 from __future__ import annotations
 
 import argparse
 import json
+import math
+import sys
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from spikesim.camera import SpikeCamera
-from spikesim.patterns import constant_frames
-from spikesim.simulate import Simulator
-from spikesim.stats import firing_rate, inter_spike_intervals, window_counts
-
-GOLDEN_PATH = Path(__file__).resolve().parents[1] / "tests" / "data" / "golden_realistic.json"
-LEVELS_Y = (0.0, 0.003, 0.03, 0.3)
-HEIGHT, WIDTH = 32, 64
-WINDOW = 41
-NUM_STEPS = 100 * WINDOW
-SEED = 0
-BLOCKS = 16
+from pipelines.argtypes import existing_file, positive_int
+from spikesim import golden
 
 
-def golden_camera() -> SpikeCamera:
-    return SpikeCamera.realistic(height=HEIGHT, width=WIDTH)
+def _camera(args: argparse.Namespace):
+    from spikesim.camera import SpikeCamera
+    return SpikeCamera.from_file(args.camera) if args.camera else SpikeCamera.realistic()
 
 
-def golden_frame() -> np.ndarray:
-    band = WIDTH // len(LEVELS_Y)
-    frame = np.zeros((HEIGHT, WIDTH), np.float32)
-    for i, y in enumerate(LEVELS_Y):
-        frame[:, i * band:(i + 1) * band] = y
-    return frame
+def _backend(name: str) -> str:
+    from spikesim.simulate import resolve_backend
+
+    return resolve_backend(name)  # before measuring: a missing GPU is one line
 
 
-def _per_pixel_stats(stream) -> dict[str, np.ndarray]:
-    rate = firing_rate(stream).ravel()
-    counts = window_counts(stream, WINDOW).reshape(-1, HEIGHT * WIDTH).astype(np.float64)
-    mean = counts.mean(axis=0)
-    fano = np.where(mean > 0, counts.var(axis=0, ddof=1) / np.maximum(mean, 1e-12), np.nan)
-    dark41 = (counts == 0).mean(axis=0)
-    return {"rate_per_step": rate, "fano_41": fano, "dark_fraction_41": dark41}
+def _table(rows: list[golden.Row], z_crit: float) -> str:
+    lines = [f"{'band':8} {'statistic':17} {'value':>12} {'reference':>12} {'z':>8}  verdict (|z| <= {z_crit:.2f})"]
+    for r in rows:
+        lines.append(f"{r.band:8} {r.statistic:17} {r.value:12.6g} {r.reference:12.6g} {r.z:8.2f}  "
+                     f"{'pass' if r.passed else 'FAIL'}")
+    return "\n".join(lines)
 
 
-def measure(backend: str = "numpy") -> dict[str, Any]:
-    sim = Simulator(golden_camera(), backend=backend, seed=SEED)
-    stream = sim.run(constant_frames(golden_frame(), NUM_STEPS, HEIGHT, WIDTH))
-    per_pixel = _per_pixel_stats(stream)
-    band = WIDTH // len(LEVELS_Y)
-    cols = np.tile(np.arange(WIDTH), HEIGHT)
-    out: dict[str, Any] = {}
-    for i, y in enumerate(LEVELS_Y):
-        sel = (cols // band) == i
-        entry: dict[str, Any] = {}
-        for name, values in per_pixel.items():
-            v = values[sel]
-            blocks = np.array_split(v, BLOCKS)
-            means = np.array([np.nanmean(b) if np.isfinite(b).any() else np.nan for b in blocks])
-            if np.isnan(means).all():
-                continue
-            entry[name] = {"value": float(np.nanmean(v)),
-                           "se": float(np.nanstd(means, ddof=1) / np.sqrt(np.isfinite(means).sum()))}
-        # fixed-pattern spread of the rate (coefficient of variation across the band's pixels)
-        r = per_pixel["rate_per_step"][sel]
-        if r.mean() > 0:
-            cv_blocks = np.array([b.std() / b.mean() for b in np.array_split(r, BLOCKS) if b.mean() > 0])
-            entry["rate_cv"] = {"value": float(r.std() / r.mean()),
-                                "se": float(cv_blocks.std(ddof=1) / np.sqrt(cv_blocks.size))}
-        out[f"y={y:g}"] = entry
-    isi = inter_spike_intervals(stream)
-    out["all"] = {"num_isi": int(isi.size)}
-    return {"config": {"camera": golden_camera().to_dict(), "levels_y": LEVELS_Y, "num_steps": NUM_STEPS,
-                       "seed": SEED, "window": WINDOW, "blocks": BLOCKS, "backend": backend},
-            "stats": out}
+def _check(args: argparse.Namespace) -> int:
+    reference = golden.load_reference(args.reference)  # a missing or damaged file fails before measuring
+    measured = golden.measure(_camera(args), _backend(args.backend), args.seed)
+    rows = golden.compare(measured, reference)
+    z_crit = golden.z_critical(len(rows))
+    failed = [r for r in rows if not r.passed]
+    if args.json:
+        print(json.dumps({"reference": str(args.reference or golden.PACKAGED_REFERENCE), "backend": measured["backend"],
+                          "seed": args.seed, "z_critical": z_crit, "family_false_alarm": golden.FAMILY_FALSE_ALARM,
+                          "passed": not failed,
+                          "statistics": [{"band": r.band, "statistic": r.statistic, "value": _num(r.value),
+                                          "reference": r.reference, "z": _num(r.z), "passed": r.passed}
+                                         for r in rows]}, indent=2))
+    else:
+        print(_table(rows, z_crit))
+        print(f"golden statistics: {'OK' if not failed else f'{len(failed)} of {len(rows)} statistic(s) moved'} "
+              f"(reference {args.reference or golden.PACKAGED_REFERENCE}, backend {measured['backend']}, seed {args.seed})")
+    return 1 if failed else 0
 
 
-def compare(measured: dict[str, Any], golden: dict[str, Any], n_sigma: float = 5.0) -> list[str]:
-    """The statistics that moved by more than n_sigma combined standard errors."""
-    problems = []
-    for level, entry in golden["stats"].items():
-        for name, g in entry.items():
-            if not isinstance(g, dict):
-                continue
-            m = measured["stats"].get(level, {}).get(name)
-            if m is None:
-                problems.append(f"{level} {name}: missing from the measurement")
-                continue
-            tol = n_sigma * float(np.hypot(g["se"], m["se"]))
-            # A floor for statistics with (almost) no spread, e.g. an exactly repeatable rate.
-            tol = max(tol, 1e-9 + 1e-6 * abs(g["value"]))
-            if abs(m["value"] - g["value"]) > tol:
-                problems.append(f"{level} {name}: {m['value']:.6g} vs golden {g['value']:.6g} "
-                                f"(tolerance {tol:.3g} = {n_sigma:g} standard errors)")
-    return problems
+def _num(x: float) -> Any:
+    return x if math.isfinite(x) else str(x)
 
 
-def load_golden(path: Path | None = None) -> dict[str, Any]:
-    """The stored golden statistics (default GOLDEN_PATH), checked enough that `compare` cannot
-    trip over a damaged file; errors name the file."""
-    path = GOLDEN_PATH if path is None else Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"golden statistics {path} missing; create them with `spikesim golden --write`")
-    try:
-        data = json.loads(path.read_text())
-    except ValueError as exc:
-        raise ValueError(f"golden statistics {path}: not valid JSON ({exc}); "
-                         "regenerate them with `spikesim golden --write`") from exc
-    problem = _layout_problem(data)
-    if problem:
-        raise ValueError(f"golden statistics {path}: {problem}; regenerate them with `spikesim golden --write`")
-    return data
+def _write(args: argparse.Namespace) -> int:
+    measured = golden.measure(_camera(args), _backend(args.backend), golden.REFERENCE_SEED)
+    path = golden.write_reference(measured, args.output)
+    print(f"wrote {path} ({sum(len(e) for e in measured['stats'].values())} statistics, backend "
+          f"{measured['backend']}, seed {golden.REFERENCE_SEED})", file=sys.stderr)
+    return 0
 
 
-def _layout_problem(data: Any) -> str | None:
-    """What is wrong with the layout `measure` writes ({"stats": {level: {name: {"value", "se"}}}}), if anything."""
-    stats = data.get("stats") if isinstance(data, dict) else None
-    if not isinstance(stats, dict):
-        return "no 'stats' object"
-    for level, entry in stats.items():
-        if not isinstance(entry, dict):
-            return f"stats[{level!r}] is not an object"
-        for name, g in entry.items():
-            if isinstance(g, dict) and not all(isinstance(g.get(k), (int, float)) for k in ("value", "se")):
-                return f"stats[{level!r}][{name!r}] lacks a numeric 'value' and 'se'"
-    return None
+def _power(args: argparse.Namespace) -> int:
+    from spikesim.progress import progress_bar
+
+    reference = golden.load_reference(args.reference)
+    seeds = list(range(1, args.seeds + 1))
+    total = len(seeds) * (1 + len(golden.POWER_TERMS) * len(golden.POWER_CHANGES))
+    with progress_bar(total=total, desc="golden power", unit="run", quiet=args.json) as bar:
+        result = golden.detection_power(reference, _camera(args), _backend(args.backend), seeds, progress=bar)
+    if args.json:
+        print(json.dumps(result, indent=2))
+        return 0
+    changes = list(next(iter(result["terms"].values())))
+    print("| term | " + " | ".join(changes) + " |")
+    print("|---|" + "---|" * len(changes))
+    for term, by in result["terms"].items():
+        print(f"| {term} | " + " | ".join(f"{v['detected']:.0%}" for v in by.values()) + " |")
+    print(f"\nunchanged camera: failed at {result['unchanged']['detected']:.0%} of {len(seeds)} seeds "
+          f"(family false-alarm rate by design {golden.FAMILY_FALSE_ALARM:g})")
+    return 0
 
 
 def run(args: argparse.Namespace) -> int:
-    golden = None if args.write else load_golden()  # a missing or damaged file fails before the measurement
-    measured = measure(args.backend)
+    if args.write and args.output is None:
+        raise ValueError("--write needs -o REF.json (the project's own reference is replaced only by naming it)")
+    if args.output is not None and not args.write:
+        raise ValueError("-o goes with --write")
     if args.write:
-        GOLDEN_PATH.parent.mkdir(parents=True, exist_ok=True)
-        tmp = GOLDEN_PATH.with_suffix(".part")
-        tmp.write_text(json.dumps(measured, indent=2) + "\n")
-        tmp.replace(GOLDEN_PATH)
-        print(f"wrote {GOLDEN_PATH}")
-        return 0
-    problems = compare(measured, golden)
-    for p in problems:
-        print(p)
-    print("golden statistics: " + ("OK" if not problems else f"{len(problems)} statistic(s) moved"))
-    return 1 if problems else 0
+        return _write(args)
+    return _power(args) if args.power else _check(args)
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("golden", help="check (or, with --write, regenerate) the simulator's golden statistics")
-    p.add_argument("--write", action="store_true", help="overwrite the stored golden file with a new measurement")
-    p.add_argument("--backend", default="numpy", choices=["numpy", "llvm", "cuda"])
+    p = sub.add_parser("golden", help="check a camera's spike statistics against a stored reference",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--camera", type=existing_file,
+                   help="camera config file (JSON or TOML, spikesim.camera.SpikeCamera fields); default: the "
+                        "built-in realistic camera")
+    p.add_argument("--reference", type=existing_file,
+                   help=f"reference to compare with (default: the project's, {golden.PACKAGED_REFERENCE.name})")
+    p.add_argument("--backend", default="numpy", choices=["numpy", "llvm", "cuda", "auto"],
+                   help="simulator backend to measure with (default: numpy, the reference's)")
+    p.add_argument("--seed", type=int, default=golden.MEASURE_SEED,
+                   help=f"measurement seed (default: {golden.MEASURE_SEED}; references use {golden.REFERENCE_SEED})")
+    mode = p.add_mutually_exclusive_group()
+    mode.add_argument("--write", action="store_true", help="measure and write a new reference to -o")
+    mode.add_argument("--power", action="store_true",
+                      help="measure the check's detection rate for changes of each noise term")
+    p.add_argument("-o", "--output", type=Path, help="with --write: the reference file to write")
+    p.add_argument("--seeds", type=positive_int, default=4, help="with --power: seeds per change (default: 4)")
+    p.add_argument("--json", action="store_true", help="print the results as JSON")
     p.set_defaults(func=run)
 
 
-__all__ = ["measure", "compare", "load_golden", "GOLDEN_PATH", "add_parser"]
+__all__ = ["add_parser", "run"]

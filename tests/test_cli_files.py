@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from pipelines import golden_stats, tradeoff
+from pipelines import tradeoff
 from pipelines.cli import main
 
 
@@ -51,12 +51,13 @@ def test_cache_files_are_replaced_whole(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["reference.json"]  # no .part left behind
 
 
-@pytest.mark.parametrize("text, problem", [("{not json", "not valid JSON"), ('{"stats": []}', "no 'stats' object"),
-                                           ('{"stats": {"y=0": {"rate_per_step": {"value": 1}}}}', "'se'")])
-def test_damaged_golden_file_is_one_line(text, problem, tmp_path, monkeypatch, capsys):
+@pytest.mark.parametrize("text, problem", [
+    ("{not json", "not valid JSON"), ('{"stats": []}', "not a layout-2 golden reference"),
+    ('{"layout": 2, "stats": []}', "no 'stats' object"),
+    ('{"layout": 2, "stats": {"y=0": {"rate_per_step": {"value": 1}}}}', "'se'")])
+def test_damaged_golden_file_is_one_line(text, problem, tmp_path, capsys):
     path = tmp_path / "golden.json"
     path.write_text(text)
-    monkeypatch.setattr(golden_stats, "GOLDEN_PATH", path)
-    assert main(["golden"]) == 2
+    assert main(["golden", "--reference", str(path)]) == 2
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and str(path) in err and problem in err, err

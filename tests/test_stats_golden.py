@@ -1,11 +1,13 @@
 """Stream statistics against hand-computed values, and the realistic preset against its stored
-golden statistics (tolerances: 5 combined standard errors from batch means)."""
+golden statistics (spikesim/golden.py: z-scores from batch-mean standard errors, Bonferroni
+threshold), including the check's power to see a changed noise term."""
 import json
 
 import numpy as np
 import pytest
 
-from pipelines import golden_stats
+from pipelines.cli import main
+from spikesim import SpikeCamera, golden
 from spikesim.stats import (dark_count_rate_hz, dark_pixel_fraction, fano_factor, firing_rate,
                             fixed_pattern_spread, inter_spike_intervals, isi_histogram, summary)
 from spikesim.stream import SpikeStream
@@ -36,25 +38,83 @@ def test_hand_computed_statistics():
     assert summ["spikes"] == 4 and summ["isi_steps"]["count"] == 2 and summ["isi_steps"]["max"] == 4
 
 
-def test_golden_file_is_consistent_with_its_config():
-    g = golden_stats.load_golden()
-    assert g["config"]["camera"] == golden_stats.golden_camera().to_dict()
-    assert g["config"]["num_steps"] == golden_stats.NUM_STEPS
-    # dark band: mean dark count rate close to the configured 94 Hz, spread close to 39 %
+def test_packaged_reference_is_the_realistic_camera_on_the_test_scene():
+    g = golden.load_reference()
+    assert g["camera"] == golden.golden_camera().to_dict() and g["seed"] == golden.REFERENCE_SEED
+    assert g["design"] == golden.measure(seed=0)["design"]
+    # dark band: the configured 94 Hz dark current and its 39 % lognormal spread
     dark = g["stats"]["y=0"]
     assert dark["rate_per_step"]["value"] / 25e-6 == pytest.approx(94.0, rel=0.05)
     assert dark["rate_cv"]["value"] == pytest.approx(0.39, abs=4 * dark["rate_cv"]["se"])
+    # shot noise: the ISI's squared CV in darkness is 1 / threshold_electrons (dark current is a current)
+    assert dark["isi_cv2"]["value"] == pytest.approx(1 / 1000, abs=4 * dark["isi_cv2"]["se"])
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
-def test_realistic_preset_matches_golden_statistics(backend):
-    problems = golden_stats.compare(golden_stats.measure(backend), golden_stats.load_golden())
-    assert not problems, "\n".join(problems)
+def test_unchanged_camera_passes_on_every_backend(backend):
+    rows = golden.compare(golden.measure(backend=backend), golden.load_reference())
+    assert len(rows) == 20 and all(r.passed for r in rows), [r for r in rows if not r.passed]
 
 
-def test_compare_detects_a_moved_statistic():
-    g = golden_stats.load_golden()
+@pytest.mark.parametrize("term, change, band, statistic", [
+    ("gain_spread", 0.2, "y=0.3", "rate_cv"),               # PRNU, +20 %
+    ("threshold_electrons", -0.2, "y=0.03", "isi_cv2"),     # shot-noise variance +25 %
+    ("comparator_noise", 1.0, "y=0.03", "isi_cv2"),         # doubled: the case the old check missed
+])
+def test_a_change_that_matters_fails(term, change, band, statistic):
+    cam = golden.changed(golden.golden_camera(), term, change)
+    rows = golden.compare(golden.measure(cam, backend=BACKENDS[-1]), golden.load_reference())
+    failed = {(r.band, r.statistic) for r in rows if not r.passed}
+    assert (band, statistic) in failed, rows
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("term", ["dark_current_hz", "dark_current_spread", "gain_spread", "threshold_offset",
+                                  "threshold_electrons", "comparator_noise"])
+@pytest.mark.parametrize("change", [-0.2, 0.2])
+def test_every_low_light_term_changed_by_20_percent_fails(term, change):
+    cam = golden.changed(golden.golden_camera(), term, change)
+    rows = golden.compare(golden.measure(cam, backend=BACKENDS[-1], seed=2), golden.load_reference())
+    assert not all(r.passed for r in rows)
+
+
+def test_compare_names_a_moved_statistic_and_its_z():
+    g = golden.load_reference()
     moved = json.loads(json.dumps(g))
     e = moved["stats"]["y=0.03"]["rate_per_step"]
     e["value"] += 10 * e["se"]
-    assert any("rate_per_step" in p for p in golden_stats.compare(moved, g))
+    (row,) = [r for r in golden.compare(moved, g) if not r.passed]
+    assert (row.band, row.statistic) == ("y=0.03", "rate_per_step") and row.z == pytest.approx(10 / 2 ** 0.5)
+
+
+def test_write_then_check_a_users_camera(tmp_path, capsys):
+    cam = tmp_path / "mine.json"
+    cam.write_text(json.dumps({**SpikeCamera.realistic().to_dict(), "gain_spread": 0.1}))
+    ref = tmp_path / "ref.json"
+    before = golden.PACKAGED_REFERENCE.read_bytes()
+    cam, ref = str(cam), str(ref)
+    assert main(["golden", "--write", "--camera", cam, "-o", ref]) == 0
+    assert main(["golden", "--camera", cam, "--reference", ref]) == 0
+    assert "golden statistics: OK" in capsys.readouterr().out
+    # against the project's reference the user's camera differs, and the table says where
+    assert main(["golden", "--camera", cam, "--json"]) == 1
+    doc = json.loads(capsys.readouterr().out)
+    assert not doc["passed"] and len(doc["statistics"]) == 20
+    assert {"band", "statistic", "value", "reference", "z", "passed"} == set(doc["statistics"][0])
+    assert any(s["statistic"] == "rate_cv" and not s["passed"] for s in doc["statistics"])
+    assert golden.PACKAGED_REFERENCE.read_bytes() == before
+
+
+def test_write_needs_an_explicit_output(capsys):
+    before = golden.PACKAGED_REFERENCE.read_bytes()
+    assert main(["golden", "--write"]) == 2
+    assert "--write needs -o" in capsys.readouterr().err
+    assert golden.PACKAGED_REFERENCE.read_bytes() == before
+
+
+def test_bad_camera_file_is_one_line(tmp_path, capsys):
+    cam = tmp_path / "bad.json"
+    cam.write_text(json.dumps({"gain_spread": -1}))
+    assert main(["golden", "--camera", str(cam)]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "gain_spread" in err
