@@ -75,6 +75,8 @@ def test_every_data_file_of_the_packages_is_installed(installed):
     missing = sorted(rel for rel in source_data_files() if not (site / rel).is_file())
     assert not missing, f"not in the wheel: {missing}"
     assert (site / "model" / "configs" / "full.json").is_file()
+    licences = list(site.glob("spikesim-*.dist-info/licenses/LICENSE"))
+    assert licences and licences[0].read_text() == (ROOT / "LICENSE").read_text()
 
 
 CHECK = textwrap.dedent("""

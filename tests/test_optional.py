@@ -80,3 +80,27 @@ def test_reconstruct_without_ffmpeg_notes_the_video_extra_and_writes_the_rest(mo
                          "--quiet", "--device", "cpu", "--header-columns", 0], capsys)
     assert code == 0 and "spikesim[video]" in one_line(err)
     assert (tmp_path / "o" / "frames.gif").exists() and not (tmp_path / "o" / "frames.mp4").exists()
+
+
+def test_the_set_up_script_installs_every_extra_the_tests_and_demo_use():
+    """scripts/bootstrap.sh (behind the README's demo and test commands) installs all extras."""
+    import re
+    import tomllib
+    from pathlib import Path
+    root = Path(__file__).resolve().parents[1]
+    extras = set(tomllib.loads((root / "pyproject.toml").read_text())["project"]["optional-dependencies"])
+    installed = re.findall(r'pip install -q -e "\.\[([\w,]+)\]"', (root / "scripts" / "bootstrap.sh").read_text())
+    assert len(installed) == 1 and set(installed[0].split(",")) == extras, (installed, extras)
+
+
+def test_every_command_loads_without_any_extra(monkeypatch, capsys):
+    """A core install (`pip install .`) has the whole command line: no module imports an extra's
+    package at load time."""
+    from pipelines import cli
+    hide(monkeypatch, "matplotlib", "matplotlib.pyplot", "tensorboard", "torch.utils.tensorboard",
+         "imageio_ffmpeg", "ray")
+    for name in [m for m in sys.modules if m.startswith("pipelines.") and m not in ("pipelines.cli",)]:
+        monkeypatch.delitem(sys.modules, name)
+    parser = cli.build_parser()
+    commands = parser._subparsers._group_actions[0].choices
+    assert set(cli._COMMAND_MODULE) <= set(commands), sorted(set(cli._COMMAND_MODULE) - set(commands))
