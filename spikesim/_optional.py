@@ -28,8 +28,7 @@ def require(module: str, extra: str, feature: str) -> ModuleType:
     try:
         return importlib.import_module(module)
     except ImportError as exc:
-        raise UnavailableError(f"{feature} needs {module}, which is not installed "
-                               f"({exc.msg if hasattr(exc, 'msg') else exc}); "
+        raise UnavailableError(f"{feature} needs {module}, which does not import here ({exc}); "
                                f"install it with: pip install 'spikesim[{extra}]'") from None
 
 
