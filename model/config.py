@@ -1,5 +1,6 @@
 """Validated configuration: the network (ModelConfig), the training recipe (TrainConfig) and the
-named experiment files in configs/model/*.json that pair them.
+named experiment files in model/configs/*.json that pair them (package data, read through
+importlib.resources so that a wheel install finds them too).
 
 Defaults are the paper's (section Implementation Details) and the authors' released network
 (docs/design.md section 5); every ablation is a field, so a named config is data, never a code edit.
@@ -8,13 +9,14 @@ from __future__ import annotations
 
 import json
 from dataclasses import asdict, dataclass, field, fields
+from importlib import resources
 from pathlib import Path
 from typing import Any
 
 from .precision import PRECISIONS
 from .representations import INTERVAL_TRANSFORMS
 
-CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs" / "model"
+CONFIG_DIR = resources.files(__package__) / "configs"  # the named configs, shipped in the package
 
 REPRESENTATIONS = ("lr_rep", "spike", "tfp", "tfi")
 INTERVALS = ("gisi", "lisi")
@@ -210,8 +212,8 @@ class ExperimentConfig:
 
 
 def available_configs() -> list[str]:
-    """Names of the configs shipped in configs/model/."""
-    return sorted(p.stem for p in CONFIG_DIR.glob("*.json"))
+    """Names of the configs shipped in model/configs/."""
+    return sorted(p.name[:-len(".json")] for p in CONFIG_DIR.iterdir() if p.name.endswith(".json"))
 
 
 def load_config(name_or_path: str | Path) -> ExperimentConfig:
@@ -219,7 +221,7 @@ def load_config(name_or_path: str | Path) -> ExperimentConfig:
     p = Path(name_or_path)
     if not (p.suffix == ".json" and p.exists()):
         p = CONFIG_DIR / f"{name_or_path}.json"
-    if not p.exists():
+    if not p.is_file():
         raise FileNotFoundError(f"no config {str(name_or_path)!r}: not a JSON file and not one of "
                                 f"{available_configs()} in {CONFIG_DIR}")
     try:

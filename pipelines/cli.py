@@ -43,12 +43,28 @@ EXIT_STATUSES = """exit status:
   130  interrupted (Ctrl-C)"""
 
 
+def installed_version() -> str:
+    """The version of the installed distribution (its metadata, so a wheel and a checkout agree
+    with pyproject.toml); a checkout run without installing says so instead."""
+    from importlib import metadata
+    try:
+        return metadata.version("spikesim")
+    except metadata.PackageNotFoundError:
+        return "unknown (not installed: pip install .)"
+
+
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The parser; with `command`, only that command's module is imported, and with "--version"
+    none (the version needs no pipeline, and torch takes seconds to load)."""
     parser = argparse.ArgumentParser(prog="spikesim", description=__doc__, epilog=EXIT_STATUSES,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {installed_version()}",
+                        help="print the installed version and exit")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     modules = [_COMMAND_MODULE[command]] if command in _COMMAND_MODULE else _SUBCOMMANDS
+    if command == "--version":
+        modules = ()
     for name in modules:
         try:
             module = importlib.import_module(name)
@@ -74,7 +90,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _run(argv: list[str], command: str | None) -> int:
-    parser = build_parser(command)
+    parser = build_parser("--version" if command is None and "--version" in argv else command)
     try:
         args = parser.parse_args(argv)
     except SystemExit as exc:  # --help (0) or a refused argument (2), already printed

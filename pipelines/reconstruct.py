@@ -1,5 +1,5 @@
 """`spikesim reconstruct`: a `.dat` spike stream (simulated, or a real 400x250 / 416-wide
-recording) to PNG frames and a GIF (and an MP4 when imageio-ffmpeg is installed).
+recording) to PNG frames and a GIF (and an MP4 with the `video` extra: imageio-ffmpeg).
 
 The stream is cut into consecutive windows of T steps from --start; each window gives one frame
 at its centre step. Methods: tfp, tfi, or a trained checkpoint (exact chunked inference, memory
@@ -30,6 +30,8 @@ from model.methods import method_from_spec
 from model.streaming import StepWindows
 from pipelines.argtypes import nonnegative_int, positive_float, positive_int
 from pipelines.inspect_cmd import header_columns_arg
+from spikesim._optional import require
+from spikesim.errors import UnavailableError
 from spikesim.stream import HEADER_COLUMNS as PKU_HEADER
 from spikesim.stream import detect_header_columns, stream_geometry
 
@@ -69,10 +71,9 @@ class _Video:
             self.writers.append(imageio.get_writer(out / "frames.gif", mode="I", duration=1000.0 / fps, loop=0))
         if mp4:
             try:
-                import imageio_ffmpeg  # noqa: F401
-            except ImportError:
-                print("[reconstruct] imageio-ffmpeg is not installed: no MP4 (pip install imageio-ffmpeg)",
-                      file=sys.stderr)
+                require("imageio_ffmpeg", "video", "MP4 output")
+            except UnavailableError as exc:  # the MP4 is on by default: a note, the GIF and PNGs go on
+                print(f"[reconstruct] no MP4: {exc} (--no-mp4 skips it)", file=sys.stderr)
             else:
                 self.writers.append(imageio.get_writer(out / "frames.mp4", fps=fps, codec="libx264",
                                                        quality=8, macro_block_size=1))

@@ -38,6 +38,7 @@ from typing import Any, BinaryIO, Callable, Sequence
 import numpy as np
 
 from pipelines.argtypes import add_device_argument, bundled_scene, nonnegative_int, output_dir, positive_int
+from spikesim._optional import require
 from spikesim.config_io import read_json_object
 
 log = logging.getLogger(__name__)
@@ -511,7 +512,7 @@ def markdown_table(rows: Sequence[dict[str, Any]]) -> str:
 def plot(rows: Sequence[dict[str, Any]], path: Path) -> None:
     """Error (firing rate, relative RMS) against time (x reference), per scene and light; the
     Pareto front joined, the two noise floors dashed."""
-    import matplotlib
+    matplotlib = require("matplotlib", "plot", "the trade study's plot")
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
@@ -661,6 +662,7 @@ def cmd_tradeoff(args: argparse.Namespace) -> int:
                       seed=args.seed, backend=args.backend, device=args.device, knobs=tuple(args.knobs),
                       repeats=args.repeats)
     out = Path(args.out)
+    require("matplotlib", "plot", "the trade study's plot")  # before any run, not after hours of them
     if args.report_only:
         rows = collect_rows(cfg, out)
         if not rows:

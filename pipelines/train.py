@@ -35,6 +35,7 @@ from model.metrics import psnr, ssim
 from model.precision import PRECISIONS, autocast, grad_scaler, resolve_precision
 from model.representations import tfp_windows
 from pipelines.argtypes import nonnegative_int, positive_float, positive_int
+from spikesim._optional import require
 
 
 def seed_everything(seed: int) -> None:
@@ -99,6 +100,7 @@ class _Tensorboard:
 
     def __init__(self, log_dir: Path) -> None:
         try:
+            require("tensorboard", "train", "TensorBoard logging")
             from torch.utils.tensorboard import SummaryWriter
             self.writer = SummaryWriter(str(log_dir))
         except Exception as e:  # tensorboard missing or broken: CSV logs still carry everything

@@ -2,13 +2,20 @@
 # Set up everything the project needs on a fresh machine, idempotently:
 #  - libLLVM >= 17 for Dr.Jit's CPU backend (Debian's libllvm19; docs/design.md section 6),
 #  - a virtual environment in .venv with torch pinned to the CPU build (requirements/cpu.txt)
-#    and this project installed in editable mode with its test extras.
+#    and this project installed in editable mode with every extra (the tests and the demo use
+#    them all: test, train, plot, video, cluster; pyproject.toml).
 # Sourcing is not needed: scripts/demo.sh and scripts/test.sh call it.
 set -euo pipefail
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$here"
 PY="${PYTHON:-python3}"
 VENV="$here/.venv"
+
+if ! "$PY" -c 'import sys; sys.exit(sys.version_info < (3, 11))' 2>/dev/null; then
+  echo "[bootstrap] error: spikesim needs Python >= 3.11 (tomllib); $PY is $("$PY" -V 2>&1)." \
+       "Set PYTHON=python3.11 (or newer)" >&2
+  exit 1
+fi
 
 find_libllvm() {
   for f in /usr/lib/x86_64-linux-gnu/libLLVM.so.19.1 /usr/lib/x86_64-linux-gnu/libLLVM-19.so \
@@ -37,7 +44,7 @@ if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
   "$VENV/bin/python" -m pip install -q --upgrade pip 2>&1 | grep -v '^WARNING: Location' || true
   # torch first, so the project's `torch>=...` range is satisfied by the CPU build.
   "$VENV/bin/python" -m pip install -q -r requirements/cpu.txt 2>&1 | grep -v '^WARNING: Location' || true
-  "$VENV/bin/python" -m pip install -q -e ".[test,video,cluster]" 2>&1 | grep -v '^WARNING: Location' || true
+  "$VENV/bin/python" -m pip install -q -e ".[test,train,plot,video,cluster]" 2>&1 | grep -v '^WARNING: Location' || true
   "$VENV/bin/python" -c "import torch, drjit, mitsuba, spikesim" 
   echo "$want" > "$stamp"
 fi

@@ -1,0 +1,50 @@
+"""What a user gets from the package itself: its version, its licence, and a command line that
+says which one it is without loading every pipeline."""
+from __future__ import annotations
+
+import subprocess
+import sys
+from importlib import metadata
+from pathlib import Path
+
+from pipelines.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_version_prints_the_installed_distribution_version(capsys):
+    assert main(["--version"]) == 0
+    out = capsys.readouterr().out.strip()
+    assert out == f"spikesim {metadata.version('spikesim')}"
+
+
+def test_version_does_not_load_the_pipelines(monkeypatch, capsys):
+    """`--version` answers at once: no subcommand module (torch, Mitsuba) is imported for it."""
+    for name in [m for m in sys.modules if m.startswith("pipelines.") and m != "pipelines.cli"]:
+        monkeypatch.delitem(sys.modules, name)
+    assert main(["--version"]) == 0
+    assert not [m for m in sys.modules if m.startswith("pipelines.") and m not in ("pipelines.cli", "pipelines.argtypes")]
+
+
+def test_the_licence_the_metadata_names_is_in_the_repository():
+    text = (ROOT / "LICENSE").read_text()
+    assert text.startswith("MIT License") and "spikesim contributors" in text
+    assert 'license = "MIT"' in (ROOT / "pyproject.toml").read_text()
+
+
+def _fresh(code: str) -> subprocess.CompletedProcess:
+    """Run `code` in a new interpreter (nothing imported yet), from the checkout."""
+    return subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
+
+
+def test_the_package_exports_the_simulator_lazily_in_a_fresh_interpreter():
+    """`import spikesim` stays light (no Dr.Jit) and `spikesim.Simulator` then loads it."""
+    result = _fresh("import sys, spikesim; light = 'drjit' not in sys.modules; lazy = spikesim.Simulator; "
+                    "from spikesim.simulate import Simulator; "
+                    "print(light, lazy is Simulator, callable(spikesim.available_backends))")
+    assert result.returncode == 0 and result.stdout.split() == ["True", "True", "True"], result.stderr[-2000:]
+
+
+def test_the_package_version_is_the_distribution_version():
+    import spikesim
+    assert spikesim.__version__ == metadata.version("spikesim")
