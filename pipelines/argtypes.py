@@ -128,3 +128,28 @@ def add_device_argument(parser: argparse.ArgumentParser) -> None:
 
 __all__ = ["add_device_argument", "positive_int", "nonnegative_int", "positive_float", "nonnegative_float", "existing_file",
            "config_file", "output_file", "output_dir", "bundled_scene"]
+
+
+class HelpFormatter(argparse.RawDescriptionHelpFormatter):
+    """Every command's help: descriptions as written, and each option's default appended unless
+    its help already states one or it has none worth showing (None, False: a flag that is off)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        default = action.default
+        if (default in (None, False, argparse.SUPPRESS) or "default" in text or "%(default)" in text
+                or not action.option_strings):
+            return text
+        shown = " ".join(map(str, default)) if isinstance(default, (list, tuple)) else "%(default)s"
+        return f"{text} (default: {shown})"
+
+
+class CommandParsers:
+    """The `add_subparsers` action, made to give every command the project's HelpFormatter."""
+
+    def __init__(self, action: "argparse._SubParsersAction") -> None:
+        self._action = action
+
+    def add_parser(self, name: str, **kwargs) -> argparse.ArgumentParser:
+        kwargs["formatter_class"] = HelpFormatter
+        return self._action.add_parser(name, **kwargs)

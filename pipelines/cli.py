@@ -6,6 +6,7 @@ import importlib
 import logging
 import sys
 
+from pipelines.argtypes import CommandParsers
 from spikesim.errors import UnavailableError
 
 # (module, what it adds); a module whose optional dependencies are missing is skipped with a note.
@@ -72,7 +73,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
             if exc.name and exc.name.startswith(name):
                 continue
             raise
-        module.add_parser(sub)
+        module.add_parser(CommandParsers(sub))
     return parser
 
 

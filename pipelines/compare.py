@@ -282,7 +282,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--steps", type=positive_int, required=True, help="training steps of every run (equal for all)")
     p.add_argument("--baselines", nargs="*", choices=BASELINES, default=list(BASELINES),
                    help="seedless baselines in the tables (default: tfp tfi)")
-    p.add_argument("--out", type=output_dir, required=True, help="folder for the runs and the tables")
+    p.add_argument("-o", "--out", type=output_dir, required=True, help="folder for the runs and the tables")
     p.add_argument("--precision", choices=("bf16", "fp16", "fp32"),
                    help="training precision of every run (default: each config's, auto)")
     p.add_argument("--device", default="auto", help="auto (CUDA when present), cpu, cuda, cuda:N or mps")

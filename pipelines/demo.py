@@ -70,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("demo", help="render a scene, simulate its spike stream and reconstruct it, end to end")
-    p.add_argument("--out", type=output_dir, default=Path("out/demo"))
+    p.add_argument("-o", "--out", type=output_dir, default=Path("out/demo"), help="output folder (dataset, tables, images)")
     p.add_argument("--scenes", nargs="+", type=bundled_scene, default=["fan"],
                    help="bundled scenes (ball, car, cook, fan, rotate)")
     p.add_argument("--windows", type=positive_int, default=3, help="41-step windows per scene")
@@ -79,6 +79,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--workers", type=positive_int, default=None,
                    help="worker processes (default: one per core; one with a GPU)")
     add_device_argument(p)
-    p.add_argument("--seed", type=nonnegative_int, default=0)
-    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--seed", type=nonnegative_int, default=0, help="seed of the sensor's noise and fixed patterns")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=run)

@@ -213,7 +213,7 @@ def header_columns_arg(text: str) -> str | int:
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("inspect", help="statistics of a .dat spike stream (and a TFP preview)")
-    p.add_argument("path", type=Path)
+    p.add_argument("path", type=Path, help="the .dat spike stream")
     p.add_argument("--height", type=positive_int, help="rows (default: as recorded beside the file, else 250)")
     p.add_argument("--width", type=positive_int,
                    help="image columns without header (default: as recorded beside the file, else 400)")
@@ -228,7 +228,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--stop", type=positive_int, help="step after the last (default: the end; clipped to it)")
     p.add_argument("--window", type=positive_int, default=41,
                    help="window for TFP preview and per-window dark fraction")
-    p.add_argument("--readout-period-s", type=positive_float)
+    p.add_argument("--readout-period-s", type=positive_float,
+                   help="seconds per readout step, for rates in Hz (default: as recorded, else 25e-6)")
     p.add_argument("--preview", type=Path, help="save a TFP preview PNG of the middle window")
     p.add_argument("--enhance", action="store_true", help="stretch a dark preview (display only)")
     p.add_argument("--json", action="store_true", help="print JSON")

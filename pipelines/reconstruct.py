@@ -196,7 +196,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p = subparsers.add_parser("reconstruct", help="a .dat spike stream to PNG frames and a GIF/MP4",
                               description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("input", help=".dat spike stream")
-    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("-o", "--out", required=True, help="output folder")
     p.add_argument("--method", default="tfp", help="tfp, tfi or a checkpoint path (default tfp)")
     p.add_argument("--height", type=positive_int, help=f"rows (default: as recorded, else {PKU_HEIGHT})")
     p.add_argument("--width", type=positive_int,
@@ -218,14 +218,14 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--threads", type=nonnegative_int, default=0, help="torch CPU threads (0: torch's default)")
     p.add_argument("--enhance", choices=["none", "gamma", "stretch"], default="gamma",
                    help="display only: none (linear), gamma (1/gamma encode; default), stretch (percentile to white + gamma)")
-    p.add_argument("--gamma", type=positive_float, default=2.2)
+    p.add_argument("--gamma", type=positive_float, default=2.2, help="display gamma of --enhance gamma")
     p.add_argument("--scale", type=positive_float, default=1.0, help="display gain on y before clipping (e.g. 1/0.6)")
     p.add_argument("--percentile", type=percentage, default=99.5,
                    help="percentile mapped to white by --enhance stretch, in (0, 100]")
-    p.add_argument("--fps", type=positive_float, default=10.0)
-    p.add_argument("--no-gif", action="store_true")
-    p.add_argument("--no-mp4", action="store_true")
+    p.add_argument("--fps", type=positive_float, default=10.0, help="frames per second of the GIF and MP4")
+    p.add_argument("--no-gif", action="store_true", help="do not write the GIF")
+    p.add_argument("--no-mp4", action="store_true", help="do not write the MP4")
     p.add_argument("--save-npy", action="store_true", help="also write the linear frames to frames.npy")
-    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_reconstruct)
     return p

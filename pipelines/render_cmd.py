@@ -99,7 +99,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--png-scale", type=positive_float, default=None, help="PNG preview: multiply y by this before display")
     p.add_argument("--png-percentile", type=percentile, default=None,
                    help="PNG preview: map this percentile (0-100) of y to white (for dark scenes)")
-    p.add_argument("--out", type=output_dir, default=Path("out/render"), help="output folder (default out/render)")
+    p.add_argument("-o", "--out", type=output_dir, default=Path("out/render"), help="output folder")
     p.set_defaults(func=run)
     return p
 
