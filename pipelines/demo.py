@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
+import sys
 import time
 from pathlib import Path
 
@@ -21,7 +23,7 @@ def run(args: argparse.Namespace) -> int:
 
     from model.methods import ModelMethod, method_from_spec
     from model.streaming import StepWindows
-    from pipelines.evaluate import evaluate, markdown_table, write_results
+    from pipelines.evaluate import json_safe, evaluate, markdown_table, scores_json, write_results
     from pipelines.generate import PRESETS, generate, plan_llr
     from spikesim.dataset import open_dataset
     from spikesim.imageio import write_png
@@ -31,14 +33,14 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     device = resolve_device(args.device)  # an unavailable GPU fails before any work
     # the methods first: a checkpoint that does not load fails now, not after the rendering
-    methods = [method_from_spec(m) for m in ("tfp", "tfi")]
+    methods = [method_from_spec(m) for m in ("tfp", "tfi", "black", "mean")]  # black, mean: the floors
     if args.checkpoint is not None:  # not through a spec: a path may contain "=" (runs/lr=1e-3/best.pt)
         methods.append(ModelMethod(args.checkpoint.parent.name or args.checkpoint.stem, args.checkpoint))
     preset = dataclasses.replace(PRESETS["small"], llr_windows=args.windows)
     t0 = time.perf_counter()
     jobs = plan_llr(preset, seed=args.seed, scenes=args.scenes)
     print(f"[demo] rendering {', '.join(j.name for j in jobs)} at {preset.width}x{preset.height}, "
-          f"{jobs[0].num_steps} steps each, and simulating the realistic sensor on {device} ...")
+          f"{jobs[0].num_steps} steps each, and simulating the realistic sensor on {device} ...", file=sys.stderr)
     generate(jobs, out / "llr", workers=args.workers, info={"kind": "demo"}, show_progress=not args.quiet,
              device=device)
     scenes = open_dataset(out / "llr")
@@ -47,11 +49,14 @@ def run(args: argparse.Namespace) -> int:
         s = sc.stream()
         rate = s.counts().mean() / s.num_steps
         print(f"[demo] {sc.name:<12} mean rate {rate:.4f} spikes/step, "
-              f"{dark_pixel_fraction(s, 41):.1%} of pixels without a spike per 41-step window")
+              f"{dark_pixel_fraction(s, 41):.1%} of pixels without a spike per 41-step window", file=sys.stderr)
     rows = evaluate(scenes, methods, 41, progress=False)
     names = [m.name for m in methods]
     write_results(rows, names, out)
-    print(markdown_table(rows, names))
+    if args.json:
+        print(json.dumps(json_safe(scores_json(rows, names, {"data": str(out / "llr")})), indent=2))
+    else:
+        print(markdown_table(rows, names))
     # previews of the middle window: ground truth and each method, scaled to the scene's
     # brightest ground-truth value (so low light looks dark, as it is)
     for sc in scenes:
@@ -60,11 +65,11 @@ def run(args: argparse.Namespace) -> int:
         scale = 1.0 / max(float(np.percentile(gt, 99.5)), 1e-6)
         write_png(out / "previews" / f"{sc.name}_gt.png", gt, scale=scale)
         src = StepWindows(sc.spikes, c - 20, 41, 1)
-        for m in methods:
+        for m in methods[:2] + methods[4:]:  # not the floors
             (_, frame), = list(m.frames(src))
             write_png(out / "previews" / f"{sc.name}_{m.name}.png", np.asarray(frame), scale=scale)
     print(f"[demo] done in {time.perf_counter() - t0:.0f} s (rendering and simulation {t_gen:.0f} s); "
-          f"data in {out / 'llr'}, table in {out / 'metrics.md'}, previews in {out / 'previews'}")
+          f"data in {out / 'llr'}, table in {out / 'metrics.md'}, previews in {out / 'previews'}", file=sys.stderr)
     return 0
 
 
@@ -81,4 +86,5 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     add_device_argument(p)
     p.add_argument("--seed", type=nonnegative_int, default=0, help="seed of the sensor's noise and fixed patterns")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.add_argument("--json", action="store_true", help="print the scores as JSON (evaluate's layout) instead of the table")
     p.set_defaults(func=run)

@@ -284,7 +284,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     rows = evaluate(scenes, methods, args.window, progress=not (args.quiet or args.json))
     csv_path, md_path = write_results(rows, names, Path(args.out))
     if args.json:
-        print(json.dumps(_json_safe(scores_json(rows, names, {"data": str(args.data)})), indent=2))
+        print(json.dumps(json_safe(scores_json(rows, names, {"data": str(args.data)})), indent=2))
     else:
         print(markdown_table(rows, names))
     print(f"[evaluate] wrote {csv_path} and {md_path}", file=sys.stderr)
@@ -302,16 +302,16 @@ def _evaluate_pair_cmd(args: argparse.Namespace, methods: Sequence[Method], name
                                header, False if args.no_flip else None)
     if args.json:
         doc = scores_json(rows, names, {"input": {**read, "gt": str(args.gt), "gt_scale": args.gt_scale}})
-        print(json.dumps(_json_safe(doc), indent=2))
+        print(json.dumps(json_safe(doc), indent=2))
     else:
         print(_pair_table(rows, names, read))
     return 0
 
 
-def _json_safe(doc: object) -> object:
+def json_safe(doc: object) -> object:
     """inf (a perfect PSNR) as the string "inf": JSON has no infinity."""
     if isinstance(doc, dict):
-        return {k: _json_safe(v) for k, v in doc.items()}
+        return {k: json_safe(v) for k, v in doc.items()}
     if isinstance(doc, float) and not math.isfinite(doc):
         return str(doc)
     return doc
