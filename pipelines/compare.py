@@ -264,7 +264,12 @@ def cmd_compare(args: argparse.Namespace) -> int:
             "test_data": str(args.test_data), "seeds": seeds, "steps": args.steps,
             "configs": {label: exp.to_dict() for label, exp in args.configs}}
     write_comparison(stats, rows, text, meta, out)
-    print(text)
+    if args.json:
+        from pipelines.evaluate import json_safe
+        print(json.dumps(json_safe({**meta, "statistics": [{**dataclasses.asdict(s), "values": list(s.values), "n": s.n}
+                                                          for s in stats]}), indent=2))
+    else:
+        print(text)
     print(f"[compare] wrote {out / 'compare.md'}, {out / 'compare.csv'} and {out / 'metrics.csv'}", file=sys.stderr)
     return 0
 
@@ -288,5 +293,6 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--device", default="auto", help="auto (CUDA when present), cpu, cuda, cuda:N or mps")
     p.add_argument("--threads", type=nonnegative_int, default=0, help="torch CPU threads (0: torch's default)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.add_argument("--json", action="store_true", help="print the statistics over seeds as JSON instead of the tables")
     p.set_defaults(func=cmd_compare)
     return p

@@ -100,6 +100,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--png-percentile", type=percentile, default=None,
                    help="PNG preview: map this percentile (0-100) of y to white (for dark scenes)")
     p.add_argument("-o", "--out", type=output_dir, default=Path("out/render"), help="output folder")
+    p.add_argument("--json", action="store_true", help="print the render description (render.json) instead of file names")
     p.set_defaults(func=run)
     return p
 
@@ -132,10 +133,13 @@ def run(args: argparse.Namespace) -> int:
             write_exr(name.with_suffix(".exr"), y)
             write_png(name.with_suffix(".png"), y, scale=args.png_scale, percentile=args.png_percentile)
         timings.append(time.perf_counter() - t0)
-        print(f"{name}  ({timings[-1]:.2f} s)")
+        if not args.json:
+            print(f"{name}  ({timings[-1]:.2f} s)")
     meta = {**renderer.describe(), "kind": kind, "steps": args.steps, "seconds_per_step": timings,
             "stats": renderer.stats}
     _write_json(args.out / "render.json", meta)
+    if args.json:
+        print(json.dumps(meta, indent=2, default=str))
     return 0
 
 
