@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any, Callable, Iterator
 import numpy as np
 
 from spikesim.dataset import inside_root, remove_inside, write_scene
+from spikesim.keyframes import keyframe_count
 
 if TYPE_CHECKING:
     from pipelines.generate import SceneJob
@@ -70,7 +71,7 @@ class _FrameSource:
         if self._renderer is not None:
             it = self._renderer.frames(start, n, keyframe_every=k, device=device)
         else:
-            it = self._pattern.frames(-(-(n - 1) // k) + 1, start=start, every=k)
+            it = self._pattern.frames(keyframe_count(n, k), start=start, every=k)
         for f in it:
             yield f * np.float32(self.scale) if self.scale != 1.0 else f
 

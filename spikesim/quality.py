@@ -16,6 +16,7 @@ from typing import Any, Iterable, Iterator
 import numpy as np
 
 from .camera import NOISE_TERMS, PRECISIONS, SpikeCamera
+from .keyframes import keyframe_steps
 
 log = logging.getLogger(__name__)
 
@@ -199,21 +200,23 @@ class QualitySettings:
         return apply_noise_decisions(cam, decisions), decisions
 
     def keyframes(self, renderer: Any, start: int, num_steps: int) -> Iterator[tuple[int, np.ndarray]]:
-        """(step, frame) keyframes covering steps start .. start + num_steps - 1 exactly, for
-        Simulator.stream_keyframes. `renderer` needs render_step(step, spp) and motion_px(step)."""
+        """(step, frame) keyframes covering steps start .. start + num_steps - 1: adaptive ones end
+        at the last step (for Simulator.stream_keyframes); fixed ones are `keyframe_every` apart and
+        the last reaches or passes the last step (spikesim.keyframes.keyframe_steps). `renderer`
+        needs render_step(step, spp) and motion_px(step)."""
         if isinstance(num_steps, bool) or not isinstance(num_steps, int) or num_steps < 1:
             raise ValueError(f"num_steps={num_steps!r} must be a positive integer")
-        last = start + num_steps - 1
         if self.keyframe_policy == "adaptive":
             from .render.adaptive import AdaptiveKeyframes
             yield from AdaptiveKeyframes(self.adaptive_policy(), spp=self.spp).keyframes(renderer, start, num_steps)
             return
-        k = 1 if self.keyframe_policy == "every" else self.keyframe_every
-        steps = list(range(start, last + 1, k))
-        if steps[-1] != last:
-            steps.append(last)
-        for s in steps:
+        for s in keyframe_steps(start, num_steps, self.step_spacing):
             yield s, renderer.render_step(s, spp=self.spp)
+
+    @property
+    def step_spacing(self) -> int:
+        """Steps between fixed keyframes: 1 for "every", `keyframe_every` for "fixed"."""
+        return 1 if self.keyframe_policy == "every" else self.keyframe_every
 
     def simulate(self, sim: Any, renderer: Any, start: int, num_steps: int) -> Iterator[Any]:
         """Spike stream parts for exactly `num_steps` steps: a fixed spacing runs through
@@ -223,11 +226,9 @@ class QualitySettings:
             shift = sim.steps_done - start
             yield from sim.stream_keyframes((s + shift, f) for s, f in self.keyframes(renderer, start, num_steps))
             return
-        k = 1 if self.keyframe_policy == "every" else self.keyframe_every
-        n_keys = -(-(num_steps - 1) // k) + 1
-        frames = (renderer.render_step(start + j * k, spp=self.spp) for j in range(n_keys))
+        frames = (f for _, f in self.keyframes(renderer, start, num_steps))
         done = 0
-        for part in sim.stream(frames, keyframe_every=k, final=True):
+        for part in sim.stream(frames, keyframe_every=self.step_spacing, final=True):
             take = min(part.num_steps, num_steps - done)
             if take <= 0:
                 break

@@ -20,6 +20,7 @@ from typing import Any, Iterator
 
 import numpy as np
 
+from ..keyframes import keyframe_steps
 from .animate import Animator
 from .backend import DEVICE_CHOICES, dr, mi, resolve_device, use_variant, variant_name
 from .errors import LightError
@@ -228,7 +229,7 @@ class SceneRenderer:
         """Stream y frames for steps start_step .. start_step + num_steps - 1.
 
         With keyframe_every = k > 1 only keyframes are rendered: frame j is y at step
-        start_step + j k, for j = 0 .. ceil((num_steps - 1) / k), so the last keyframe reaches or
+        start_step + j k (spikesim.keyframes.keyframe_steps), so the last keyframe reaches or
         passes the last step and the sensor can interpolate every step in between
         (spikesim.simulate.Simulator.run(frames, keyframe_every=k)). With `device=True` the
         frames are Dr.Jit arrays on the render device (`render_step_device`).
@@ -239,9 +240,8 @@ class SceneRenderer:
         if isinstance(keyframe_every, bool) or not isinstance(keyframe_every, int) or keyframe_every < 1:
             raise ValueError(f"keyframe_every={keyframe_every!r} must be a positive integer")
         render = self.render_step_device if device else self.render_step
-        n_keys = -(-(num_steps - 1) // keyframe_every) + 1
-        for j in range(n_keys):
-            yield render(start_step + j * keyframe_every)
+        for step in keyframe_steps(start_step, num_steps, keyframe_every):
+            yield render(step)
             self.stats["frames"] += 1
 
     def preview_rgb(self, step: int, spp: int | None = None) -> np.ndarray:
