@@ -153,7 +153,8 @@ def measure_pipeline(scene: str, light: str, spp: int, cam: SpikeCamera, devices
     t = _best(run(ref_r, "numpy", numpy_steps, False), 1)
     ref = numpy_steps * cam.num_pixels / t
     rows.append(_row("pipeline", f"{scene}: host frames -> NumPy sensor (reference)", f"{devices[0]}+numpy", ref, ref))
-    renders = -(-(steps - 1) // k) + 1
+    from spikesim.keyframes import keyframe_count
+    renders = keyframe_count(steps, k)
     for d in devices:
         r = _renderer(scene, light, spp, cam, d)
         render_s = render_seconds(r, renders)
