@@ -22,7 +22,7 @@ def run(args: argparse.Namespace) -> int:
     from model.methods import ModelMethod, method_from_spec
     from model.streaming import StepWindows
     from pipelines.evaluate import evaluate, markdown_table, write_results
-    from pipelines.generate import PRESETS, generate, plan_llr
+    from spikesim.generation import PRESETS, generate, plan_llr
     from spikesim.dataset import open_dataset
     from spikesim.imageio import write_png
     from spikesim._drjit import resolve_device

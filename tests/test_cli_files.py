@@ -7,7 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from pipelines import golden_stats, tradeoff
+from pipelines import golden_stats
+from spikesim import tradeoff
 from pipelines.cli import main
 
 

@@ -6,7 +6,7 @@ import shutil
 import numpy as np
 import pytest
 
-from pipelines.generate import PRESETS, SceneJob, generate, job_status, llr_windows, plan_rllr
+from spikesim.generation import PRESETS, SceneJob, generate, job_status, llr_windows, plan_rllr
 from spikesim.dataset import open_dataset, verify
 
 
@@ -79,7 +79,7 @@ def test_changed_parameters_are_not_silently_mixed(tmp_path):
 
 
 def test_an_interrupted_job_leaves_no_complete_looking_folder(tmp_path, monkeypatch):
-    import pipelines.generate as g
+    import spikesim.generation.job as g
     jobs = tiny_jobs(1)
 
     def boom(self, step):
@@ -164,7 +164,7 @@ def test_quality_preset_is_applied_and_recorded(tmp_path):
     import dataclasses
     pytest.importorskip("mitsuba")
     preset = dataclasses.replace(PRESETS["small"], height=16, width=24, llr_windows=1)
-    from pipelines.generate import plan_llr
+    from spikesim.generation import plan_llr
     jobs = plan_llr(preset, scenes=["rotate"], lights=("low",), quality="draft")
     assert jobs[0].digest != plan_llr(preset, scenes=["rotate"], lights=("low",))[0].digest
     generate(jobs, tmp_path, workers=1, show_progress=False)

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from pipelines.cli import build_parser, main
-from pipelines.generate import PRESETS, generate, plan_llr, plan_rllr, scene_seed
+from spikesim.generation import PRESETS, generate, plan_llr, plan_rllr, scene_seed
 from spikesim.dataset import MANIFEST
 from test_generate import tiny_jobs
 

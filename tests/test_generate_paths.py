@@ -9,7 +9,7 @@ import shutil
 import pytest
 
 from pipelines.cli import build_parser
-from pipelines.generate import PRESETS, SceneJob, generate, plan_llr, plan_user
+from spikesim.generation import PRESETS, SceneJob, generate, plan_llr, plan_user
 from spikesim.dataset import inside_root, verify
 from test_generate import tiny_jobs
 

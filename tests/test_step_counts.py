@@ -118,8 +118,8 @@ def test_a_rendered_scene_writes_the_steps_asked(n, k, tmp_path):
 
 @pytest.mark.parametrize("k", SPACINGS)
 def test_a_generated_scene_writes_the_steps_asked(k, tmp_path):
-    from pipelines.generate import SceneJob
-    from pipelines.generate_jobs import run_job
+    from spikesim.generation import SceneJob
+    from spikesim.generation.job import run_job
 
     cam = SpikeCamera.realistic(height=H, width=W).to_dict()
     for n in STEPS:

@@ -17,11 +17,11 @@ from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from pipelines.generate_jobs import run_job
+from spikesim.generation.job import run_job
 from spikesim.errors import UnavailableError
 
 if TYPE_CHECKING:
-    from pipelines.generate import SceneJob
+    from spikesim.generation.plan import SceneJob
 
 log = logging.getLogger("spikesim.generate")
 
@@ -151,7 +151,7 @@ def connect_ray(address: str) -> Any:
     if not ray.is_initialized():
         try:
             ray.init(address=None if address == "local" else address, log_to_driver=False,
-                     runtime_env={"env_vars": {"PYTHONPATH": str(Path(__file__).resolve().parents[1])}})
+                     runtime_env={"env_vars": {"PYTHONPATH": str(Path(__file__).resolve().parents[2])}})
         except ValueError as exc:  # a malformed address
             raise ValueError(f"--ray {address}: {exc}") from None
         except ConnectionError:

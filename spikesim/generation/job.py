@@ -19,7 +19,7 @@ from spikesim.dataset import inside_root, remove_inside, write_scene
 from spikesim.keyframes import keyframe_count
 
 if TYPE_CHECKING:
-    from pipelines.generate import SceneJob
+    from spikesim.generation.plan import SceneJob
 
 log = logging.getLogger("spikesim.generate")
 
