@@ -78,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
                          light_power_factor=1.0 if args.light_power_factor is None else args.light_power_factor,
                          name=args.name, quality=args.quality)
     report = generate(jobs, args.out, workers=args.workers, ray_address=args.ray,
-                      info={"kind": args.kind, "preset": dataclasses.asdict(preset), "seed": args.seed},
+                      info={"kind": args.kind, "preset": preset.to_dict(), "seed": args.seed},
                       overwrite_stale=args.overwrite, show_progress=not args.quiet, check=args.check,
                       command="spikesim " + shlex.join(sys.argv[1:]), device=device)
     saturation = report["saturation"]

@@ -37,7 +37,7 @@ def _windows(text: str) -> int:
 
 
 def cmd_tradeoff(args: argparse.Namespace) -> int:
-    cfg = StudyConfig(scenes=tuple(args.scenes), lights=tuple(args.lights),
+    cfg = StudyConfig.of(scenes=tuple(args.scenes), lights=tuple(args.lights),
                       resolution=args.resolution, windows=args.windows, ref_spp=args.ref_spp, gt_spp=args.gt_spp,
                       seed=args.seed, backend=args.backend, device=args.device, knobs=tuple(args.knobs),
                       repeats=args.repeats)

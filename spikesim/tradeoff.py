@@ -38,6 +38,7 @@ from typing import Any, BinaryIO, Callable, Sequence
 import numpy as np
 
 from spikesim.config_io import read_json_object
+from spikesim.render_settings import RenderSettings
 
 log = logging.getLogger(__name__)
 
@@ -51,23 +52,28 @@ DEFAULT_SCENES = ("ball", "car", "cook", "fan", "rotate")
 
 
 # ---- configuration ------------------------------------------------------------------------------
+#: The study's reference render: spectral, a render per step, 64 spp, ground truth at 256 spp,
+#: 50 x 80 pixels (the camera's size too).
+REFERENCE_RENDER = RenderSettings(variant="spectral", spp=64, gt_spp=256, resolution=(50, 80))
+#: StudyConfig.of's flat names for the reference's render knobs.
+_RENDER_ALIASES = {"ref_spp": "spp", "gt_spp": "gt_spp", "seed": "seed", "resolution": "resolution",
+                   "device": "device"}
+
+
 @dataclass(frozen=True)
 class StudyConfig:
-    """What the study measures and at which size."""
+    """What the study measures and at which size. The reference's render knobs (samples per
+    pixel, ground-truth samples, seed, resolution, render device) are one RenderSettings;
+    `StudyConfig.of(ref_spp=..., resolution=..., ...)` builds one from flat knobs."""
 
     scenes: tuple[str, ...] = DEFAULT_SCENES
     lights: tuple[str, ...] = ("low", "normal")
-    resolution: tuple[int, int] = (50, 80)
-    """(height, width): the camera and the renders."""
+    reference: RenderSettings = REFERENCE_RENDER
+    """The reference run's renders; its resolution (height, width) is the camera's too."""
     windows: int = 3
     """41-step windows around the centre of the 861-step LLR sequence (step 430)."""
-    ref_spp: int = 64
-    gt_spp: int = 256
-    seed: int = 0
     backend: str = "auto"
     """The sensor backend."""
-    device: str = "auto"
-    """Where Mitsuba renders (spikesim._drjit.DEVICE_CHOICES)."""
     knobs: tuple[str, ...] = KNOBS
     spp_values: tuple[int, ...] = (1, 4, 16)
     keyframe_values: tuple[int, ...] = (2, 4, 8, 16)
@@ -81,11 +87,12 @@ class StudyConfig:
         bad = [l for l in self.lights if l not in ("low", "normal")]
         if bad or not self.lights:
             raise ValueError(f"lights={self.lights!r}: expected 'low' and/or 'normal'")
-        r = tuple(self.resolution)
-        if len(r) != 2 or not all(isinstance(v, int) and v >= 11 for v in r):
-            raise ValueError(f"resolution={self.resolution!r} must be (height, width), each >= 11 (SSIM's window)")
-        object.__setattr__(self, "resolution", r)
-        for name in ("windows", "ref_spp", "gt_spp", "repeats"):
+        r = self.reference.resolution
+        if r is None or not all(v >= 11 for v in r):
+            raise ValueError(f"resolution={r!r} must be (height, width), each >= 11 (SSIM's window)")
+        if self.reference.variant != "spectral" or self.reference.keyframe_every != 1:
+            raise ValueError("the reference renders spectrally, a frame per step")
+        for name in ("windows", "repeats"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 1:
                 raise ValueError(f"{name}={v!r} must be a positive integer")
@@ -98,6 +105,35 @@ class StudyConfig:
             raise ValueError("spp_values must be >= 1 and keyframe_values >= 2")
         if any(not (p > 0) for p in self.adaptive_px):
             raise ValueError(f"adaptive_px={self.adaptive_px!r} must be positive")
+
+    @classmethod
+    def of(cls, **knobs: Any) -> "StudyConfig":
+        """A config from flat knobs: ref_spp, gt_spp, seed, resolution and device set the
+        reference's RenderSettings, the rest the config itself."""
+        render = {_RENDER_ALIASES[k]: knobs.pop(k) for k in list(knobs) if k in _RENDER_ALIASES}
+        return cls(reference=REFERENCE_RENDER.replace(**render), **knobs)
+
+    @property
+    def resolution(self) -> tuple[int, int]:
+        """(height, width) of the camera and the renders."""
+        return self.reference.resolution
+
+    @property
+    def ref_spp(self) -> int:
+        return self.reference.spp
+
+    @property
+    def gt_spp(self) -> int:
+        return self.reference.gt_spp
+
+    @property
+    def seed(self) -> int:
+        return self.reference.seed
+
+    @property
+    def device(self) -> str:
+        """Where Mitsuba renders (spikesim._drjit.DEVICE_CHOICES)."""
+        return self.reference.device
 
     @property
     def start(self) -> int:
@@ -139,8 +175,7 @@ def plan_runs(cfg: StudyConfig) -> list[RunSpec]:
     from spikesim.camera import NOISE_TERMS
     from spikesim.quality import PRESETS, QualitySettings
 
-    ref = QualitySettings("reference", spp=cfg.ref_spp, gt_spp=cfg.gt_spp, variant="spectral", keyframe_policy="every",
-                          noise="all", precision="float64")
+    ref = QualitySettings("reference", cfg.reference, keyframe_policy="every", noise="all", precision="float64")
     s0, s1 = cfg.seed, cfg.seed + 1
 
     def run(name: str, knob: str, settings: Any, off: tuple[str, ...] = (), sensor: int = s0,
@@ -167,7 +202,7 @@ def plan_runs(cfg: StudyConfig) -> list[RunSpec]:
     if "quality" in cfg.knobs:
         runs += [run(f"quality={n}", "quality", PRESETS[n]) for n in ("balanced", "draft")]
     if "combos" in cfg.knobs:
-        combo = QualitySettings("combo", spp=1, gt_spp=cfg.gt_spp, variant="auto", keyframe_policy="adaptive",
+        combo = QualitySettings.of("combo", spp=1, gt_spp=cfg.gt_spp, variant="auto", keyframe_policy="adaptive",
                                 noise="all", precision="float32")
         runs += [run(f"spp={n} adaptive {p:g}px", "combos", combo.replace(spp=n, max_px_per_keyframe=p))
                  for n, p in COMBOS]
@@ -245,9 +280,7 @@ class SceneStudy:
         key = (variant, seed)
         if key not in self._renderers:
             from spikesim.render import SceneRenderer
-            h, w = self.cfg.resolution
-            r = SceneRenderer(self.scene, light=self.light, variant=variant, resolution=(h, w), seed=seed,
-                              spp=self.cfg.ref_spp, gt_spp=self.cfg.gt_spp, device=self.cfg.device)
+            r = SceneRenderer(self.scene, light=self.light, variant=variant, seed=seed, settings=self.cfg.reference)
             r.render_step(self.cfg.start, spp=1)
             self._renderers[key] = r
         return self._renderers[key]

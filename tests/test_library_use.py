@@ -21,10 +21,10 @@ def run_script(code: str, tmp_path: Path) -> str:
 
 def test_a_script_generates_a_dataset_without_the_command_line(tmp_path):
     out = run_script("""
-        import dataclasses, sys
+        import sys
         from spikesim.dataset import open_dataset
         from spikesim.generation import PRESETS, generate, plan_rllr
-        preset = dataclasses.replace(PRESETS["small"], height=8, width=12, rllr_steps=20, rllr_gt_stride=10)
+        preset = PRESETS["small"].replace(height=8, width=12, rllr_steps=20, rllr_gt_stride=10)
         jobs = plan_rllr(preset, seed=3, count=2, source="pattern")
         report = generate(jobs, "data", workers=1, show_progress=False)
         scenes = open_dataset("data")

@@ -145,7 +145,7 @@ class _Stripes:
 def test_the_trade_study_simulates_the_steps_asked(k):
     from spikesim.quality import QualitySettings
 
-    q = QualitySettings("t", spp=1, gt_spp=1, variant="mono", keyframe_policy="fixed" if k > 1 else "every",
+    q = QualitySettings.of("t", spp=1, gt_spp=1, variant="mono", keyframe_policy="fixed" if k > 1 else "every",
                         keyframe_every=k)
     for n in STEPS:
         sim = Simulator(SpikeCamera.noiseless(height=H, width=W), backend="numpy")

@@ -127,7 +127,7 @@ def test_presets_are_valid_and_ordered():
     assert ref.precision == "float64"
     for q in (ref, bal, draft):
         json.dumps(q.record())
-        assert set(q.render_kwargs()) == {"spp", "gt_spp", "variant"}
+        assert set(q.render_kwargs()) == {"spp", "gt_spp", "variant", "keyframe_every"}
     with pytest.raises(ValueError, match="unknown quality 'fast'"):
         QualitySettings.from_name("fast")
     with pytest.raises(ValueError, match="keyframe_policy"):
@@ -168,7 +168,7 @@ def test_quality_camera_applies_and_records_decisions():
 
 @pytest.mark.parametrize("policy,k", [("every", 1), ("fixed", 8), ("adaptive", 1)])
 def test_quality_simulate_gives_exactly_the_steps_asked(policy, k):
-    q = QualitySettings("t", spp=1, gt_spp=1, variant="mono", keyframe_policy=policy, keyframe_every=k)
+    q = QualitySettings.of("t", spp=1, gt_spp=1, variant="mono", keyframe_policy=policy, keyframe_every=k)
     r = MovingStripes()
     sim = Simulator(SpikeCamera.noiseless(height=6, width=40), backend="numpy")
     parts = list(q.simulate(sim, r, 60, 45))
@@ -190,18 +190,18 @@ def test_study_config_is_validated():
     from spikesim.tradeoff import StudyConfig
 
     with pytest.raises(ValueError, match="resolution"):
-        StudyConfig(resolution=(5, 40))
+        StudyConfig.of(resolution=(5, 40))
     with pytest.raises(ValueError, match="unknown knob"):
-        StudyConfig(knobs=("spp", "colour"))
+        StudyConfig.of(knobs=("spp", "colour"))
     with pytest.raises(ValueError, match="lights"):
-        StudyConfig(lights=("dim",))
-    assert StudyConfig(windows=3).centres() == [430 - 41, 430, 430 + 41]
+        StudyConfig.of(lights=("dim",))
+    assert StudyConfig.of(windows=3).centres() == [430 - 41, 430, 430 + 41]
 
 
 def test_plan_covers_every_knob():
     from spikesim.tradeoff import StudyConfig, plan_runs
 
-    runs = plan_runs(StudyConfig(spp_values=(1, 4), keyframe_values=(2,), adaptive_px=(0.5,)))
+    runs = plan_runs(StudyConfig.of(spp_values=(1, 4), keyframe_values=(2,), adaptive_px=(0.5,)))
     names = [r.name for r in runs]
     assert names[:3] == ["reference", "floor: sensor seed", "floor: sensor+render seed"]
     assert {"spp=1", "spp=4", "k=2", "adaptive 0.5px", "mono", "float32", "quality=balanced", "quality=draft"} <= set(names)
@@ -214,7 +214,7 @@ def test_plan_covers_every_knob():
 def test_study_rows_and_resume(tmp_path, monkeypatch):
     from spikesim import tradeoff
 
-    cfg = tradeoff.StudyConfig(scenes=("ball",), lights=("low",), resolution=(25, 40), windows=1, ref_spp=2,
+    cfg = tradeoff.StudyConfig.of(scenes=("ball",), lights=("low",), resolution=(25, 40), windows=1, ref_spp=2,
                                gt_spp=4, knobs=("spp", "precision", "adaptive"), spp_values=(1,),
                                adaptive_px=(1.0,), repeats=1)
     rows = tradeoff.run_study(cfg, tmp_path, progress=False)

@@ -17,6 +17,7 @@ import numpy as np
 
 from spikesim.dataset import inside_root, remove_inside, write_scene
 from spikesim.keyframes import keyframe_count
+from spikesim.render_settings import RenderSettings
 
 if TYPE_CHECKING:
     from spikesim.generation.plan import SceneJob
@@ -47,14 +48,13 @@ class _FrameSource:
                     lamps_lux=tuple(src.get("lamps_lux", LAMPS_LUX_BEFORE_STUDY)))
             else:
                 scene, motion, lights, light = src["scene"], src.get("motion"), src.get("lights"), src["light"]
-            render = {k: v for k, v in job.render.items()}
-            render["resolution"] = tuple(render["resolution"])
+            settings = RenderSettings.from_dict(job.render)
             if job.quality is not None:
                 from spikesim.quality import QualitySettings
-                render.update(QualitySettings.from_name(job.quality).render_kwargs())
-            render["device"] = device
+                settings = settings.replace(**QualitySettings.from_name(job.quality).render_kwargs())
             self._renderer = SceneRenderer(scene, light=light, motion=motion, lights=lights,
-                                           camera=SpikeCamera.from_dict(job.camera), **render)
+                                           camera=SpikeCamera.from_dict(job.camera),
+                                           settings=settings.replace(device=device))
             self._pattern = None
 
     @property

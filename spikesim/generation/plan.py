@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from spikesim.dataset import check_scene_name
+from spikesim.render_settings import RenderSettings, split_render_knobs
 
 WINDOW = 41  # the reconstruction window (paper, section "Implementation Details")
 
@@ -22,8 +23,9 @@ WINDOW = 41  # the reconstruction window (paper, section "Implementation Details
 # ---- presets --------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class Preset:
-    """Dataset sizes and quality knobs. `paper` is the published size; `small` runs in minutes
-    on a 2-core CPU (the demo and the tests use it)."""
+    """Dataset sizes and render settings. `paper` is the published size; `small` runs in minutes
+    on a 2-core CPU (the demo and the tests use it). `replace` takes render knobs (spp, gt_spp,
+    variant, keyframe_every) and sizes alike."""
 
     name: str
     height: int
@@ -37,25 +39,58 @@ class Preset:
     """Steps per RLLR scene (paper: 1000)."""
     rllr_gt_stride: int = 1
     """Ground truth every this many steps in RLLR (1 = every step, as the paper)."""
-    spp: int = 4
-    gt_spp: int = 64
-    variant: str = "auto"
-    """Renderer variant: "auto" = mono when the lights share one spectrum, else spectral."""
-    keyframe_every: int = 1
+    render: RenderSettings = RenderSettings()
+    """spp, gt_spp, variant ("auto" = mono when the lights share one spectrum, else spectral) and
+    keyframe_every; a job sets its own seed and the resolution (height, width)."""
 
     def __post_init__(self) -> None:
-        for f in ("height", "width", "llr_windows", "rllr_steps", "rllr_gt_stride", "spp", "gt_spp", "keyframe_every"):
-            if int(getattr(self, f)) < 1:
-                raise ValueError(f"preset {self.name}: {f} must be >= 1")
+        for f in ("height", "width", "llr_windows", "rllr_steps", "rllr_gt_stride"):
+            v = getattr(self, f)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                raise ValueError(f"preset {self.name}: {f}={v!r} must be a positive integer")
         if self.rllr_scenes < 0:
             raise ValueError(f"preset {self.name}: rllr_scenes must be >= 0")
+
+    @property
+    def spp(self) -> int:
+        return self.render.spp
+
+    @property
+    def gt_spp(self) -> int:
+        return self.render.gt_spp
+
+    @property
+    def variant(self) -> str:
+        return self.render.variant
+
+    @property
+    def keyframe_every(self) -> int:
+        return self.render.keyframe_every
+
+    def replace(self, **changes: Any) -> "Preset":
+        render, rest = split_render_knobs(changes)
+        if render:
+            rest["render"] = self.render.replace(**render)
+        return dataclasses.replace(self, **rest)
+
+    def values(self) -> dict[str, Any]:
+        """Every setting by name, render knobs included (what `replace` takes)."""
+        own = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name not in ("name", "render")}
+        return {**own, **{k: getattr(self.render, k) for k in PRESET_RENDER_KNOBS}}
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"name": self.name, **self.values(), "llr_scenes": list(self.llr_scenes)}
+
+
+#: The render knobs a preset sets; seed and resolution are each job's.
+PRESET_RENDER_KNOBS = ("spp", "gt_spp", "variant", "keyframe_every")
 
 
 PRESETS: dict[str, Preset] = {
     "paper": Preset("paper", 250, 400, llr_windows=21, llr_scenes=("ball", "car", "cook", "fan", "rotate"),
                     rllr_scenes=100, rllr_steps=1000),
     "small": Preset("small", 64, 100, llr_windows=3, llr_scenes=("ball", "fan"), rllr_scenes=3, rllr_steps=164,
-                    rllr_gt_stride=41, spp=2, gt_spp=16),
+                    rllr_gt_stride=41, render=RenderSettings(spp=2, gt_spp=16)),
 }
 
 
