@@ -12,8 +12,9 @@ from pathlib import Path
 from pipelines.argtypes import add_device_argument, existing_file, nonnegative_int, positive_float, positive_int
 from spikesim._drjit import resolve_device
 from spikesim.dataset import check_scene_name
-from spikesim.generation import (PRESETS, Preset, bundled_scene, generate, percent, plan_llr, plan_rllr, plan_user,
+from spikesim.generation import (PRESETS, bundled_scene, generate, percent, plan_llr, plan_rllr, plan_user,
                                  saturation_summary)
+from spikesim.generation.settings import ResolvedSettings, resolve_settings
 
 
 # ---- command line ---------------------------------------------------------------------------------
@@ -49,12 +50,17 @@ def _refuse_options_for_other_kinds(args: argparse.Namespace) -> None:
             raise ValueError(f"{flag} applies to generate {' and '.join(kinds)}, not generate {args.kind}")
 
 
-def _preset_from_args(args: argparse.Namespace) -> Preset:
-    """The preset with every option given on the command line applied (None: not given)."""
-    fields = {"height": "height", "width": "width", "spp": "spp", "gt_spp": "gt_spp", "keyframe_every": "keyframe_every",
-              "steps": "rllr_steps", "gt_stride": "rllr_gt_stride", "windows": "llr_windows"}
-    given = {f: getattr(args, a) for a, f in fields.items() if getattr(args, a) is not None}
-    return dataclasses.replace(PRESETS[args.preset], **given)
+#: Options that set a preset's value: option dest -> the preset's field.
+_PRESET_OPTIONS = {"height": "height", "width": "width", "spp": "spp", "gt_spp": "gt_spp",
+                   "keyframe_every": "keyframe_every", "steps": "rllr_steps", "gt_stride": "rllr_gt_stride",
+                   "windows": "llr_windows", "count": "rllr_scenes"}
+
+
+def settings_from_args(args: argparse.Namespace) -> ResolvedSettings:
+    """The preset, scene file, settings file, flags and quality, merged (spikesim.generation.settings)."""
+    flags = {"--" + dest.replace("_", "-"): {field: getattr(args, dest)} for dest, field in _PRESET_OPTIONS.items()}
+    return resolve_settings(args.kind, args.preset, xml=args.xml, settings_file=args.render_settings, flags=flags,
+                            quality=args.quality)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -63,7 +69,8 @@ def run(args: argparse.Namespace) -> int:
     _refuse_options_for_other_kinds(args)
     if args.kind == "scene" and args.xml is None:
         raise ValueError("generate scene needs --xml (and usually --motion, --lights, --light)")
-    preset = _preset_from_args(args)
+    resolved = settings_from_args(args)
+    preset = resolved.preset
     device = resolve_device(args.device)  # a GPU that is not here fails before anything is written
     camera = SpikeCamera.from_file(args.camera) if args.camera is not None else None
     if args.kind == "llr":
@@ -77,14 +84,18 @@ def run(args: argparse.Namespace) -> int:
                          lights=None if args.lights is None else str(args.lights), camera=camera,
                          light_power_factor=1.0 if args.light_power_factor is None else args.light_power_factor,
                          name=args.name, quality=args.quality)
+    print(resolved.summary())
+    jobs = [dataclasses.replace(job, settings=resolved.table()) for job in jobs]
     report = generate(jobs, args.out, workers=args.workers, ray_address=args.ray,
                       info={"kind": args.kind, "preset": preset.to_dict(), "seed": args.seed},
                       overwrite_stale=args.overwrite, show_progress=not args.quiet, check=args.check,
                       command="spikesim " + shlex.join(sys.argv[1:]), device=device)
     saturation = report["saturation"]
     for r in report["generated"]:
+        lux = r.get("subject_illuminance_lux")
         print(f"  {r['name']}: {r['seconds']:.1f} s, {r['bytes'] / 1e6:.2f} MB, "
-              f"{percent(saturation.get(r['name']))} of ground-truth pixels saturated")
+              f"{percent(saturation.get(r['name']))} of ground-truth pixels saturated"
+              + (f", {lux:.4g} lx at the subject" if lux is not None else ""))
     print(f"{args.out}: {len(report['generated'])} scene(s) generated, {report['skipped']} already complete, "
           f"{report['seconds']:.1f} s; manifest {report['manifest']}")
     print(saturation_summary(saturation))
@@ -129,17 +140,25 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--motion", type=existing_file, help="motion file (default: motion.json beside the XML)")
     p.add_argument("--lights", type=existing_file, help="lights file (default: lights.json beside the XML)")
     p.add_argument("--light", type=_plain_name, help="lighting condition in the lights file (default: normal)")
-    p.add_argument("--name", type=_plain_name, help="scene folder name (generate scene; default: XML folder_light)")
-    p.add_argument("--light-power-factor", type=positive_float, help="scale every light's power (default 1)")
+    p.add_argument("--name", type=_plain_name, help="scene folder name (generate scene; default: <XML folder>_<light>, plus the XML's, motion "
+                        "and lights files' names and x<factor> for other variants of the folder's scene)")
+    p.add_argument("--light-power-factor", type=positive_float, help="scale every light's power (default 1); the lux recorded in meta.json includes it")
     p.add_argument("--windows", type=positive_int, help="41-step windows per scene (llr, scene)")
     p.add_argument("--steps", type=positive_int, help="steps per RLLR scene (paper 1000)")
     p.add_argument("--gt-stride", type=positive_int, help="RLLR ground truth every this many steps (paper 1)")
     p.add_argument("--gt-spp", type=positive_int, help="samples per pixel of ground-truth renders")
-    p.add_argument("--camera", type=existing_file, help="camera config file")
-    p.add_argument("--height", type=positive_int)
-    p.add_argument("--width", type=positive_int)
-    p.add_argument("--spp", type=positive_int)
-    p.add_argument("--keyframe-every", type=positive_int)
+    p.add_argument("--camera", type=existing_file, help="camera config file (its size comes from the settings below)")
+    p.add_argument("--render-settings", type=existing_file, metavar="FILE",
+                   help="JSON/TOML file of render settings (spp, gt_spp, variant, keyframe_every, resolution); "
+                        "above the preset and a scene's own film, below the flags")
+    p.add_argument("--height", type=positive_int,
+                   help="sensor and film rows (default: a user scene's film, else the preset's)")
+    p.add_argument("--width", type=positive_int,
+                   help="sensor and film columns (default: a user scene's film, else the preset's)")
+    p.add_argument("--spp", type=positive_int,
+                   help="samples per pixel of each frame render (default: a user scene's sampler, else the preset's)")
+    p.add_argument("--keyframe-every", type=positive_int,
+                   help="render every this many steps; the sensor interpolates (default: the preset's, 1)")
     p.add_argument("--quality", choices=["draft", "balanced", "reference"],
                    help="render/sensor knobs from spikesim.quality (measured presets; docs/tradeoff.md); "
                         "overrides --spp/--keyframe-every and the variant")

@@ -120,6 +120,10 @@ class SceneJob:
     quality: str | None = None
     """A `spikesim.quality` preset (draft / balanced / reference) that sets the render and sensor
     knobs (spp, variant, keyframe policy, noise terms, precision) instead of the fields above."""
+    settings: dict[str, Any] = dataclasses.field(default_factory=dict, compare=False)
+    """Each setting's value and where it came from (spikesim.generation.settings), recorded in
+    meta.json; not part of the job's identity (`to_dict`, `digest`): the same values from another
+    origin make the same scene."""
 
     def __post_init__(self) -> None:
         check_scene_name(self.name)
@@ -136,6 +140,7 @@ class SceneJob:
 
     def to_dict(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)
+        del d["settings"]
         d["gt_steps"] = list(self.gt_steps)
         d["windows"] = [list(w) for w in self.windows]
         return d
@@ -225,18 +230,34 @@ def plan_rllr(preset: Preset, seed: int = 0, camera: Any | None = None, count: i
     return jobs
 
 
+def user_scene_name(xml: str | Path, light: str, motion: str | Path | None = None, lights: str | Path | None = None,
+                    light_power_factor: float = 1.0) -> str:
+    """The dataset name of a user's scene: `<folder>_<light>` for a folder's scene.xml with its own
+    motion.json and lights.json at full power. Any other variant adds what differs (the XML's,
+    motion file's and lights file's names, `x<factor>`), so two variants of one scene in one output
+    folder get different names, and a variant always gets the same one."""
+    xml = Path(xml).resolve()
+    parts = [xml.parent.name] + ([xml.stem] if xml.stem != "scene" else []) + [light]
+    for given, default in ((motion, "motion.json"), (lights, "lights.json")):
+        if given is not None and Path(given).resolve() != xml.parent / default:
+            parts.append(Path(given).stem)
+    if light_power_factor != 1.0:
+        parts.append(f"x{light_power_factor:g}")
+    name = "_".join(parts)
+    try:
+        return check_scene_name(name)
+    except ValueError:
+        raise ValueError(f"scene name {name!r} (from the XML's folder, its files and the light) is not a plain "
+                         "folder name (letters, digits and _.+-); give one with --name") from None
+
+
 def plan_user(xml: str, light: str, preset: Preset, num_windows: int | None = None, seed: int = 0,
               motion: str | None = None, lights: str | None = None, camera: Any | None = None,
               light_power_factor: float = 1.0, name: str | None = None, quality: str | None = None) -> list[SceneJob]:
     wins, centres = llr_windows(preset.llr_windows if num_windows is None else num_windows)
     xml_path = Path(xml).resolve()
     if name is None:
-        name = f"{xml_path.parent.name}_{light}"
-        try:
-            check_scene_name(name)
-        except ValueError:
-            raise ValueError(f"scene name {name!r} (from the XML's folder and the light) is not a plain folder "
-                             "name (letters, digits and _.+-); give one with --name") from None
+        name = user_scene_name(xml_path, light, motion, lights, light_power_factor)
     src = {"type": "scene", "scene": str(xml_path), "light": light,
            "motion": str(Path(motion).resolve()) if motion else None, "lights": str(Path(lights).resolve()) if lights else None}
     s = scene_seed(seed, xml_path.parent.name, light)

@@ -75,6 +75,12 @@ def _jobs_to_run(jobs: list[SceneJob], root: Path, overwrite_stale: bool, full: 
             raise FileExistsError(f"{root / name} exists but is not a scene folder this generator wrote "
                                   "(it holds other files or is a link); move it away or choose another output folder")
         if state == "stale" and not overwrite_stale:
+            planned = next(job for job in jobs if job.name == name)
+            recorded = _recorded_source(root / name)
+            if recorded is not None and recorded != planned.source:
+                raise FileExistsError(f"{root / name} holds another scene, {_source_label(recorded)}, under the name "
+                                      f"this run gives {_source_label(planned.source)}; give one of them another "
+                                      "name (--name), or use --overwrite to replace it")
             raise FileExistsError(f"{root / name} was generated with other parameters; "
                                   "use --overwrite to rebuild it, or another output folder")
     for name, (state, problems) in states.items():
@@ -83,6 +89,24 @@ def _jobs_to_run(jobs: list[SceneJob], root: Path, overwrite_stale: bool, full: 
         if state in ("stale", "damaged"):
             remove_inside(root, name)
     return [job for job in jobs if states[job.name][0] != "done"]
+
+
+def _recorded_source(folder: Path) -> dict[str, Any] | None:
+    """The source a scene folder's meta.json records, or None when unreadable."""
+    try:
+        source = json.loads((folder / META).read_text())["job"]["source"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return source if isinstance(source, dict) else None
+
+
+def _source_label(source: dict[str, Any]) -> str:
+    """A scene source in a few words: its XML (or kind), light and files."""
+    if not source.get("scene"):  # a pattern or random scene: its few parameters
+        return json.dumps(source, sort_keys=True)
+    what = source["scene"]
+    extras = [f"{k} {source[k]}" for k in ("light", "motion", "lights") if source.get(k)]
+    return f"{what} ({', '.join(extras)})" if extras else str(what)
 
 
 def _passing_scenes(root: Path, planned: list[str], full: bool) -> list[str]:
