@@ -166,7 +166,7 @@ def run(args: argparse.Namespace) -> int:
              source.get("scene") or source.get("source"))
     t0 = time.perf_counter()
     try:
-        out = sim.run_to_dat(_progress(frames, args), args.out, keyframe_every=args.keyframe_every,
+        out = sim.run_to_dat(_progress(frames, args, steps), args.out, keyframe_every=args.keyframe_every,
                              flip=not args.no_flip, extra={"irradiance": source}, max_steps=steps)
     except ValueError as exc:  # a bad frame of an .npy: name the file (EXR frames name theirs)
         if args.frames is None or Path(args.frames).is_dir():
@@ -184,9 +184,10 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _progress(frames: Iterator[np.ndarray], args: argparse.Namespace) -> Iterator[np.ndarray]:
-    from tqdm import tqdm
-    yield from tqdm(frames, desc="frames", unit="frame", disable=args.quiet, mininterval=0.5)
+def _progress(frames: Iterator[np.ndarray], args: argparse.Namespace, steps: int) -> Iterator[np.ndarray]:
+    from spikesim.progress import progress_bar
+    yield from progress_bar(frames, total=keyframe_count(steps, args.keyframe_every), desc="frames", unit="frame",
+                            quiet=args.quiet)
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:

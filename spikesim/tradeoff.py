@@ -437,7 +437,7 @@ def pareto_front(points: Sequence[tuple[float, float]]) -> list[bool]:
 # ---- the study ------------------------------------------------------------------------------------
 def run_study(cfg: StudyConfig, out: Path, progress: bool = True) -> list[dict[str, Any]]:
     """Run (or resume) every scene x light x run; returns the table rows."""
-    from tqdm import tqdm
+    from spikesim.progress import progress_bar
 
     out.mkdir(parents=True, exist_ok=True)
     _write_json(out / "study.json", dataclasses.asdict(cfg))
@@ -445,7 +445,7 @@ def run_study(cfg: StudyConfig, out: Path, progress: bool = True) -> list[dict[s
     jobs = [(sc, li, r) for sc in cfg.scenes for li in cfg.lights for r in runs]
     session = f"{time.time():.0f}"
     studies: dict[tuple[str, str], SceneStudy] = {}
-    bar = tqdm(jobs, desc="tradeoff", unit="run", disable=not progress)
+    bar = progress_bar(jobs, desc="tradeoff", unit="run", quiet=not progress)
     for scene, light, spec in bar:
         folder = out / "runs" / f"{scene}_{light}"
         folder.mkdir(parents=True, exist_ok=True)
