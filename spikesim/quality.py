@@ -17,7 +17,7 @@ import numpy as np
 
 from .camera import NOISE_TERMS, PRECISIONS, SpikeCamera
 from .keyframes import keyframe_steps
-from .render_settings import RenderSettings, split_render_knobs
+from .render_settings import HoldsRenderSettings, RenderSettings, split_render_knobs
 
 log = logging.getLogger(__name__)
 
@@ -130,7 +130,7 @@ QUALITY_RENDER_KNOBS = ("spp", "gt_spp", "variant", "keyframe_every")
 
 
 @dataclass(frozen=True)
-class QualitySettings:
+class QualitySettings(HoldsRenderSettings):
     """Every render and sensor knob the speed/accuracy study measured, as one validated record:
     the render knobs in a RenderSettings (declared once, there), the keyframe policy, the noise
     terms and the precision here. Build one with `QualitySettings.of(name, policy, spp=..., ...)`."""
@@ -185,28 +185,6 @@ class QualitySettings:
         if name not in PRESETS:
             raise ValueError(f"unknown quality {name!r}; expected one of {sorted(PRESETS)}")
         return PRESETS[name]
-
-    @property
-    def spp(self) -> int:
-        return self.render.spp
-
-    @property
-    def gt_spp(self) -> int:
-        return self.render.gt_spp
-
-    @property
-    def variant(self) -> str:
-        return self.render.variant
-
-    @property
-    def keyframe_every(self) -> int:
-        return self.render.keyframe_every
-
-    def replace(self, **changes: Any) -> "QualitySettings":
-        render, rest = split_render_knobs(changes)
-        if render:
-            rest["render"] = self.render.replace(**render)
-        return dataclasses.replace(self, **rest)
 
     def to_dict(self) -> dict[str, Any]:
         """Flat: the name, the render knobs it sets and its own knobs."""

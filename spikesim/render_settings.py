@@ -104,6 +104,27 @@ def split_render_knobs(values: Mapping[str, Any]) -> tuple[dict[str, Any], dict[
     return render, {k: v for k, v in values.items() if k not in RENDER_KNOBS}
 
 
+def render_knob(knob: str, holder: str = "render") -> property:
+    """A read-only attribute that reads `knob` of the RenderSettings held in field `holder`."""
+    return property(lambda self: getattr(getattr(self, holder), knob), doc=f"{holder}.{knob} (RenderSettings)")
+
+
+class HoldsRenderSettings:
+    """For a frozen dataclass that holds its render knobs in a RenderSettings field `render`:
+    the common knobs read through, and `replace` sends render knobs to that record."""
+
+    spp = render_knob("spp")
+    gt_spp = render_knob("gt_spp")
+    variant = render_knob("variant")
+    keyframe_every = render_knob("keyframe_every")
+
+    def replace(self, **changes: Any) -> Any:
+        render, rest = split_render_knobs(changes)
+        if render:
+            rest["render"] = self.render.replace(**render)  # type: ignore[attr-defined]
+        return dataclasses.replace(self, **rest)  # type: ignore[type-var]
+
+
 def merge_layers(layers: Sequence[tuple[str, Mapping[str, Any] | None]]) -> tuple[dict[str, Any], dict[str, str]]:
     """Merge layers of settings, later ones winning, and say where each value came from.
 
@@ -119,4 +140,5 @@ def merge_layers(layers: Sequence[tuple[str, Mapping[str, Any] | None]]) -> tupl
     return values, origins
 
 
-__all__ = ["RenderSettings", "RENDER_KNOBS", "VARIANTS", "DEFAULT", "merge_layers", "split_render_knobs"]
+__all__ = ["RenderSettings", "RENDER_KNOBS", "VARIANTS", "DEFAULT", "HoldsRenderSettings", "merge_layers",
+           "render_knob", "split_render_knobs"]

@@ -38,7 +38,7 @@ from typing import Any, BinaryIO, Callable, Sequence
 import numpy as np
 
 from spikesim.config_io import read_json_object
-from spikesim.render_settings import RenderSettings
+from spikesim.render_settings import RenderSettings, render_knob
 
 log = logging.getLogger(__name__)
 
@@ -113,27 +113,11 @@ class StudyConfig:
         render = {_RENDER_ALIASES[k]: knobs.pop(k) for k in list(knobs) if k in _RENDER_ALIASES}
         return cls(reference=REFERENCE_RENDER.replace(**render), **knobs)
 
-    @property
-    def resolution(self) -> tuple[int, int]:
-        """(height, width) of the camera and the renders."""
-        return self.reference.resolution
-
-    @property
-    def ref_spp(self) -> int:
-        return self.reference.spp
-
-    @property
-    def gt_spp(self) -> int:
-        return self.reference.gt_spp
-
-    @property
-    def seed(self) -> int:
-        return self.reference.seed
-
-    @property
-    def device(self) -> str:
-        """Where Mitsuba renders (spikesim._drjit.DEVICE_CHOICES)."""
-        return self.reference.device
+    resolution = render_knob("resolution", "reference")  # (height, width) of the camera and the renders
+    ref_spp = render_knob("spp", "reference")
+    gt_spp = render_knob("gt_spp", "reference")
+    seed = render_knob("seed", "reference")
+    device = render_knob("device", "reference")  # where Mitsuba renders
 
     @property
     def start(self) -> int:

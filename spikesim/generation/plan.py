@@ -15,14 +15,14 @@ from typing import Any
 import numpy as np
 
 from spikesim.dataset import check_scene_name
-from spikesim.render_settings import RenderSettings, split_render_knobs
+from spikesim.render_settings import HoldsRenderSettings, RenderSettings
 
 WINDOW = 41  # the reconstruction window (paper, section "Implementation Details")
 
 
 # ---- presets --------------------------------------------------------------------------------------
 @dataclass(frozen=True)
-class Preset:
+class Preset(HoldsRenderSettings):
     """Dataset sizes and render settings. `paper` is the published size; `small` runs in minutes
     on a 2-core CPU (the demo and the tests use it). `replace` takes render knobs (spp, gt_spp,
     variant, keyframe_every) and sizes alike."""
@@ -50,28 +50,6 @@ class Preset:
                 raise ValueError(f"preset {self.name}: {f}={v!r} must be a positive integer")
         if self.rllr_scenes < 0:
             raise ValueError(f"preset {self.name}: rllr_scenes must be >= 0")
-
-    @property
-    def spp(self) -> int:
-        return self.render.spp
-
-    @property
-    def gt_spp(self) -> int:
-        return self.render.gt_spp
-
-    @property
-    def variant(self) -> str:
-        return self.render.variant
-
-    @property
-    def keyframe_every(self) -> int:
-        return self.render.keyframe_every
-
-    def replace(self, **changes: Any) -> "Preset":
-        render, rest = split_render_knobs(changes)
-        if render:
-            rest["render"] = self.render.replace(**render)
-        return dataclasses.replace(self, **rest)
 
     def values(self) -> dict[str, Any]:
         """Every setting by name, render knobs included (what `replace` takes)."""
