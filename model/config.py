@@ -90,10 +90,6 @@ class ModelConfig:
                  f"model.pad_multiple must be a multiple of 4 (two stride-2 pyramid levels), got {self.pad_multiple!r}")
 
     @property
-    def uses_intervals(self) -> bool:
-        return self.representation == "lr_rep"
-
-    @property
     def carries_spike_times(self) -> bool:
         """Whether inputs of one window depend on spikes in other windows (GISI)."""
         return self.representation == "lr_rep" and self.interval == "gisi"

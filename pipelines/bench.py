@@ -26,6 +26,7 @@ import numpy as np
 
 from pipelines.argtypes import bundled_scene, positive_int
 from spikesim.camera import SpikeCamera
+from spikesim.keyframes import keyframe_count, steps_covered
 from spikesim.simulate import BatchSimulator, Simulator, available_backends
 
 REAL_TIME_PIXEL_STEPS_PER_S = 400 * 250 * 40_000
@@ -86,8 +87,8 @@ def measure_sensor(height: int, width: int, steps: int, numpy_steps: int, backen
         rows.append(_row("sensor", f"{model}, frames every step", "numpy", ref, ref))
         for b in backends:
             for k in keyframe_every:
-                f = frames if k == 1 else frames[: (steps - 1) // k + 1]
-                n = len(f) if k == 1 else (len(f) - 1) * k + 1
+                f = frames[: keyframe_count(steps, k)]
+                n = steps_covered(len(f), k)  # the steps these keyframes give
                 sim = Simulator(cam, backend=b, seed=0)
                 run(sim, f[:2], k)()  # compile
                 t = _best(run(sim, f, k), repeats)
@@ -153,7 +154,7 @@ def measure_pipeline(scene: str, light: str, spp: int, cam: SpikeCamera, devices
     t = _best(run(ref_r, "numpy", numpy_steps, False), 1)
     ref = numpy_steps * cam.num_pixels / t
     rows.append(_row("pipeline", f"{scene}: host frames -> NumPy sensor (reference)", f"{devices[0]}+numpy", ref, ref))
-    renders = -(-(steps - 1) // k) + 1
+    renders = keyframe_count(steps, k)
     for d in devices:
         r = _renderer(scene, light, spp, cam, d)
         render_s = render_seconds(r, renders)

@@ -23,8 +23,8 @@ def run(args: argparse.Namespace) -> int:
 
     from model.methods import ModelMethod, method_from_spec
     from model.streaming import StepWindows
-    from pipelines.evaluate import json_safe, evaluate, markdown_table, scores_json, write_results
-    from pipelines.generate import PRESETS, generate, plan_llr
+    from pipelines.evaluate import evaluate, json_safe, markdown_table, scores_json, write_results
+    from spikesim.generation import PRESETS, generate, plan_llr
     from spikesim.dataset import open_dataset
     from spikesim.imageio import write_png
     from spikesim._drjit import resolve_device

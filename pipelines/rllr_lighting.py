@@ -85,7 +85,7 @@ def markdown(summary: dict[str, Any]) -> str:
 def study_job(job: Any, steps: Sequence[int], height: int, width: int, gt_spp: int, device: str) -> tuple[dict[str, Any], np.ndarray]:
     """Render one planned RLLR scene's ground truth at `steps` (reduced size) through the
     generator's frame source; returns its record and the frames (darkened, as stored)."""
-    from pipelines.generate_jobs import _FrameSource
+    from spikesim.generation.job import _FrameSource
     from spikesim.dataset import SATURATION_Y
 
     small = dataclasses.replace(job, camera={**job.camera, "height": height, "width": width},
@@ -101,7 +101,7 @@ def study_job(job: Any, steps: Sequence[int], height: int, width: int, gt_spp: i
 
 
 def run(args: argparse.Namespace) -> int:
-    from pipelines.generate import PRESETS, plan_rllr
+    from spikesim.generation import PRESETS, plan_rllr
 
     jobs = plan_rllr(PRESETS[args.preset], seed=args.seed, count=args.count)
     if args.lamps_lux is not None:  # another range for the same scenes: only their light level changes

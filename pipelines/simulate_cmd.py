@@ -14,6 +14,7 @@ import numpy as np
 from pipelines.argtypes import (add_device_argument, config_file, existing_file, nonnegative_float, nonnegative_int,
                                 output_file, positive_int)
 from spikesim.camera import SpikeCamera
+from spikesim.keyframes import keyframe_count, steps_covered
 from spikesim.patterns import MovingPattern
 
 log = logging.getLogger("spikesim.simulate")
@@ -40,9 +41,11 @@ def add_camera_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def frames_from_source(args: argparse.Namespace, cam: SpikeCamera,
-                       sensor_device: str | None = None) -> tuple[Iterator[Any], dict]:
-    """The irradiance source named on the command line, as a frame iterator plus a description.
-    A rendered scene's frames stay on the render device when the sensor runs there too."""
+                       sensor_device: str | None = None) -> tuple[Iterator[Any], dict, int]:
+    """The irradiance source named on the command line, as a frame iterator, a description and
+    the number of steps to simulate (--steps, else what the frames cover; the keyframes may reach
+    past it, spikesim.keyframes). A rendered scene's frames stay on the render device when the
+    sensor runs there too."""
     if args.frames is not None and args.scene is not None:
         raise ValueError("give --frames or --scene, not both")
     for flag, value in (("--motion", args.motion), ("--lights", args.lights), ("--spp", args.spp)):
@@ -55,23 +58,22 @@ def frames_from_source(args: argparse.Namespace, cam: SpikeCamera,
                           spp=args.spp, seed=args.seed, device=args.device)
         steps = DEFAULT_STEPS if args.steps is None else args.steps
         frames = r.frames(0, steps, keyframe_every=k, device=sensor_device == r.device)
-        return frames, {"source": "scene", **r.describe()}
+        return frames, {"source": "scene", **r.describe()}, steps
     if args.frames is not None:
         src = Path(args.frames)
         if src.is_dir():
             files = exr_files(src)
-            check_frames_cover(args.steps, len(files), k, src)
-            files = files if args.steps is None else files[: args.steps]
-            return _checked_exr_frames(files, cam), {"source": str(src), "frames": len(files)}
+            steps = frames_steps(args.steps, len(files), k, src)
+            files = files[: keyframe_count(steps, k)]
+            return _checked_exr_frames(files, cam), {"source": str(src), "frames": len(files)}, steps
         arr = load_npy_frames(src, cam)
-        check_frames_cover(args.steps, arr.shape[0], k, src)
-        n = arr.shape[0] if args.steps is None else min(args.steps, arr.shape[0])
-        return (np.asarray(arr[i]) for i in range(n)), {"source": str(src)}
+        steps = frames_steps(args.steps, arr.shape[0], k, src)
+        n = keyframe_count(steps, k)
+        return (np.asarray(arr[i]) for i in range(n)), {"source": str(src), "frames": n}, steps
     pattern = MovingPattern(height=cam.height, width=cam.width, peak_y=args.peak_y,
                             readout_period_s=cam.readout_period_s, seed=args.seed)
     steps = DEFAULT_STEPS if args.steps is None else args.steps
-    nkey = (steps - 1) // k + 1 if k > 1 else steps
-    return pattern.frames(nkey, every=k), {"source": "moving_pattern", "peak_y": args.peak_y}
+    return pattern.frames(keyframe_count(steps, k), every=k), {"source": "moving_pattern", "peak_y": args.peak_y}, steps
 
 
 def load_npy_frames(path: Path, cam: SpikeCamera) -> np.ndarray:
@@ -121,14 +123,15 @@ def _checked_exr_frames(files: list[Path], cam: SpikeCamera) -> Iterator[np.ndar
         yield y
 
 
-def check_frames_cover(steps: int | None, num_frames: int, keyframe_every: int, source: Path) -> None:
-    """Refuse --steps beyond what the frames cover, rather than simulating fewer steps without a
-    word: m frames cover m steps; m keyframes k steps apart cover (m - 1) k + 1."""
-    covered = (num_frames - 1) * keyframe_every + 1
+def frames_steps(steps: int | None, num_frames: int, keyframe_every: int, source: Path) -> int:
+    """The steps to simulate from `num_frames` stored frames: --steps (refused beyond what the
+    frames cover, rather than simulating fewer steps without a word), else all they cover."""
+    covered = steps_covered(num_frames, keyframe_every)
     if steps is not None and steps > covered:
         what = (f"{num_frames} frames" if keyframe_every == 1
                 else f"{num_frames} keyframes {keyframe_every} steps apart")
         raise ValueError(f"--steps {steps}: the {what} in {source} cover only {covered} steps")
+    return covered if steps is None else steps
 
 
 def check_outputs(args: argparse.Namespace) -> None:
@@ -158,13 +161,13 @@ def run(args: argparse.Namespace) -> int:
         device = resolve_device(args.device)  # an unavailable GPU fails first
         backend = device if backend == "auto" else backend   # the sensor where the frames are
     sim = Simulator(cam, backend=backend, seed=args.seed)  # an unavailable backend fails first
-    frames, source = frames_from_source(args, cam, sim.backend_name)
+    frames, source, steps = frames_from_source(args, cam, sim.backend_name)
     log.info("simulating on backend %s, %dx%d, from %s", sim.backend_name, cam.width, cam.height,
              source.get("scene") or source.get("source"))
     t0 = time.perf_counter()
     try:
-        out = sim.run_to_dat(_progress(frames, args), args.out, keyframe_every=args.keyframe_every,
-                             flip=not args.no_flip, extra={"irradiance": source}, max_steps=args.steps)
+        out = sim.run_to_dat(_progress(frames, args, steps), args.out, keyframe_every=args.keyframe_every,
+                             flip=not args.no_flip, extra={"irradiance": source}, max_steps=steps)
     except ValueError as exc:  # a bad frame of an .npy: name the file (EXR frames name theirs)
         if args.frames is None or Path(args.frames).is_dir():
             raise
@@ -181,9 +184,10 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _progress(frames: Iterator[np.ndarray], args: argparse.Namespace) -> Iterator[np.ndarray]:
-    from tqdm import tqdm
-    yield from tqdm(frames, desc="frames", unit="frame", disable=args.quiet, mininterval=0.5)
+def _progress(frames: Iterator[np.ndarray], args: argparse.Namespace, steps: int) -> Iterator[np.ndarray]:
+    from spikesim.progress import progress_bar
+    yield from progress_bar(frames, total=keyframe_count(steps, args.keyframe_every), desc="frames", unit="frame",
+                            quiet=args.quiet)
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -197,9 +201,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     src.add_argument("--spp", type=positive_int, help="render samples per pixel (default: the renderer's)")
     add_device_argument(src)
     src.add_argument("--peak-y", type=peak_y, default=0.25, help="pattern brightness: y of white (spikes/step)")
-    src.add_argument("--steps", type=positive_int, help=f"number of steps (pattern default {DEFAULT_STEPS})")
+    src.add_argument("--steps", type=positive_int,
+                     help=f"sensor steps to simulate, whatever --keyframe-every is (default: {DEFAULT_STEPS} for "
+                          "the pattern and a scene; every step the --frames cover)")
     src.add_argument("--keyframe-every", type=positive_int, default=1,
-                     help="frames are keyframes this many steps apart; the sensor interpolates")
+                     help="frames are keyframes this many steps apart; the sensor interpolates (default 1)")
     add_camera_arguments(p)
     p.add_argument("--backend", default="auto", choices=["auto", "numpy", "llvm", "cuda"])
     p.add_argument("--seed", type=nonnegative_int, default=0)

@@ -21,8 +21,4 @@ def scene_path(name: str) -> Path:
     return ROOT / key / "scene.xml"
 
 
-def list_scenes() -> list[str]:
-    return list(SCENES)
-
-
-__all__ = ["ROOT", "SCENES", "scene_path", "list_scenes"]
+__all__ = ["ROOT", "SCENES", "scene_path"]

@@ -16,6 +16,8 @@ from typing import Any, Iterable, Iterator
 import numpy as np
 
 from .camera import NOISE_TERMS, PRECISIONS, SpikeCamera
+from .keyframes import keyframe_steps
+from .render_settings import HoldsRenderSettings, RenderSettings, split_render_knobs
 
 log = logging.getLogger(__name__)
 
@@ -122,20 +124,23 @@ def apply_noise_decisions(camera: SpikeCamera, decisions: Iterable[NoiseDecision
 
 
 # ---- the quality presets -----------------------------------------------------------------------
+#: The render knobs a quality preset sets (spikesim.render_settings.RenderSettings); a job's own
+#: seed, resolution and device stay as they are.
+QUALITY_RENDER_KNOBS = ("spp", "gt_spp", "variant", "keyframe_every")
+
+
 @dataclass(frozen=True)
-class QualitySettings:
-    """Every render and sensor knob the speed/accuracy study measured, as one validated record."""
+class QualitySettings(HoldsRenderSettings):
+    """Every render and sensor knob the speed/accuracy study measured, as one validated record:
+    the render knobs in a RenderSettings (declared once, there), the keyframe policy, the noise
+    terms and the precision here. Build one with `QualitySettings.of(name, policy, spp=..., ...)`."""
 
     name: str
-    spp: int
-    """Samples per pixel of each frame render."""
-    gt_spp: int
-    """Samples per pixel of each ground-truth image."""
-    variant: str
-    """Renderer variant: "spectral", "mono" or "auto" (mono for one light spectrum)."""
+    render: RenderSettings
+    """spp (each frame render), gt_spp (each ground-truth image), variant ("spectral", "mono" or
+    "auto": mono for one light spectrum) and keyframe_every (the "fixed" policy's spacing)."""
     keyframe_policy: str
     """"every" (a render per step), "fixed" (every `keyframe_every` steps) or "adaptive"."""
-    keyframe_every: int = 1
     max_px_per_keyframe: float = 0.5
     """Adaptive: accumulated image motion allowed between keyframes (pixels)."""
     max_interval: int = 1024
@@ -146,10 +151,11 @@ class QualitySettings:
     precision: str = "float32"
 
     def __post_init__(self) -> None:
-        for f in ("spp", "gt_spp", "keyframe_every", "max_interval"):
-            v = getattr(self, f)
-            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-                raise ValueError(f"quality {self.name!r}: {f}={v!r} must be a positive integer")
+        if not isinstance(self.render, RenderSettings):
+            raise ValueError(f"quality {self.name!r}: render={self.render!r} must be a RenderSettings")
+        v = self.max_interval
+        if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+            raise ValueError(f"quality {self.name!r}: max_interval={v!r} must be a positive integer")
         if self.variant not in VARIANTS:
             raise ValueError(f"quality {self.name!r}: variant={self.variant!r}; expected one of {VARIANTS}")
         if self.keyframe_policy not in KEYFRAME_POLICIES:
@@ -164,21 +170,32 @@ class QualitySettings:
             raise ValueError(f"quality {self.name!r}: noise_tolerance={self.noise_tolerance!r} must be >= 0")
 
     @classmethod
+    def of(cls, name: str, keyframe_policy: str, **knobs: Any) -> "QualitySettings":
+        """A quality from flat knobs: render knobs (spp, gt_spp, variant, keyframe_every) go to its
+        RenderSettings, the rest to the quality itself."""
+        render, rest = split_render_knobs(knobs)
+        try:
+            settings = RenderSettings(**render)
+        except ValueError as exc:
+            raise ValueError(f"quality {name!r}: {exc}") from None
+        return cls(name, settings, keyframe_policy, **rest)
+
+    @classmethod
     def from_name(cls, name: str) -> "QualitySettings":
         if name not in PRESETS:
             raise ValueError(f"unknown quality {name!r}; expected one of {sorted(PRESETS)}")
         return PRESETS[name]
 
-    def replace(self, **changes: Any) -> "QualitySettings":
-        return dataclasses.replace(self, **changes)
-
     def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
+        """Flat: the name, the render knobs it sets and its own knobs."""
+        own = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "render"}
+        return {**own, **self.render_kwargs()}
 
     # ---- what the pipeline stages take ---------------------------------------------------------
     def render_kwargs(self) -> dict[str, Any]:
-        """Keyword arguments for SceneRenderer (and RenderSettings)."""
-        return {"spp": self.spp, "gt_spp": self.gt_spp, "variant": self.variant}
+        """The render knobs this quality sets, as keyword arguments for SceneRenderer (and
+        RenderSettings.replace)."""
+        return {k: getattr(self.render, k) for k in QUALITY_RENDER_KNOBS}
 
     def adaptive_policy(self) -> Any:
         from .render.adaptive import AdaptivePolicy
@@ -199,21 +216,23 @@ class QualitySettings:
         return apply_noise_decisions(cam, decisions), decisions
 
     def keyframes(self, renderer: Any, start: int, num_steps: int) -> Iterator[tuple[int, np.ndarray]]:
-        """(step, frame) keyframes covering steps start .. start + num_steps - 1 exactly, for
-        Simulator.stream_keyframes. `renderer` needs render_step(step, spp) and motion_px(step)."""
+        """(step, frame) keyframes covering steps start .. start + num_steps - 1: adaptive ones end
+        at the last step (for Simulator.stream_keyframes); fixed ones are `keyframe_every` apart and
+        the last reaches or passes the last step (spikesim.keyframes.keyframe_steps). `renderer`
+        needs render_step(step, spp) and motion_px(step)."""
         if isinstance(num_steps, bool) or not isinstance(num_steps, int) or num_steps < 1:
             raise ValueError(f"num_steps={num_steps!r} must be a positive integer")
-        last = start + num_steps - 1
         if self.keyframe_policy == "adaptive":
             from .render.adaptive import AdaptiveKeyframes
             yield from AdaptiveKeyframes(self.adaptive_policy(), spp=self.spp).keyframes(renderer, start, num_steps)
             return
-        k = 1 if self.keyframe_policy == "every" else self.keyframe_every
-        steps = list(range(start, last + 1, k))
-        if steps[-1] != last:
-            steps.append(last)
-        for s in steps:
+        for s in keyframe_steps(start, num_steps, self.step_spacing):
             yield s, renderer.render_step(s, spp=self.spp)
+
+    @property
+    def step_spacing(self) -> int:
+        """Steps between fixed keyframes: 1 for "every", `keyframe_every` for "fixed"."""
+        return 1 if self.keyframe_policy == "every" else self.keyframe_every
 
     def simulate(self, sim: Any, renderer: Any, start: int, num_steps: int) -> Iterator[Any]:
         """Spike stream parts for exactly `num_steps` steps: a fixed spacing runs through
@@ -223,11 +242,9 @@ class QualitySettings:
             shift = sim.steps_done - start
             yield from sim.stream_keyframes((s + shift, f) for s, f in self.keyframes(renderer, start, num_steps))
             return
-        k = 1 if self.keyframe_policy == "every" else self.keyframe_every
-        n_keys = -(-(num_steps - 1) // k) + 1
-        frames = (renderer.render_step(start + j * k, spp=self.spp) for j in range(n_keys))
+        frames = (f for _, f in self.keyframes(renderer, start, num_steps))
         done = 0
-        for part in sim.stream(frames, keyframe_every=k, final=True):
+        for part in sim.stream(frames, keyframe_every=self.step_spacing, final=True):
             take = min(part.num_steps, num_steps - done)
             if take <= 0:
                 break
@@ -256,18 +273,18 @@ class QualitySettings:
 #:   effect at the scene's light is under 1 % (decide_noise_terms; in practice those two).
 PRESETS: dict[str, QualitySettings] = {
     # The study's reference: a spectral render per step at 64 spp, float64, every noise term.
-    "reference": QualitySettings("reference", spp=64, gt_spp=256, variant="spectral", keyframe_policy="every",
-                                 noise="all", precision="float64"),
+    "reference": QualitySettings.of("reference", spp=64, gt_spp=256, variant="spectral", keyframe_policy="every",
+                                    noise="all", precision="float64"),
     # Fastest measured setting within half the noise floor everywhere: err/floor <= 0.43, speed-up
     # 4.3-39x (geometric mean 12x) at 50 x 80 (spp 16 + adaptive 0.5 px: 0.61; spp 4 + 0.25 px: 0.85).
     # (adaptive 1 px at 64 spectral spp ties at this size; fewer samples win at 400 x 250.)
-    "balanced": QualitySettings("balanced", spp=16, gt_spp=64, variant="auto", keyframe_policy="adaptive",
-                                max_px_per_keyframe=0.25, noise="all", precision="float32"),
+    "balanced": QualitySettings.of("balanced", spp=16, gt_spp=64, variant="auto", keyframe_policy="adaptive",
+                                   max_px_per_keyframe=0.25, noise="all", precision="float32"),
     # Fastest measured setting within the noise floor everywhere (never more different from the
     # reference than a second recording): err/floor <= 0.81, speed-up 14-41x (geometric mean 26x)
     # at 50 x 80 (spp 1 + adaptive 1 px: 3.1; spp 4 + adaptive 1 px: 1.6).
-    "draft": QualitySettings("draft", spp=16, gt_spp=16, variant="auto", keyframe_policy="adaptive",
-                             max_px_per_keyframe=1.0, noise="auto", noise_tolerance=0.01, precision="float32"),
+    "draft": QualitySettings.of("draft", spp=16, gt_spp=16, variant="auto", keyframe_policy="adaptive",
+                                max_px_per_keyframe=1.0, noise="auto", noise_tolerance=0.01, precision="float32"),
 }
 QUALITIES = tuple(PRESETS)
 

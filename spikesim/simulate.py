@@ -21,6 +21,7 @@ import numpy as np
 from .camera import SpikeCamera
 from .errors import InvalidFrames
 from .fixed_pattern import draw_pixel_parameters
+from .keyframes import steps_covered
 from .stream import DatWriter, SpikeStream, write_sidecar
 
 log = logging.getLogger(__name__)
@@ -400,7 +401,7 @@ class BatchSimulator:
         keyframe is still needed for the next segment), else every step up to and including the
         last frame."""
         m = block.shape[0] if isinstance(block, np.ndarray) else len(block)
-        num = m if k == 1 else ((m - 1) * k if keep_last else (m - 1) * k + 1)
+        num = steps_covered(m, k, keep_last)
         if num == 0:
             return
         device_block = self._sensor.keyframe_block(block) if self._sensor is not None else None

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from pipelines import tradeoff
+from spikesim import tradeoff
 from pipelines.cli import main
 
 

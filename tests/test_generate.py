@@ -6,13 +6,12 @@ import shutil
 import numpy as np
 import pytest
 
-from pipelines.generate import PRESETS, SceneJob, generate, job_status, llr_windows, plan_rllr
+from spikesim.generation import PRESETS, SceneJob, generate, job_status, llr_windows, plan_rllr
 from spikesim.dataset import open_dataset, verify
 
 
 def tiny_jobs(n=2, steps=82):
-    import dataclasses
-    preset = dataclasses.replace(PRESETS["small"], height=12, width=32, rllr_steps=steps, rllr_gt_stride=41)
+    preset = PRESETS["small"].replace(height=12, width=32, rllr_steps=steps, rllr_gt_stride=41)
     return plan_rllr(preset, seed=1, count=n, source="pattern")
 
 
@@ -79,7 +78,7 @@ def test_changed_parameters_are_not_silently_mixed(tmp_path):
 
 
 def test_an_interrupted_job_leaves_no_complete_looking_folder(tmp_path, monkeypatch):
-    import pipelines.generate as g
+    import spikesim.generation.job as g
     jobs = tiny_jobs(1)
 
     def boom(self, step):
@@ -122,9 +121,8 @@ def test_ray_generation_matches_local(tmp_path):
 
 def test_rllr_random_scene_end_to_end(tmp_path):
     # A random 3D scene (objects, textures, motions, lights) rendered and simulated: tiny size.
-    import dataclasses
     pytest.importorskip("mitsuba")
-    preset = dataclasses.replace(PRESETS["small"], height=20, width=32, rllr_steps=42, rllr_gt_stride=41, spp=1, gt_spp=4)
+    preset = PRESETS["small"].replace(height=20, width=32, rllr_steps=42, rllr_gt_stride=41, spp=1, gt_spp=4)
     jobs = plan_rllr(preset, seed=3, count=1)
     generate(jobs, tmp_path, workers=1, show_progress=False)
     (s,) = open_dataset(tmp_path)
@@ -152,19 +150,17 @@ def test_random_scenes_are_reproducible(tmp_path):
 def test_process_pool_renders_scenes(tmp_path):
     # Two rendered scenes in two worker processes: guards against the Dr.Jit one-thread-pool
     # deadlock (a worker with dr.set_thread_count(1) never finished a Mitsuba render).
-    import dataclasses
     pytest.importorskip("mitsuba")
-    preset = dataclasses.replace(PRESETS["small"], height=16, width=24, rllr_steps=10, rllr_gt_stride=9, spp=1, gt_spp=2)
+    preset = PRESETS["small"].replace(height=16, width=24, rllr_steps=10, rllr_gt_stride=9, spp=1, gt_spp=2)
     jobs = plan_rllr(preset, seed=4, count=2)
     report = generate(jobs, tmp_path, workers=2, show_progress=False)
     assert len(report["generated"]) == 2 and verify(tmp_path) == []
 
 
 def test_quality_preset_is_applied_and_recorded(tmp_path):
-    import dataclasses
     pytest.importorskip("mitsuba")
-    preset = dataclasses.replace(PRESETS["small"], height=16, width=24, llr_windows=1)
-    from pipelines.generate import plan_llr
+    preset = PRESETS["small"].replace(height=16, width=24, llr_windows=1)
+    from spikesim.generation import plan_llr
     jobs = plan_llr(preset, scenes=["rotate"], lights=("low",), quality="draft")
     assert jobs[0].digest != plan_llr(preset, scenes=["rotate"], lights=("low",))[0].digest
     generate(jobs, tmp_path, workers=1, show_progress=False)

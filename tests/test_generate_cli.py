@@ -1,7 +1,6 @@
 """`generate` and `verify` on the command line: bad values refused by the parser, expected failures
 as one line (exit status 2), `verify`'s exit statuses, and per-scene seeds that do not depend on
 which other scenes are listed."""
-import dataclasses
 import json
 import os
 import sys
@@ -11,7 +10,7 @@ import numpy as np
 import pytest
 
 from pipelines.cli import build_parser, main
-from pipelines.generate import PRESETS, generate, plan_llr, plan_rllr, scene_seed
+from spikesim.generation import PRESETS, generate, plan_llr, plan_rllr, scene_seed
 from spikesim.dataset import MANIFEST
 from test_generate import tiny_jobs
 
@@ -167,7 +166,7 @@ def test_verify_help_documents_the_exit_statuses(capsys):
 
 
 def test_a_scene_seed_depends_on_its_name_and_light_not_its_position():
-    preset = dataclasses.replace(PRESETS["small"], height=8, width=8, llr_windows=1)
+    preset = PRESETS["small"].replace(height=8, width=8, llr_windows=1)
     alone = {j.name: j for j in plan_llr(preset, seed=3, scenes=["fan"])}
     listed = {j.name: j for j in plan_llr(preset, seed=3, scenes=["ball", "car", "fan"])}
     assert alone["fan_low"].digest == listed["fan_low"].digest
@@ -190,7 +189,7 @@ def test_scene_seeds_are_pinned():
 @pytest.mark.timeout(300)
 def test_fan_low_has_the_same_bytes_alone_or_with_other_scenes(tmp_path):
     pytest.importorskip("mitsuba")
-    preset = dataclasses.replace(PRESETS["small"], height=8, width=12, llr_windows=1, spp=1, gt_spp=1)
+    preset = PRESETS["small"].replace(height=8, width=12, llr_windows=1, spp=1, gt_spp=1)
     generate(plan_llr(preset, seed=2, scenes=["fan"], lights=("low",)), tmp_path / "alone", workers=1, show_progress=False)
     generate(plan_llr(preset, seed=2, scenes=["ball", "fan"], lights=("low",)), tmp_path / "both", workers=1,
              show_progress=False)

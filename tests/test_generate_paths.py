@@ -1,7 +1,6 @@
 """Generation writes and deletes only inside its output root, and `verify` reads only inside the
 dataset root: scene names are plain names, and every path goes through one guard that follows
 `..`, absolute paths and symlinks."""
-import dataclasses
 import hashlib
 import json
 import shutil
@@ -9,7 +8,7 @@ import shutil
 import pytest
 
 from pipelines.cli import build_parser
-from pipelines.generate import PRESETS, SceneJob, generate, plan_llr, plan_user
+from spikesim.generation import PRESETS, SceneJob, generate, plan_llr, plan_user
 from spikesim.dataset import inside_root, verify
 from test_generate import tiny_jobs
 
@@ -63,7 +62,7 @@ def test_an_unknown_scene_name_is_refused_naming_the_bundled_ones(tmp_path, caps
 
 @pytest.mark.parametrize("scene", ["../sc/x", "/abs/x", "sc/x"])
 def test_planning_refuses_a_path_as_a_scene_name(scene):
-    preset = dataclasses.replace(PRESETS["small"], height=8, width=8, llr_windows=1)
+    preset = PRESETS["small"].replace(height=8, width=8, llr_windows=1)
     with pytest.raises(ValueError, match="generate scene --xml"):
         plan_llr(preset, scenes=[scene])
 

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from pipelines.cli import main
-from pipelines.generate_lock import output_lock
+from spikesim.generation.lock import output_lock
 from spikesim.dataset import LOCK_FILE
 
 REPO = Path(__file__).resolve().parents[1]
@@ -46,7 +46,7 @@ def test_the_lock_file_is_readable_and_keeps_the_umask(tmp_path):
 def test_a_lock_left_by_a_killed_process_does_not_block(tmp_path):
     root = tmp_path / "data"
     root.mkdir()
-    code = ("import sys, time; from pipelines.generate_lock import output_lock\n"
+    code = ("import sys, time; from spikesim.generation.lock import output_lock\n"
             "with output_lock(sys.argv[1], 'holder'):\n    print('locked', flush=True); time.sleep(60)\n")
     holder = subprocess.Popen([sys.executable, "-c", code, str(root)], cwd=REPO, stdout=subprocess.PIPE, text=True)
     try:
@@ -119,7 +119,7 @@ def test_the_parent_watchdog_alone_ends_an_orphaned_worker(tmp_path):
     # The portable fallback (no prctl, as off Linux): a grandchild that polls its parent's pid
     # exits once its parent is SIGKILLed.
     worker = ("import os, sys, time; sys.platform = 'darwin'\n"
-              "from pipelines.generate_pool import die_with_parent\n"
+              "from spikesim.generation.pool import die_with_parent\n"
               "die_with_parent(os.getppid(), poll_s=0.1); print('ready', flush=True); time.sleep(60)\n")
     parent_code = ("import subprocess, sys, time\n"
                    "w = subprocess.Popen([sys.executable, '-c', sys.argv[1]], stdout=subprocess.PIPE, text=True)\n"

@@ -5,7 +5,7 @@ import json
 
 import pytest
 
-from pipelines.generate import generate, job_status
+from spikesim.generation import generate, job_status
 from spikesim.dataset import LOCK_FILE, MANIFEST, verify
 from test_generate import tiny_jobs
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from pipelines import rllr_lighting as rl
-from pipelines.generate import PRESETS, plan_rllr
+from spikesim.generation import PRESETS, plan_rllr
 
 
 def _subject_lux(lights_path) -> float:

@@ -13,15 +13,14 @@ import pytest
 sys.path.insert(0, str(Path(__file__).parent / "model"))  # modeltest_fakes
 
 from modeltest_fakes import FakeScene, make_scene  # noqa: E402
-from pipelines.generate import PRESETS, SceneJob, generate, llr_windows, saturation_summary  # noqa: E402
+from spikesim.generation import PRESETS, SceneJob, generate, llr_windows, saturation_summary  # noqa: E402
 from spikesim.dataset import SATURATION_Y, open_dataset, saturated_fraction  # noqa: E402
 
 
 def bright_pattern_job(peak_y: float, name: str = "bright") -> SceneJob:
     """A built-in pattern scene (no renderer) whose ground truth peaks at `peak_y`."""
-    from pipelines.generate import _camera_dict, _render_dict
-    import dataclasses
-    preset = dataclasses.replace(PRESETS["small"], height=12, width=16)
+    from spikesim.generation.plan import _camera_dict, _render_dict
+    preset = PRESETS["small"].replace(height=12, width=16)
     wins, centres = llr_windows(3)
     return SceneJob(name=name, source={"type": "pattern", "peak_y": peak_y, "pattern_seed": 4},
                     camera=_camera_dict(preset, None), render=_render_dict(preset, 4), num_steps=wins[-1][1],

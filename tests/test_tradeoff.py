@@ -1,4 +1,4 @@
-"""The speed/accuracy study (pipelines/tradeoff.py), adaptive keyframes
+"""The speed/accuracy study (spikesim/tradeoff.py), adaptive keyframes
 (spikesim/render/adaptive.py) and the quality presets (spikesim/quality.py), at tiny sizes."""
 from __future__ import annotations
 
@@ -127,7 +127,7 @@ def test_presets_are_valid_and_ordered():
     assert ref.precision == "float64"
     for q in (ref, bal, draft):
         json.dumps(q.record())
-        assert set(q.render_kwargs()) == {"spp", "gt_spp", "variant"}
+        assert set(q.render_kwargs()) == {"spp", "gt_spp", "variant", "keyframe_every"}
     with pytest.raises(ValueError, match="unknown quality 'fast'"):
         QualitySettings.from_name("fast")
     with pytest.raises(ValueError, match="keyframe_policy"):
@@ -168,39 +168,40 @@ def test_quality_camera_applies_and_records_decisions():
 
 @pytest.mark.parametrize("policy,k", [("every", 1), ("fixed", 8), ("adaptive", 1)])
 def test_quality_simulate_gives_exactly_the_steps_asked(policy, k):
-    q = QualitySettings("t", spp=1, gt_spp=1, variant="mono", keyframe_policy=policy, keyframe_every=k)
+    q = QualitySettings.of("t", spp=1, gt_spp=1, variant="mono", keyframe_policy=policy, keyframe_every=k)
     r = MovingStripes()
     sim = Simulator(SpikeCamera.noiseless(height=6, width=40), backend="numpy")
     parts = list(q.simulate(sim, r, 60, 45))
     assert sum(p.num_steps for p in parts) == 45
     steps = [s for s, _ in q.keyframes(MovingStripes(), 60, 45)]
-    assert steps[0] == 60 and steps[-1] == 104
+    # adaptive keyframes end on the last step; fixed ones are k apart, the last at or past it
+    assert steps[0] == 60 and steps[-1] == (104 if policy != "fixed" else 108)
 
 
 # ---- the study machinery ---------------------------------------------------------------------------
 def test_pareto_front_on_hand_made_points():
-    from pipelines.tradeoff import pareto_front
+    from spikesim.tradeoff import pareto_front
 
     pts = [(1.0, 0.0), (0.5, 0.1), (0.6, 0.2), (0.2, 0.5), (0.2, 0.6), (0.1, 1.0), (0.5, 0.1), (math.nan, 0.0)]
     assert pareto_front(pts) == [True, True, False, True, False, True, True, False]
 
 
 def test_study_config_is_validated():
-    from pipelines.tradeoff import StudyConfig
+    from spikesim.tradeoff import StudyConfig
 
     with pytest.raises(ValueError, match="resolution"):
-        StudyConfig(resolution=(5, 40))
+        StudyConfig.of(resolution=(5, 40))
     with pytest.raises(ValueError, match="unknown knob"):
-        StudyConfig(knobs=("spp", "colour"))
+        StudyConfig.of(knobs=("spp", "colour"))
     with pytest.raises(ValueError, match="lights"):
-        StudyConfig(lights=("dim",))
-    assert StudyConfig(windows=3).centres() == [430 - 41, 430, 430 + 41]
+        StudyConfig.of(lights=("dim",))
+    assert StudyConfig.of(windows=3).centres() == [430 - 41, 430, 430 + 41]
 
 
 def test_plan_covers_every_knob():
-    from pipelines.tradeoff import StudyConfig, plan_runs
+    from spikesim.tradeoff import StudyConfig, plan_runs
 
-    runs = plan_runs(StudyConfig(spp_values=(1, 4), keyframe_values=(2,), adaptive_px=(0.5,)))
+    runs = plan_runs(StudyConfig.of(spp_values=(1, 4), keyframe_values=(2,), adaptive_px=(0.5,)))
     names = [r.name for r in runs]
     assert names[:3] == ["reference", "floor: sensor seed", "floor: sensor+render seed"]
     assert {"spp=1", "spp=4", "k=2", "adaptive 0.5px", "mono", "float32", "quality=balanced", "quality=draft"} <= set(names)
@@ -211,9 +212,9 @@ def test_plan_covers_every_knob():
 
 @requires_llvm
 def test_study_rows_and_resume(tmp_path, monkeypatch):
-    from pipelines import tradeoff
+    from spikesim import tradeoff
 
-    cfg = tradeoff.StudyConfig(scenes=("ball",), lights=("low",), resolution=(25, 40), windows=1, ref_spp=2,
+    cfg = tradeoff.StudyConfig.of(scenes=("ball",), lights=("low",), resolution=(25, 40), windows=1, ref_spp=2,
                                gt_spp=4, knobs=("spp", "precision", "adaptive"), spp_values=(1,),
                                adaptive_px=(1.0,), repeats=1)
     rows = tradeoff.run_study(cfg, tmp_path, progress=False)

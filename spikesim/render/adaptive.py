@@ -190,10 +190,4 @@ class AdaptiveKeyframes:
         yield from self._refine(renderer, render, m, fm, b, fb)
 
 
-def adaptive_keyframes(renderer: Renderable, start: int, num_steps: int, policy: AdaptivePolicy | None = None,
-                       spp: int | None = None) -> Iterator[tuple[int, np.ndarray]]:
-    """One-call form of AdaptiveKeyframes(policy, spp).keyframes(renderer, start, num_steps)."""
-    return AdaptiveKeyframes(policy, spp).keyframes(renderer, start, num_steps)
-
-
-__all__ = ["AdaptivePolicy", "AdaptiveKeyframes", "PlanRecord", "adaptive_keyframes", "motion_plan"]
+__all__ = ["AdaptivePolicy", "AdaptiveKeyframes", "PlanRecord", "motion_plan"]

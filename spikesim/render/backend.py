@@ -1,4 +1,4 @@
-"""Mitsuba set-up: the libLLVM path, variant selection and cache clean-up.
+"""Mitsuba set-up: the libLLVM path and variant selection.
 
 Mitsuba's variant is process-global, so every entry point that touches Mitsuba objects calls
 `use_variant` first; that keeps a mono and a spectral renderer usable in one process.
@@ -29,13 +29,4 @@ def use_variant(name: str) -> None:
         mi.set_variant(name)
 
 
-def clear_caches() -> None:
-    """What Mitsuba's own test suite does between tests (docs/design.md section 4): sync, flush the
-    kernel and malloc caches, clear the kernel history."""
-    dr.sync_thread()
-    dr.flush_kernel_cache()
-    dr.flush_malloc_cache()
-    dr.kernel_history_clear()
-
-
-__all__ = ["VARIANTS", "DEVICES", "DEVICE_CHOICES", "resolve_device", "variant_name", "use_variant", "clear_caches", "mi", "dr"]
+__all__ = ["VARIANTS", "DEVICES", "DEVICE_CHOICES", "resolve_device", "variant_name", "use_variant", "mi", "dr"]

@@ -14,14 +14,15 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Iterator
 
 import numpy as np
 
+from ..keyframes import keyframe_steps
+from ..render_settings import RenderSettings, merge_layers
 from .animate import Animator
-from .backend import DEVICE_CHOICES, dr, mi, resolve_device, use_variant, variant_name
+from .backend import dr, mi, resolve_device, use_variant, variant_name
 from .errors import LightError
 from .exposure import Exposure, Optics, PixelResponse
 from .motion import MotionSpec, load_motion
@@ -31,73 +32,6 @@ from .scene import SceneFiles, load_scene, prepare_xml
 
 #: Seed streams, so frames and ground truth at the same step use independent samples.
 _FRAMES, _GROUND_TRUTH, _PREVIEW = 0, 1, 2
-
-
-@dataclass(frozen=True)
-class RenderSettings:
-    """The renderer's knobs (everything that changes the output besides the scene files)."""
-
-    variant: str = "auto"
-    """"mono" (fast path: one number per surface, its sensor reflectance under the light, and the
-    light's spectrum folded into its power), "spectral" (spectral rendering weighted by the
-    silicon response), "rgb" (previews only, no y), or "auto": mono when the lighting has a
-    single spectrum (then mono is exact up to inter-reflections), spectral when it mixes spectra."""
-    spp: int = 4
-    """Samples per pixel of each render of a frame (a step with s sub-steps renders s times)."""
-    gt_spp: int = 64
-    """Samples per pixel of each render of a ground-truth image."""
-    seed: int = 0
-    """Every render's seed derives from (seed, stream, step, sub-step): frames are reproducible and
-    independent of where a stream starts."""
-    substeps: int | str = "auto"
-    """Renders averaged per step: an integer, or "auto" = ceil(motion in pixels / blur_threshold_px)."""
-    blur_threshold_px: float = 1.0
-    max_substeps: int = 16
-    resolution: tuple[int, int] | None = None
-    """(height, width) override, e.g. (25, 40) for tests; default: the camera's, else the XML's."""
-    device: str = "auto"
-    """Dr.Jit backend: "llvm" (CPU), "cuda" (GPU), or "auto" (the GPU when there is one)."""
-
-    def __post_init__(self) -> None:
-        if self.variant not in ("auto", "mono", "spectral", "rgb"):
-            raise ValueError(f"variant={self.variant!r}; expected 'auto', 'mono', 'spectral' or 'rgb'")
-        for name in ("spp", "gt_spp", "max_substeps"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-                raise ValueError(f"{name}={v!r} must be a positive integer")
-        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
-            raise ValueError(f"seed={self.seed!r} must be a non-negative integer")
-        if self.substeps != "auto" and (isinstance(self.substeps, bool) or not isinstance(self.substeps, int)
-                                        or self.substeps < 1):
-            raise ValueError(f"substeps={self.substeps!r} must be 'auto' or a positive integer")
-        if not self.blur_threshold_px > 0:
-            raise ValueError(f"blur_threshold_px={self.blur_threshold_px!r} must be positive")
-        if self.resolution is not None:
-            r = tuple(self.resolution)
-            if len(r) != 2 or not all(isinstance(x, int) and x > 0 for x in r):
-                raise ValueError(f"resolution={self.resolution!r} must be (height, width) positive integers")
-            object.__setattr__(self, "resolution", r)
-        if self.device not in DEVICE_CHOICES:
-            raise ValueError(f"device={self.device!r}; expected one of {DEVICE_CHOICES}")
-
-    def to_dict(self) -> dict[str, Any]:
-        d = asdict(self)
-        d["resolution"] = list(self.resolution) if self.resolution else None
-        return d
-
-    @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> "RenderSettings":
-        from ..config_io import check_known_fields
-        check_known_fields(cls, data, "render settings")
-        d = dict(data)
-        if d.get("resolution") is not None:
-            d["resolution"] = tuple(d["resolution"])
-        return cls(**d)
-
-    @classmethod
-    def from_file(cls, path: str | Path) -> "RenderSettings":
-        from ..config_io import load_config_file
-        return load_config_file(path, cls.from_dict)
 
 
 def _seed(*parts: int) -> int:
@@ -121,12 +55,11 @@ class SceneRenderer:
                  *, camera: Any = None, optics: Optics | None = None, pixel: PixelResponse | None = None,
                  exposure: Exposure | None = None, motion: str | Path | None = None,
                  lights: str | Path | None = None, settings: RenderSettings | None = None, **overrides: Any):
-        given = {k: v for k, v in {"variant": variant, "spp": spp, "resolution": resolution, "seed": seed,
-                                   **overrides}.items() if v is not None}
-        base = settings.to_dict() if settings is not None else {}
-        if "resolution" not in given and not base.get("resolution") and hasattr(camera, "height"):
-            given["resolution"] = (int(camera.height), int(camera.width))
-        self.settings = RenderSettings.from_dict({**base, **given})
+        film = {"resolution": (int(camera.height), int(camera.width))} if hasattr(camera, "height") else None
+        values, _ = merge_layers([("camera", film), ("settings", settings.to_dict() if settings else None),
+                                  ("arguments", {"variant": variant, "spp": spp, "resolution": resolution,
+                                                 "seed": seed, **overrides})])
+        self.settings = RenderSettings.from_dict(values)
         self.files = SceneFiles.resolve(scene, motion=motion, lights=lights)
         conditions = self.files.lightings()
         if light not in conditions:
@@ -222,25 +155,26 @@ class SceneRenderer:
         """Ground-truth y at step `step`: the same mean over the readout period, with gt_spp."""
         return self._to_y(step, self._film(self._check_step(step), spp or self.settings.gt_spp, _GROUND_TRUTH))
 
-    def frames(self, start_step: int = 0, num_steps: int = 1, keyframe_every: int = 1,
+    def frames(self, start_step: int = 0, num_steps: int = 1, keyframe_every: int | None = None,
                device: bool = False) -> Iterator[Any]:
         """Stream y frames for steps start_step .. start_step + num_steps - 1.
 
-        With keyframe_every = k > 1 only keyframes are rendered: frame j is y at step
-        start_step + j k, for j = 0 .. ceil((num_steps - 1) / k), so the last keyframe reaches or
+        With keyframe_every = k > 1 (default: settings.keyframe_every) only keyframes are rendered: frame j is y at step
+        start_step + j k (spikesim.keyframes.keyframe_steps), so the last keyframe reaches or
         passes the last step and the sensor can interpolate every step in between
         (spikesim.simulate.Simulator.run(frames, keyframe_every=k)). With `device=True` the
         frames are Dr.Jit arrays on the render device (`render_step_device`).
         """
         self._check_step(start_step)
+        if keyframe_every is None:
+            keyframe_every = self.settings.keyframe_every
         if isinstance(num_steps, bool) or not isinstance(num_steps, int) or num_steps < 1:
             raise ValueError(f"num_steps={num_steps!r} must be a positive integer")
         if isinstance(keyframe_every, bool) or not isinstance(keyframe_every, int) or keyframe_every < 1:
             raise ValueError(f"keyframe_every={keyframe_every!r} must be a positive integer")
         render = self.render_step_device if device else self.render_step
-        n_keys = -(-(num_steps - 1) // keyframe_every) + 1
-        for j in range(n_keys):
-            yield render(start_step + j * keyframe_every)
+        for step in keyframe_steps(start_step, num_steps, keyframe_every):
+            yield render(step)
             self.stats["frames"] += 1
 
     def preview_rgb(self, step: int, spp: int | None = None) -> np.ndarray:

@@ -17,11 +17,12 @@ from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from pipelines.generate_jobs import run_job
+from spikesim.generation.job import run_job
 from spikesim.errors import UnavailableError
+from spikesim.progress import progress_bar
 
 if TYPE_CHECKING:
-    from pipelines.generate import SceneJob
+    from spikesim.generation.plan import SceneJob
 
 log = logging.getLogger("spikesim.generate")
 
@@ -72,17 +73,15 @@ def _run_in_worker(job: SceneJob, root: str, threads: int, device: str) -> dict[
 def generate_local(todo: list[SceneJob], root: Path, workers: int, show_progress: bool,
                    device: str = "auto") -> list[dict[str, Any]]:
     """Run the jobs here: in this process with `workers` <= 1, else in a spawned process pool."""
-    from tqdm import tqdm
-
     if workers <= 1:
-        return _generate_in_process(todo, root, show_progress, tqdm, device)
+        return _generate_in_process(todo, root, show_progress, device)
     import multiprocessing as mp
     ctx = mp.get_context("spawn")  # Dr.Jit / Mitsuba state must not be forked
     threads = max(1, (os.cpu_count() or 1) // workers)
     queue = ctx.Queue()  # handed over at spawn: no manager process that could outlive us
     results = []
     bars: dict[str, Any] = {}
-    overall = tqdm(total=len(todo), desc="scenes", unit="scene", disable=not show_progress, position=0)
+    overall = progress_bar(total=len(todo), desc="scenes", unit="scene", quiet=not show_progress)
     with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init,
                              initargs=(threads, queue, os.getpid())) as pool:
         pending = {pool.submit(_run_in_worker, job, str(root), threads, device): job for job in todo}
@@ -92,8 +91,8 @@ def generate_local(todo: list[SceneJob], root: Path, workers: int, show_progress
                 while not queue.empty():
                     name, n, total = queue.get()
                     if name not in bars:
-                        bars[name] = tqdm(total=total, desc=name, unit="step", leave=False, disable=not show_progress,
-                                          position=1 + len(bars) % max(1, workers))
+                        bars[name] = progress_bar(total=total, desc=name, unit="step", quiet=not show_progress,
+                                                  nested=True, position=1 + len(bars) % max(1, workers))
                     bars[name].n = n
                     bars[name].refresh()
                 for fut in done:
@@ -111,12 +110,11 @@ def generate_local(todo: list[SceneJob], root: Path, workers: int, show_progress
     return results
 
 
-def _generate_in_process(todo: list[SceneJob], root: Path, show_progress: bool, tqdm: Any,
-                         device: str) -> list[dict[str, Any]]:
+def _generate_in_process(todo: list[SceneJob], root: Path, show_progress: bool, device: str) -> list[dict[str, Any]]:
     results = []
-    overall = tqdm(total=len(todo), desc="scenes", unit="scene", disable=not show_progress, position=0)
+    overall = progress_bar(total=len(todo), desc="scenes", unit="scene", quiet=not show_progress)
     for job in todo:
-        bar = tqdm(total=job.num_steps, desc=job.name, unit="step", leave=False, disable=not show_progress, position=1)
+        bar = progress_bar(total=job.num_steps, desc=job.name, unit="step", quiet=not show_progress, nested=True)
 
         def progress(name: str, done: int, total: int, bar: Any = bar) -> None:
             bar.n = done
@@ -151,7 +149,7 @@ def connect_ray(address: str) -> Any:
     if not ray.is_initialized():
         try:
             ray.init(address=None if address == "local" else address, log_to_driver=False,
-                     runtime_env={"env_vars": {"PYTHONPATH": str(Path(__file__).resolve().parents[1])}})
+                     runtime_env={"env_vars": {"PYTHONPATH": str(Path(__file__).resolve().parents[2])}})
         except ValueError as exc:  # a malformed address
             raise ValueError(f"--ray {address}: {exc}") from None
         except ConnectionError:
@@ -164,12 +162,11 @@ def connect_ray(address: str) -> Any:
 def generate_ray(todo: list[SceneJob], root: Path, address: str, show_progress: bool,
                  device: str = "auto") -> list[dict[str, Any]]:
     """One Ray task per scene; `root` must be a path every node can write (a shared filesystem)."""
-    from tqdm import tqdm
     ray = connect_ray(address)
     remote = ray.remote(num_cpus=1)(run_job)
     refs = {remote.remote(job, str(root), None, "auto", 1, device): job for job in todo}
     results = []
-    with tqdm(total=len(todo), desc="scenes (ray)", unit="scene", disable=not show_progress) as bar:
+    with progress_bar(total=len(todo), desc="scenes (ray)", unit="scene", quiet=not show_progress) as bar:
         while refs:
             ready, _ = ray.wait(list(refs), num_returns=1)
             for r in ready:

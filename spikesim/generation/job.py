@@ -16,9 +16,11 @@ from typing import TYPE_CHECKING, Any, Callable, Iterator
 import numpy as np
 
 from spikesim.dataset import inside_root, remove_inside, write_scene
+from spikesim.keyframes import keyframe_count
+from spikesim.render_settings import RenderSettings
 
 if TYPE_CHECKING:
-    from pipelines.generate import SceneJob
+    from spikesim.generation.plan import SceneJob
 
 log = logging.getLogger("spikesim.generate")
 
@@ -46,14 +48,13 @@ class _FrameSource:
                     lamps_lux=tuple(src.get("lamps_lux", LAMPS_LUX_BEFORE_STUDY)))
             else:
                 scene, motion, lights, light = src["scene"], src.get("motion"), src.get("lights"), src["light"]
-            render = {k: v for k, v in job.render.items()}
-            render["resolution"] = tuple(render["resolution"])
+            settings = RenderSettings.from_dict(job.render)
             if job.quality is not None:
                 from spikesim.quality import QualitySettings
-                render.update(QualitySettings.from_name(job.quality).render_kwargs())
-            render["device"] = device
+                settings = settings.replace(**QualitySettings.from_name(job.quality).render_kwargs())
             self._renderer = SceneRenderer(scene, light=light, motion=motion, lights=lights,
-                                           camera=SpikeCamera.from_dict(job.camera), **render)
+                                           camera=SpikeCamera.from_dict(job.camera),
+                                           settings=settings.replace(device=device))
             self._pattern = None
 
     @property
@@ -70,7 +71,7 @@ class _FrameSource:
         if self._renderer is not None:
             it = self._renderer.frames(start, n, keyframe_every=k, device=device)
         else:
-            it = self._pattern.frames(-(-(n - 1) // k) + 1, start=start, every=k)
+            it = self._pattern.frames(keyframe_count(n, k), start=start, every=k)
         for f in it:
             yield f * np.float32(self.scale) if self.scale != 1.0 else f
 
@@ -79,9 +80,41 @@ class _FrameSource:
         return img * np.float32(self.scale) if self.scale != 1.0 else img
 
     def describe(self) -> dict[str, Any]:
-        if self._renderer is not None:
-            return self._renderer.describe()
-        return {"pattern": dataclasses.asdict(self._pattern)}
+        """The source's record, its light as the job renders it: photometric amounts (lux, lumens,
+        candela, power) scaled by the light power factor, like the frames."""
+        if self._renderer is None:
+            return {"pattern": dataclasses.asdict(self._pattern)}
+        out = self._renderer.describe()
+        if self.scale != 1.0 and "light" in out:
+            out["light"] = {**scale_light_amounts(out["light"], self.scale), "light_power_factor": self.scale}
+        return out
+
+
+#: Keys of a light's record whose values scale with its power.
+_POWER_KEYS = ("power", "photometric")
+
+
+def _scales_with_power(key: str) -> bool:
+    return key in _POWER_KEYS or "lux" in key or key.endswith(("_lm", "_cd", "_w"))
+
+
+def scale_light_amounts(record: Any, factor: float) -> Any:
+    """A light record (spikesim.render.lights: conditions, emitters) with every amount that
+    scales with emitter power multiplied by `factor` (light transport is linear in it)."""
+    if isinstance(record, dict):
+        return {k: (v * factor if _scales_with_power(k) and isinstance(v, (int, float)) and not isinstance(v, bool)
+                    else scale_light_amounts(v, factor)) for k, v in record.items()}
+    if isinstance(record, list):
+        return [scale_light_amounts(v, factor) for v in record]
+    return record
+
+
+def subject_illuminance_lux(source: dict[str, Any]) -> float | None:
+    """The illuminance at the scene's subject as rendered (light power factor included), if the
+    lighting records one."""
+    subject = source.get("light", {}).get("subject") or {}
+    lux = subject.get("direct_illuminance_lux")
+    return float(lux) if isinstance(lux, (int, float)) else None
 
 
 def _without_prefix(obj: Any, prefix: str, replacement: str) -> Any:
@@ -174,10 +207,12 @@ def run_job(job: SceneJob, root: str | Path, progress: Callable[[str, int, int],
             for step in job.gt_steps:
                 yield step, source.ground_truth(step)
 
+        described = _without_prefix(source.describe(), str(work), "<built from the job's seed>")
         meta = {"job": job.to_dict(), "job_digest": job.digest, "camera": job.camera, "seed": job.seed,
                 "height": cam.height, "width": cam.width,
                 "windows": [list(w) for w in job.windows], "light_power_factor": job.light_power_factor,
-                "source": _without_prefix(source.describe(), str(work), "<built from the job's seed>"),
+                "source": described, "subject_illuminance_lux": subject_illuminance_lux(described),
+                "settings": job.settings or None,
                 "simulator": sim.describe(num_steps=written),
                 "quality": quality_record}
         write_scene(root, job.name, dat, ground_truth(), meta, flip=job.flip)
@@ -185,7 +220,8 @@ def run_job(job: SceneJob, root: str | Path, progress: Callable[[str, int, int],
         shutil.rmtree(work, ignore_errors=True)
     total = time.perf_counter() - t0
     size = sum(p.stat().st_size for p in inside_root(root, job.name).rglob("*") if p.is_file())
-    return {"name": job.name, "seconds": total, "frames_and_spikes_seconds": t_frames, "bytes": size}
+    return {"name": job.name, "seconds": total, "frames_and_spikes_seconds": t_frames, "bytes": size,
+            "subject_illuminance_lux": meta["subject_illuminance_lux"]}
 
 
 __all__ = ["run_job"]

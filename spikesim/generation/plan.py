@@ -1,0 +1,245 @@
+"""Planning a dataset: presets, scene jobs and their seeds.
+
+A dataset is a list of `SceneJob`s, each a plain, JSON-serialisable description of one scene
+folder (spikesim/dataset.py documents the layout); spikesim.generation.run runs them.
+"""
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from spikesim.dataset import check_scene_name
+from spikesim.render_settings import HoldsRenderSettings, RenderSettings
+
+WINDOW = 41  # the reconstruction window (paper, section "Implementation Details")
+
+
+# ---- presets --------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Preset(HoldsRenderSettings):
+    """Dataset sizes and render settings. `paper` is the published size; `small` runs in minutes
+    on a 2-core CPU (the demo and the tests use it). `replace` takes render knobs (spp, gt_spp,
+    variant, keyframe_every) and sizes alike."""
+
+    name: str
+    height: int
+    width: int
+    llr_windows: int
+    """Continuous windows per LLR scene (paper: 21 of 41 steps)."""
+    llr_scenes: tuple[str, ...]
+    rllr_scenes: int
+    """Random scenes in RLLR (paper: 100)."""
+    rllr_steps: int
+    """Steps per RLLR scene (paper: 1000)."""
+    rllr_gt_stride: int = 1
+    """Ground truth every this many steps in RLLR (1 = every step, as the paper)."""
+    render: RenderSettings = RenderSettings()
+    """spp, gt_spp, variant ("auto" = mono when the lights share one spectrum, else spectral) and
+    keyframe_every; a job sets its own seed and the resolution (height, width)."""
+
+    def __post_init__(self) -> None:
+        for f in ("height", "width", "llr_windows", "rllr_steps", "rllr_gt_stride"):
+            v = getattr(self, f)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                raise ValueError(f"preset {self.name}: {f}={v!r} must be a positive integer")
+        if self.rllr_scenes < 0:
+            raise ValueError(f"preset {self.name}: rllr_scenes must be >= 0")
+
+    def values(self) -> dict[str, Any]:
+        """Every setting by name, render knobs included (what `replace` takes)."""
+        own = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name not in ("name", "render")}
+        return {**own, **{k: getattr(self.render, k) for k in PRESET_RENDER_KNOBS}}
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"name": self.name, **self.values(), "llr_scenes": list(self.llr_scenes)}
+
+
+#: The render knobs a preset sets; seed and resolution are each job's.
+PRESET_RENDER_KNOBS = ("spp", "gt_spp", "variant", "keyframe_every")
+
+
+PRESETS: dict[str, Preset] = {
+    "paper": Preset("paper", 250, 400, llr_windows=21, llr_scenes=("ball", "car", "cook", "fan", "rotate"),
+                    rllr_scenes=100, rllr_steps=1000),
+    "small": Preset("small", 64, 100, llr_windows=3, llr_scenes=("ball", "fan"), rllr_scenes=3, rllr_steps=164,
+                    rllr_gt_stride=41, render=RenderSettings(spp=2, gt_spp=16)),
+}
+
+
+# ---- jobs -----------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class SceneJob:
+    """Everything that determines one scene folder, bit for bit."""
+
+    name: str
+    source: dict[str, Any]
+    """{"type": "scene", "scene": name-or-xml, "motion": path|None, "lights": path|None, "light": str}
+    or {"type": "pattern", "peak_y": float} (the built-in pattern, no renderer)
+    or {"type": "random", "index": int, "scene_seed": int, "lamps_lux": [lo, hi]} (an RLLR random
+    scene, built from the seed; lamps_lux absent: the range before the saturation study)."""
+    camera: dict[str, Any]
+    render: dict[str, Any]
+    num_steps: int
+    gt_steps: tuple[int, ...]
+    windows: tuple[tuple[int, int], ...] = ()
+    """(start, stop) of each reconstruction window, stop exclusive; its centre has ground truth."""
+    light_power_factor: float = 1.0
+    """Multiplies every light's power (RLLR's random darkening, paper). Light transport is linear
+    in emitter power, so it is applied to the rendered radiance: identical, and no re-render."""
+    seed: int = 0
+    keyframe_every: int = 1
+    flip: bool = True
+    quality: str | None = None
+    """A `spikesim.quality` preset (draft / balanced / reference) that sets the render and sensor
+    knobs (spp, variant, keyframe policy, noise terms, precision) instead of the fields above."""
+    settings: dict[str, Any] = dataclasses.field(default_factory=dict, compare=False)
+    """Each setting's value and where it came from (spikesim.generation.settings), recorded in
+    meta.json; not part of the job's identity (`to_dict`, `digest`): the same values from another
+    origin make the same scene."""
+
+    def __post_init__(self) -> None:
+        check_scene_name(self.name)
+        if self.quality is not None:
+            from spikesim.quality import QualitySettings
+            QualitySettings.from_name(self.quality)  # validates the name
+        if self.num_steps < 1:
+            raise ValueError(f"job {self.name}: num_steps must be >= 1")
+        if not 0 < self.light_power_factor <= 1e6 or not np.isfinite(self.light_power_factor):
+            raise ValueError(f"job {self.name}: light_power_factor={self.light_power_factor} must be in (0, 1e6]")
+        bad = [s for s in self.gt_steps if not 0 <= s < self.num_steps]
+        if bad:
+            raise ValueError(f"job {self.name}: ground-truth steps {bad[:5]} outside [0, {self.num_steps})")
+
+    def to_dict(self) -> dict[str, Any]:
+        d = dataclasses.asdict(self)
+        del d["settings"]
+        d["gt_steps"] = list(self.gt_steps)
+        d["windows"] = [list(w) for w in self.windows]
+        return d
+
+    @property
+    def digest(self) -> str:
+        return hashlib.sha256(json.dumps(self.to_dict(), sort_keys=True).encode()).hexdigest()[:16]
+
+
+def llr_windows(num_windows: int, window: int = WINDOW) -> tuple[tuple[tuple[int, int], ...], tuple[int, ...]]:
+    """Consecutive windows from step 0 and their centre steps (paper: t_i = i (2 dt + 1))."""
+    wins = tuple((i * window, (i + 1) * window) for i in range(num_windows))
+    return wins, tuple(a + window // 2 for a, _ in wins)
+
+
+def _camera_dict(preset: Preset, camera: Any | None) -> dict[str, Any]:
+    from spikesim.camera import SpikeCamera
+    cam = camera or SpikeCamera.realistic()
+    return cam.replace(height=preset.height, width=preset.width).to_dict()
+
+
+def _render_dict(preset: Preset, seed: int) -> dict[str, Any]:
+    return {"variant": preset.variant, "spp": preset.spp, "gt_spp": preset.gt_spp, "seed": seed,
+            "resolution": [preset.height, preset.width]}
+
+
+def scene_seed(dataset_seed: int, scene: str, light: str) -> int:
+    """The seed of one scene (renderer and sensor) from the dataset seed and the scene's identity
+    alone, so a scene has the same bytes whichever other scenes are planned with it. The name is
+    hashed with sha256 (Python's hash() changes between processes) and mixed with the dataset seed
+    by NumPy's SeedSequence."""
+    digest = hashlib.sha256(f"{scene}\0{light}".encode()).digest()
+    words = [int.from_bytes(digest[i:i + 4], "little") for i in range(0, 16, 4)]
+    return int(np.random.SeedSequence([int(dataset_seed), *words]).generate_state(1)[0])
+
+
+def bundled_scene(name: str) -> str:
+    """The bundled LLR scene called `name` (case-insensitive), or a ValueError: LLR scene names are
+    names, and a path means the user's own scene, which `generate scene --xml` builds."""
+    from scenes import SCENES
+    if any(c in name for c in "/\\") or name.startswith(".") or name.lower().endswith(".xml"):
+        raise ValueError(f"{name!r} is a path, not an LLR scene name ({', '.join(SCENES)}); "
+                         "to build your own scene, use generate scene --xml PATH")
+    if name.lower() not in SCENES:
+        raise ValueError(f"unknown scene {name!r}: the LLR scenes are {', '.join(SCENES)}; "
+                         "to build your own scene, use generate scene --xml PATH")
+    return name.lower()
+
+
+def plan_llr(preset: Preset, seed: int = 0, camera: Any | None = None, scenes: list[str] | None = None,
+             lights: tuple[str, ...] = ("normal", "low"), quality: str | None = None) -> list[SceneJob]:
+    wins, centres = llr_windows(preset.llr_windows)
+    jobs = []
+    for scene in (preset.llr_scenes if scenes is None else [bundled_scene(s) for s in scenes]):
+        for light in lights:
+            name = f"{scene}_{light}"
+            s = scene_seed(seed, scene, light)
+            jobs.append(SceneJob(name=name, source={"type": "scene", "scene": scene, "light": light},
+                                 camera=_camera_dict(preset, camera), render=_render_dict(preset, s),
+                                 num_steps=wins[-1][1], gt_steps=centres, windows=wins, seed=s,
+                                 keyframe_every=preset.keyframe_every, quality=quality))
+    return jobs
+
+
+def plan_rllr(preset: Preset, seed: int = 0, camera: Any | None = None, count: int | None = None,
+              source: str = "random", quality: str | None = None) -> list[SceneJob]:
+    """RLLR: random scenes, each darkened by a random factor in (0, 1) (paper, "RLLR"). A random
+    scene's job records its lamps' range (scenes.random_scene.LAMPS_LUX), so scenes built with
+    another range are not taken for finished ones."""
+    from scenes.random_scene import LAMPS_LUX
+    rng = np.random.default_rng(np.random.SeedSequence([seed, 7]))
+    n = preset.rllr_scenes if count is None else count
+    gt = tuple(range(0, preset.rllr_steps, preset.rllr_gt_stride))
+    jobs = []
+    for i in range(n):
+        factor = float(rng.uniform(0.0, 1.0))
+        while factor == 0.0:  # (0, 1): open at 0
+            factor = float(rng.uniform(0.0, 1.0))
+        name = f"rllr_{i:04d}"
+        s = scene_seed(seed, name, source)
+        src = ({"type": "random", "index": i, "scene_seed": s, "lamps_lux": list(LAMPS_LUX)} if source == "random"
+               else {"type": "pattern", "peak_y": 0.3, "pattern_seed": s})
+        jobs.append(SceneJob(name=name, source=src, camera=_camera_dict(preset, camera),
+                             render=_render_dict(preset, s), num_steps=preset.rllr_steps, gt_steps=gt,
+                             light_power_factor=factor, seed=s, keyframe_every=preset.keyframe_every,
+                             quality=quality if source == "random" else None))
+    return jobs
+
+
+def user_scene_name(xml: str | Path, light: str, motion: str | Path | None = None, lights: str | Path | None = None,
+                    light_power_factor: float = 1.0) -> str:
+    """The dataset name of a user's scene: `<folder>_<light>` for a folder's scene.xml with its own
+    motion.json and lights.json at full power. Any other variant adds what differs (the XML's,
+    motion file's and lights file's names, `x<factor>`), so two variants of one scene in one output
+    folder get different names, and a variant always gets the same one."""
+    xml = Path(xml).resolve()
+    parts = [xml.parent.name] + ([xml.stem] if xml.stem != "scene" else []) + [light]
+    for given, default in ((motion, "motion.json"), (lights, "lights.json")):
+        if given is not None and Path(given).resolve() != xml.parent / default:
+            parts.append(Path(given).stem)
+    if light_power_factor != 1.0:
+        parts.append(f"x{light_power_factor:g}")
+    name = "_".join(parts)
+    try:
+        return check_scene_name(name)
+    except ValueError:
+        raise ValueError(f"scene name {name!r} (from the XML's folder, its files and the light) is not a plain "
+                         "folder name (letters, digits and _.+-); give one with --name") from None
+
+
+def plan_user(xml: str, light: str, preset: Preset, num_windows: int | None = None, seed: int = 0,
+              motion: str | None = None, lights: str | None = None, camera: Any | None = None,
+              light_power_factor: float = 1.0, name: str | None = None, quality: str | None = None) -> list[SceneJob]:
+    wins, centres = llr_windows(preset.llr_windows if num_windows is None else num_windows)
+    xml_path = Path(xml).resolve()
+    if name is None:
+        name = user_scene_name(xml_path, light, motion, lights, light_power_factor)
+    src = {"type": "scene", "scene": str(xml_path), "light": light,
+           "motion": str(Path(motion).resolve()) if motion else None, "lights": str(Path(lights).resolve()) if lights else None}
+    s = scene_seed(seed, xml_path.parent.name, light)
+    return [SceneJob(name=name, source=src, camera=_camera_dict(preset, camera),
+                     render=_render_dict(preset, s), num_steps=wins[-1][1], gt_steps=centres, windows=wins,
+                     light_power_factor=light_power_factor, seed=s, keyframe_every=preset.keyframe_every,
+                     quality=quality)]

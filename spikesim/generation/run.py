@@ -1,0 +1,194 @@
+"""Resumable generation: run the jobs that are not done, then write the manifest.
+
+A job is run by one process from start to end and its folder appears only when complete, with the
+checksums of its files, so generation is resumable: a complete folder whose recorded job equals
+the planned one and whose files match its own checksums is skipped; a damaged one is rebuilt; one
+from other parameters needs `overwrite_stale`. One run at a time writes an output folder (a lock
+inside it), and nothing is written, deleted or read outside it. Jobs run in a local process pool
+by default (spikesim.generation.pool), or as Ray tasks writing to a shared path;
+spikesim.generation.job runs one job.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import os
+import shlex
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from spikesim._drjit import resolve_device
+from spikesim.dataset import (MANIFEST, META, SATURATION_WARN_FRACTION, SATURATION_Y, check_scene,
+                              holds_only_scene_files, inside_root, read_manifest, remove_inside, scene_folders,
+                              scene_saturation, write_manifest)
+from spikesim.generation.lock import output_lock
+from spikesim.generation.plan import SceneJob
+
+log = logging.getLogger("spikesim.generate")
+
+
+# ---- resumable generation --------------------------------------------------------------------------
+def scene_state(job: SceneJob, root: Path, full: bool = False) -> tuple[str, list[str]]:
+    """What the output holds for `job`, and why if it is damaged:
+
+    'todo'    no folder yet
+    'done'    complete, the same job, every file matching the checksums recorded when it was
+              written (sizes only unless `full`: then every sha256)
+    'stale'   complete, from other parameters (rebuilt only with --overwrite)
+    'damaged' a file missing, truncated, altered (with `full`), meta.json or the record lost
+    'foreign' something the generator did not write (never deleted)
+    """
+    folder = inside_root(root, job.name)  # a symlink leading out of the root is refused here
+    given = root / job.name
+    if not given.exists() and not given.is_symlink():
+        return "todo", []
+    if given.is_symlink() or not folder.is_dir() or not holds_only_scene_files(folder):
+        return "foreign", []
+    try:
+        digest = json.loads((folder / META).read_text()).get("job_digest")
+    except (OSError, ValueError, AttributeError):
+        digest = None  # missing or unreadable: the checksum record says which
+    if digest is not None and digest != job.digest:
+        return "stale", []
+    problems = check_scene(root, job.name, checksums=full)
+    if not problems and digest is None:
+        problems = [f"{job.name}/{META}: records no job"]
+    return ("damaged", problems) if problems else ("done", [])
+
+
+def job_status(job: SceneJob, root: Path, full: bool = False) -> str:
+    """'todo', 'done', 'stale', 'damaged' or 'foreign' (see `scene_state`)."""
+    return scene_state(job, Path(root), full)[0]
+
+
+def _jobs_to_run(jobs: list[SceneJob], root: Path, overwrite_stale: bool, full: bool) -> list[SceneJob]:
+    """The jobs whose scene is missing or damaged (and, with `overwrite_stale`, from other
+    parameters); their old folders are removed, but only once every folder has been looked at, so
+    a refusal (a folder it did not write, other parameters) leaves everything as it was."""
+    states = {job.name: scene_state(job, root, full) for job in jobs}
+    for name, (state, _) in states.items():
+        if state == "foreign":
+            raise FileExistsError(f"{root / name} exists but is not a scene folder this generator wrote "
+                                  "(it holds other files or is a link); move it away or choose another output folder")
+        if state == "stale" and not overwrite_stale:
+            planned = next(job for job in jobs if job.name == name)
+            recorded = _recorded_source(root / name)
+            if recorded is not None and recorded != planned.source:
+                raise FileExistsError(f"{root / name} holds another scene, {_source_label(recorded)}, under the name "
+                                      f"this run gives {_source_label(planned.source)}; give one of them another "
+                                      "name (--name), or use --overwrite to replace it")
+            raise FileExistsError(f"{root / name} was generated with other parameters; "
+                                  "use --overwrite to rebuild it, or another output folder")
+    for name, (state, problems) in states.items():
+        if state == "damaged":
+            log.warning("%s is damaged (%s); rebuilding it", name, "; ".join(problems[:3]))
+        if state in ("stale", "damaged"):
+            remove_inside(root, name)
+    return [job for job in jobs if states[job.name][0] != "done"]
+
+
+def _recorded_source(folder: Path) -> dict[str, Any] | None:
+    """The source a scene folder's meta.json records, or None when unreadable."""
+    try:
+        source = json.loads((folder / META).read_text())["job"]["source"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return source if isinstance(source, dict) else None
+
+
+def _source_label(source: dict[str, Any]) -> str:
+    """A scene source in a few words: its XML (or kind), light and files."""
+    if not source.get("scene"):  # a pattern or random scene: its few parameters
+        return json.dumps(source, sort_keys=True)
+    what = source["scene"]
+    extras = [f"{k} {source[k]}" for k in ("light", "motion", "lights") if source.get(k)]
+    return f"{what} ({', '.join(extras)})" if extras else str(what)
+
+
+def _passing_scenes(root: Path, planned: list[str], full: bool) -> list[str]:
+    """The scenes the manifest may list: every planned one (each must pass), and any other scene
+    folder under the root that passes its own check (others are left out, with a warning)."""
+    for name in planned:
+        if problems := check_scene(root, name):
+            raise RuntimeError(f"{name} failed its check right after it was generated: {'; '.join(problems[:3])}")
+    others = []
+    for name in scene_folders(root):
+        if name in planned:
+            continue
+        if problems := check_scene(root, name, checksums=full):
+            log.warning("%s is not planned here and fails its check (%s): left out of the manifest",
+                        name, "; ".join(problems[:3]))
+        else:
+            others.append(name)
+    return planned + others
+
+
+def generate(jobs: list[SceneJob], root: str | Path, workers: int | None = None, ray_address: str | None = None,
+             info: dict[str, Any] | None = None, overwrite_stale: bool = False, show_progress: bool = True,
+             check: bool = False, command: str | None = None, device: str = "auto") -> dict[str, Any]:
+    """Run the jobs that are not done yet, then write the manifest from the scenes that pass their
+    checks. `check` hashes every file of the finished scenes (default: sizes only). Returns a report.
+
+    The output root is locked for the run (`command` is recorded for a second run's error); an
+    existing manifest.json that this package did not write is refused, not overwritten."""
+    root = Path(root)
+    names = [j.name for j in jobs]
+    if len(set(names)) != len(names):
+        raise ValueError("two jobs share a scene name")
+    if workers is not None and workers < 1:
+        raise ValueError(f"workers={workers}: needs at least 1 (None: one per core)")
+    root.mkdir(parents=True, exist_ok=True)
+    with output_lock(root, command or shlex.join(sys.argv)):
+        if (root / MANIFEST).exists() or (root / MANIFEST).is_symlink():
+            read_manifest(root)
+        todo = _jobs_to_run(jobs, root, overwrite_stale, check)
+        log.info("%d scene(s) planned, %d already complete, %d to generate in %s",
+                 len(jobs), len(jobs) - len(todo), len(todo), root)
+        results: list[dict[str, Any]] = []
+        t0 = time.perf_counter()
+        if todo:
+            from spikesim.generation.pool import generate_local, generate_ray
+            if ray_address is not None:
+                results = generate_ray(todo, root, ray_address, show_progress, device)
+            else:
+                if workers is None:  # one process per core; one process feeds a GPU best
+                    workers = 1 if resolve_device(device) == "cuda" else min(len(todo), os.cpu_count() or 1)
+                results = generate_local(todo, root, workers, show_progress, device)
+        manifest = write_manifest(root, {**(info or {}), "jobs": {j.name: j.digest for j in jobs}},
+                                  scenes=_passing_scenes(root, names, check))
+    saturation = {name: scene_saturation(root, name) for name in names}
+    _warn_saturated(saturation)
+    return {"root": str(root), "generated": results, "skipped": len(jobs) - len(todo),
+            "seconds": time.perf_counter() - t0, "manifest": str(manifest), "saturation": saturation}
+
+
+def _warn_saturated(saturation: dict[str, float | None]) -> None:
+    """A warning for each scene whose ground truth lies above the sensor's saturation in more than
+    SATURATION_WARN_FRACTION of its pixels: targets no spike stream can show (model/data.py clips
+    them; docs/model.md)."""
+    for name, fraction in saturation.items():
+        if fraction is not None and fraction > SATURATION_WARN_FRACTION:
+            log.warning("%s: %.1f %% of its ground-truth pixels are above the sensor's saturation (y > %g spike "
+                        "per step), more than %g %%: its light is brighter than the camera can show",
+                        name, 100 * fraction, SATURATION_Y, 100 * SATURATION_WARN_FRACTION)
+
+
+def percent(fraction: float | None) -> str:
+    return "n/a" if fraction is None else f"{100 * fraction:.2f} %"
+
+
+def saturation_summary(saturation: dict[str, float | None]) -> str:
+    """One line on the ground truth above the sensor's saturation, over the dataset's scenes."""
+    known = {k: v for k, v in saturation.items() if v is not None}
+    if not known:
+        return "ground truth above saturation: not recorded (scenes written before it was)"
+    over = sorted((k for k, v in known.items() if v > SATURATION_WARN_FRACTION), key=lambda k: -known[k])
+    worst = max(known, key=lambda k: known[k])
+    text = (f"ground truth above saturation (y > {SATURATION_Y:g}): mean {percent(float(np.mean(list(known.values()))))} "
+            f"of pixels over {len(known)} scene(s), most {percent(known[worst])} ({worst}); "
+            f"{len(over)} scene(s) above {100 * SATURATION_WARN_FRACTION:g} %")
+    return text + (f": {', '.join(over[:10])}{' ...' if len(over) > 10 else ''}" if over else "")

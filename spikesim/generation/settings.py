@@ -1,0 +1,128 @@
+"""The settings a generation uses, and where each came from.
+
+Layers, later ones winning: the preset; for a user's own scene, its XML's film size and sampler
+samples per pixel (a user scene keeps its own film and spp); a render-settings file; each
+command-line flag; and a quality preset, which sets the render knobs it was measured with. The
+result is a Preset for planning and, for each setting, its value and origin, which `generate`
+prints and records in each scene's meta.json.
+"""
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Mapping
+
+from spikesim.generation.plan import PRESET_RENDER_KNOBS, PRESETS, Preset
+from spikesim.render_settings import RenderSettings, merge_layers
+
+#: The settings each kind of dataset uses (the others would be ignored, so they are not reported).
+KIND_SETTINGS = {
+    "llr": ("height", "width", "llr_windows", *PRESET_RENDER_KNOBS),
+    "rllr": ("height", "width", "rllr_scenes", "rllr_steps", "rllr_gt_stride", *PRESET_RENDER_KNOBS),
+    "scene": ("height", "width", "llr_windows", *PRESET_RENDER_KNOBS),
+}
+#: What a render-settings file may set for a dataset (seed, device and resolution are per job).
+FILE_SETTINGS = (*PRESET_RENDER_KNOBS, "resolution")
+
+
+@dataclass(frozen=True)
+class ResolvedSettings:
+    """A preset with every layer applied, and the origin of each value that applies."""
+
+    preset: Preset
+    """What the jobs are planned from (a quality's knobs are applied by each job, not here)."""
+    values: dict[str, Any]
+    """Every setting as the jobs use it, a quality's knobs included."""
+    origins: dict[str, str]
+    kind: str
+
+    def table(self) -> dict[str, dict[str, Any]]:
+        """{setting: {"value": v, "from": origin}} for the settings this kind uses."""
+        return {k: {"value": self.values[k], "from": self.origins[k]} for k in KIND_SETTINGS[self.kind]}
+
+    def summary(self) -> str:
+        """One line: each setting with its origin."""
+        return "settings: " + ", ".join(f"{k} {v['value']} ({v['from']})" for k, v in self.table().items())
+
+
+def _xml_int(el: ET.Element, name: str, defaults: Mapping[str, str]) -> int | None:
+    """An <integer name=...> child's value, with $parameters read from the XML's <default>s."""
+    for child in el:
+        if child.tag == "integer" and child.get("name") == name:
+            text = child.get("value", "")
+            if text.startswith("$"):
+                text = defaults.get(text[1:], "")
+            try:
+                return int(text)
+            except ValueError:
+                return None
+    return None
+
+
+def scene_file_settings(xml: str | Path) -> dict[str, int]:
+    """The film size (height, width) and the sampler's sample_count (spp) a Mitsuba scene file
+    declares for its sensor; settings it does not declare are left out."""
+    try:
+        root = ET.parse(xml).getroot()
+    except (ET.ParseError, OSError) as exc:
+        raise ValueError(f"{xml}: cannot read the scene's film and sampler ({exc})") from None
+    defaults = {d.get("name", ""): d.get("value", "") for d in root if d.tag == "default"}
+    out: dict[str, int] = {}
+    for sensor in (el for el in root if el.tag == "sensor"):
+        for child in sensor:
+            if child.tag == "film":
+                for key in ("height", "width"):
+                    if (v := _xml_int(child, key, defaults)) is not None and v > 0:
+                        out[key] = v
+            if child.tag == "sampler":
+                if (v := _xml_int(child, "sample_count", defaults)) is not None and v > 0:
+                    out["spp"] = v
+        break  # the first sensor, as the renderer
+    return out
+
+
+def settings_file_values(path: str | Path) -> dict[str, Any]:
+    """The settings a render-settings file (JSON or TOML, RenderSettings fields) gives a dataset;
+    errors name the file."""
+    from spikesim.config_io import read_config_file
+
+    data = read_config_file(path)
+    unknown = sorted(set(data) - set(FILE_SETTINGS))
+    if unknown:
+        raise ValueError(f"render settings {path}: {unknown} cannot be set for a dataset; it may set "
+                         f"{list(FILE_SETTINGS)}")
+    try:
+        RenderSettings.from_dict(data)  # the checks every render setting gets
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"render settings {path}: {exc}") from None
+    out = {k: v for k, v in data.items() if k != "resolution"}
+    if data.get("resolution") is not None:
+        out["height"], out["width"] = data["resolution"]
+    return out
+
+
+def resolve_settings(kind: str, preset: str | Preset = "small", xml: str | Path | None = None,
+                     settings_file: str | Path | None = None, flags: Mapping[str, Any] | None = None,
+                     quality: str | None = None) -> ResolvedSettings:
+    """Merge the layers (see the module's docstring). `flags` maps a flag as the user wrote it
+    ("--spp") to {setting: value} (None: not given). A quality's render knobs are reported as
+    coming from it, but the preset keeps the others: the job applies the quality itself."""
+    if kind not in KIND_SETTINGS:
+        raise ValueError(f"kind={kind!r}; expected one of {sorted(KIND_SETTINGS)}")
+    base = PRESETS[preset] if isinstance(preset, str) else preset
+    layers: list[tuple[str, Mapping[str, Any] | None]] = [(f"preset {base.name}", base.values())]
+    if kind == "scene" and xml is not None:
+        layers.append((f"scene file {Path(xml).name}", scene_file_settings(xml)))
+    if settings_file is not None:
+        layers.append((f"--render-settings {settings_file}", settings_file_values(settings_file)))
+    layers += list((flags or {}).items())
+    if quality is not None:
+        from spikesim.quality import QualitySettings
+        layers.append((f"--quality {quality}", QualitySettings.from_name(quality).render_kwargs()))
+    values, origins = merge_layers(layers)
+    planned, _ = merge_layers(layers[:-1] if quality is not None else layers)
+    return ResolvedSettings(base.replace(**planned), values, origins, kind)
+
+
+__all__ = ["ResolvedSettings", "resolve_settings", "scene_file_settings", "settings_file_values", "KIND_SETTINGS"]

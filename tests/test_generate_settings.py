@@ -1,0 +1,147 @@
+"""Generation settings and a user's own scene: a scene keeps its own film and samples per pixel
+unless a flag says otherwise; `generate` prints every setting with its origin and records it in
+meta.json; the recorded lux includes the light power factor; two variants of one scene do not
+collide on a name."""
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+
+from pipelines.cli import main
+from sensor_testing import requires_llvm
+from spikesim.generation import PRESETS, SceneJob, generate, plan_user
+from spikesim.generation.job import run_job, scale_light_amounts
+from spikesim.generation.plan import user_scene_name
+from spikesim.generation.settings import resolve_settings, scene_file_settings
+
+ROOT = Path(__file__).resolve().parents[1]
+BALL = ROOT / "scenes" / "ball"
+
+
+def user_scene(tmp_path: Path, width: int = 80, height: int = 50, spp: int | None = 16, name: str = "scene.xml") -> Path:
+    """The bundled ball scene copied as a user's own, with its film (and sampler) changed."""
+    folder = tmp_path / "myscene"
+    if not folder.exists():
+        shutil.copytree(BALL, folder)
+    text = (BALL / "scene.xml").read_text()
+    text = text.replace('<integer name="width" value="400"/>', f'<integer name="width" value="{width}"/>')
+    text = text.replace('<integer name="height" value="250"/>', f'<integer name="height" value="{height}"/>')
+    if spp is not None:
+        text = text.replace("</film>", f'</film>\n        <sampler type="independent"><integer name="sample_count" '
+                                       f'value="{spp}"/></sampler>', 1)
+    (folder / name).write_text(text)
+    return folder / name
+
+
+# ---- a user scene keeps its own film and spp ------------------------------------------------------
+def test_a_user_scene_keeps_its_film_and_spp_over_the_preset(tmp_path):
+    xml = user_scene(tmp_path)
+    assert scene_file_settings(xml) == {"width": 80, "height": 50, "spp": 16}
+    resolved = resolve_settings("scene", "small", xml=xml)
+    table = resolved.table()
+    assert (table["height"]["value"], table["width"]["value"], table["spp"]["value"]) == (50, 80, 16)
+    assert table["spp"]["from"] == "scene file scene.xml" and table["gt_spp"]["from"] == "preset small"
+    job = plan_user(str(xml), "normal", resolved.preset)[0]
+    assert (job.camera["height"], job.camera["width"], job.render["spp"]) == (50, 80, 16)
+    assert job.render["resolution"] == [50, 80]
+
+
+def test_flags_and_a_settings_file_override_the_scene_file_and_say_so(tmp_path):
+    xml = user_scene(tmp_path)
+    settings = tmp_path / "render.json"
+    settings.write_text(json.dumps({"spp": 4, "gt_spp": 32}))
+    resolved = resolve_settings("scene", "small", xml=xml, settings_file=settings,
+                                flags={"--spp": {"spp": 2}, "--height": {"height": None}})
+    table = resolved.table()
+    assert table["spp"] == {"value": 2, "from": "--spp"}
+    assert table["gt_spp"] == {"value": 32, "from": f"--render-settings {settings}"}
+    assert table["height"] == {"value": 50, "from": "scene file scene.xml"}  # None: the flag was not given
+    assert "spp 2 (--spp)" in resolved.summary()
+
+
+def test_a_bad_settings_file_names_itself(tmp_path, capsys):
+    bad = tmp_path / "render.json"
+    bad.write_text(json.dumps({"spp": 0}))
+    with pytest.raises(ValueError, match=str(bad)):
+        resolve_settings("llr", "small", settings_file=bad)
+    bad.write_text(json.dumps({"device": "cuda"}))
+    with pytest.raises(ValueError, match="cannot be set for a dataset"):
+        resolve_settings("llr", "small", settings_file=bad)
+
+
+def test_the_quality_is_reported_as_the_origin_of_the_knobs_it_sets():
+    resolved = resolve_settings("llr", "small", flags={"--spp": {"spp": 3}}, quality="draft")
+    assert resolved.table()["spp"] == {"value": 16, "from": "--quality draft"}
+    assert resolved.preset.spp == 3  # the job applies the quality itself; its digest is unchanged
+
+
+def test_generate_prints_each_setting_with_its_origin_and_records_it_in_meta(tmp_path):
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        rc = main(["generate", "rllr", "--pattern", "--count", "1", "--steps", "12", "--gt-stride", "6",
+                   "--height", "8", "--width", "12", "--workers", "1", "--quiet", "-o", str(tmp_path / "d")])
+    assert rc == 0
+    line = next(x for x in out.getvalue().splitlines() if x.startswith("settings:"))
+    assert "height 8 (--height)" in line and "spp 2 (preset small)" in line and "rllr_steps 12 (--steps)" in line
+    meta = json.loads((tmp_path / "d" / "rllr_0000" / "meta.json").read_text())
+    assert meta["settings"]["width"] == {"value": 12, "from": "--width"}
+    assert meta["settings"]["gt_spp"] == {"value": 16, "from": "preset small"}
+
+
+# ---- the recorded lux includes the light power factor --------------------------------------------
+def test_light_amounts_scale_with_the_power_factor():
+    record = {"name": "low", "emitters": [{"type": "spot", "power": 2.0, "photometric": 100.0, "photometric_unit": "cd",
+                                           "luminous_flux_lm": 50.0, "position": [1.0, 2.0, 3.0],
+                                           "electrons_per_lumen_second": 7.0}],
+              "subject": {"at": [0.0, 0.0, 0.0], "direct_illuminance_lux": 30.0}}
+    half = scale_light_amounts(record, 0.5)
+    em = half["emitters"][0]
+    assert (em["power"], em["photometric"], em["luminous_flux_lm"]) == (1.0, 50.0, 25.0)
+    assert em["position"] == [1.0, 2.0, 3.0] and em["electrons_per_lumen_second"] == 7.0
+    assert half["subject"]["direct_illuminance_lux"] == 15.0 and record["subject"]["direct_illuminance_lux"] == 30.0
+
+
+@requires_llvm
+def test_meta_records_the_lux_the_scene_was_rendered_at(tmp_path):
+    preset = PRESETS["small"].replace(height=8, width=12, llr_windows=1, spp=1, gt_spp=1, keyframe_every=40)
+    lux = {}
+    for factor in (1.0, 0.25):
+        job = plan_user(str(BALL / "scene.xml"), "low", preset, light_power_factor=factor)[0]
+        run_job(job, tmp_path, backend="numpy", device="llvm")
+        meta = json.loads((tmp_path / job.name / "meta.json").read_text())
+        lux[factor] = meta["subject_illuminance_lux"]
+        assert meta["source"]["light"]["subject"]["direct_illuminance_lux"] == pytest.approx(lux[factor])
+    assert lux[1.0] > 0 and lux[0.25] == pytest.approx(0.25 * lux[1.0])
+
+
+# ---- two variants of one scene in one folder -------------------------------------------------------
+def test_variants_of_one_scene_get_distinct_names_and_the_same_variant_the_same(tmp_path):
+    xml = user_scene(tmp_path)
+    other = user_scene(tmp_path, name="night.xml")
+    fast = xml.parent / "motion_fast.json"
+    fast.write_text((xml.parent / "motion.json").read_text())
+    names = [user_scene_name(xml, "normal"), user_scene_name(other, "normal"),
+             user_scene_name(xml, "normal", motion=fast), user_scene_name(xml, "normal", light_power_factor=0.5),
+             user_scene_name(xml, "low")]
+    assert names == ["myscene_normal", "myscene_night_normal", "myscene_normal_motion_fast", "myscene_normal_x0.5",
+                     "myscene_low"]
+    assert user_scene_name(xml, "normal", motion=xml.parent / "motion.json") == "myscene_normal"  # the default
+    jobs = [plan_user(str(x), "normal", PRESETS["small"])[0] for x in (xml, other)]
+    assert jobs[0].name != jobs[1].name
+
+
+def test_a_second_scene_under_a_taken_name_is_refused_naming_both(tmp_path):
+    from spikesim.camera import SpikeCamera
+    cam = SpikeCamera.realistic(height=4, width=8).to_dict()
+
+    def job(peak: float) -> SceneJob:
+        return SceneJob(name="mine", source={"type": "pattern", "peak_y": peak}, camera=cam, render={},
+                        num_steps=4, gt_steps=(0,))
+    generate([job(0.2)], tmp_path, workers=1, show_progress=False)
+    with pytest.raises(FileExistsError, match=r"holds another scene, \{.*0\.2.*under the name this run gives \{.*0\.3"):
+        generate([job(0.3)], tmp_path, workers=1, show_progress=False)

@@ -1,0 +1,64 @@
+"""A Python script runs a generation and a trade study with the objects the CLI uses, and the
+library never imports the command line (`pipelines`)."""
+from __future__ import annotations
+
+import dataclasses
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def run_script(code: str, tmp_path: Path) -> str:
+    """stdout of `code` run as a user's script in a fresh interpreter (cwd: tmp_path)."""
+    proc = subprocess.run([sys.executable, "-c", textwrap.dedent(code)], cwd=tmp_path, capture_output=True,
+                          text=True, timeout=240, env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"})
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return proc.stdout
+
+
+def test_a_script_generates_a_dataset_without_the_command_line(tmp_path):
+    out = run_script("""
+        import sys
+        from spikesim.dataset import open_dataset
+        from spikesim.generation import PRESETS, generate, plan_rllr
+        preset = PRESETS["small"].replace(height=8, width=12, rllr_steps=20, rllr_gt_stride=10)
+        jobs = plan_rllr(preset, seed=3, count=2, source="pattern")
+        report = generate(jobs, "data", workers=1, show_progress=False)
+        scenes = open_dataset("data")
+        print(len(report["generated"]), [s.num_steps for s in scenes], scenes[0].height, scenes[0].width)
+        print(sorted(m for m in sys.modules if m.split(".")[0] == "pipelines"))
+    """, tmp_path)
+    assert out.splitlines() == ["2 [20, 20] 8 12", "[]"]
+
+
+def test_a_script_plans_a_trade_study_and_reads_its_report_without_the_command_line(tmp_path):
+    out = run_script("""
+        import sys
+        from pathlib import Path
+        from spikesim.tradeoff import StudyConfig, collect_rows, plan_runs
+        cfg = StudyConfig(scenes=("ball",), lights=("low",), knobs=("spp",), spp_values=(1, 4))
+        print([r.name for r in plan_runs(cfg)])
+        print(collect_rows(cfg, Path("nothing_yet")))
+        print(sorted(m for m in sys.modules if m.split(".")[0] == "pipelines"))
+    """, tmp_path)
+    assert out.splitlines() == [str(["reference", "floor: sensor seed", "floor: sensor+render seed", "spp=1", "spp=4"]),
+                                "[]", "[]"]
+
+
+def test_the_generate_command_and_a_script_plan_the_same_jobs():
+    """The CLI builds its jobs with spikesim.generation: no second planner in pipelines."""
+    import pipelines.generate as cli
+    import spikesim.generation as lib
+
+    assert cli.plan_llr is lib.plan_llr and cli.generate is lib.generate and cli.PRESETS is lib.PRESETS
+    preset = dataclasses.replace(lib.PRESETS["small"], height=8, width=12)
+    assert [j.digest for j in lib.plan_llr(preset, scenes=["ball"])] == [j.digest for j in cli.plan_llr(preset, scenes=["ball"])]
+
+
+def test_the_library_does_not_import_the_command_line():
+    sources = [p for p in (ROOT / "spikesim").rglob("*.py")
+               if "import pipelines" in p.read_text() or "from pipelines" in p.read_text()]
+    assert sources == []
