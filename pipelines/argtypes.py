@@ -76,6 +76,25 @@ def config_file(text: str) -> Path:
     return p
 
 
+CAMERA_PRESETS = ("realistic", "noiseless")
+
+
+def camera_spec(text: str) -> str | Path:
+    """--camera: a built-in camera (realistic, noiseless) or a JSON/TOML camera config file."""
+    return text if text in CAMERA_PRESETS else config_file(text)
+
+
+def load_camera(spec: str | Path | None):
+    """The SpikeCamera a --camera value names (None: the realistic one)."""
+    from spikesim.camera import SpikeCamera
+
+    if spec is None or spec == "realistic":
+        return SpikeCamera.realistic()
+    if spec == "noiseless":
+        return SpikeCamera.noiseless()
+    return SpikeCamera.from_file(spec)
+
+
 def output_file(text: str) -> Path:
     """A file to write: not an existing folder, and in a folder that exists or can be made."""
     p = Path(text)

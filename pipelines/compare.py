@@ -255,13 +255,13 @@ def cmd_compare(args: argparse.Namespace) -> int:
     train_scenes, test_scenes = open_scenes(args.data), open_scenes(args.test_data)
     check_samples(args.configs, train_scenes)
     out = Path(args.out)
-    checkpoints = train_seeds(args.configs, seeds, args.steps, train_scenes, out, str(dev), args.precision,
+    checkpoints = train_seeds(args.configs, seeds, args.max_steps, train_scenes, out, str(dev), args.precision,
                               progress=not args.quiet)
     rows = evaluate_runs(checkpoints, test_scenes, window, args.baselines, str(dev), progress=not args.quiet)
     stats = aggregate(rows, labels, args.baselines)
-    text = markdown(stats, labels, args.baselines, seeds, args.steps)
+    text = markdown(stats, labels, args.baselines, seeds, args.max_steps)
     meta = {"command": "spikesim " + shlex.join(sys.argv[1:]), "data": str(args.data),
-            "test_data": str(args.test_data), "seeds": seeds, "steps": args.steps,
+            "test_data": str(args.test_data), "seeds": seeds, "steps": args.max_steps,
             "configs": {label: exp.to_dict() for label, exp in args.configs}}
     write_comparison(stats, rows, text, meta, out)
     if args.json:
@@ -284,7 +284,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                    help="named configs or JSON files, each labelled (default label: the config's name)")
     p.add_argument("--seeds", nargs="+", type=nonnegative_int, default=[0, 1, 2],
                    help=f"training seeds, at least {MIN_SEEDS} (default: 0 1 2)")
-    p.add_argument("--steps", type=positive_int, required=True, help="training steps of every run (equal for all)")
+    p.add_argument("--max-steps", type=positive_int, required=True,
+                   help="optimiser steps of every run (equal for all; as train --max-steps)")
     p.add_argument("--baselines", nargs="*", choices=BASELINES, default=list(BASELINES),
                    help="seedless baselines in the tables (default: tfp tfi)")
     p.add_argument("-o", "--out", type=output_dir, required=True, help="folder for the runs and the tables")

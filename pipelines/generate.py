@@ -9,7 +9,8 @@ import shlex
 import sys
 from pathlib import Path
 
-from pipelines.argtypes import add_device_argument, existing_file, nonnegative_int, positive_float, positive_int
+from pipelines.argtypes import (add_device_argument, camera_spec, existing_file, load_camera, nonnegative_int,
+                                positive_float, positive_int)
 from spikesim._drjit import resolve_device
 from spikesim.dataset import check_scene_name
 from spikesim.generation import (PRESETS, bundled_scene, generate, percent, plan_llr, plan_rllr, plan_user,
@@ -64,15 +65,13 @@ def settings_from_args(args: argparse.Namespace) -> ResolvedSettings:
 
 
 def run(args: argparse.Namespace) -> int:
-    from spikesim.camera import SpikeCamera
-
     _refuse_options_for_other_kinds(args)
     if args.kind == "scene" and args.xml is None:
         raise ValueError("generate scene needs --xml (and usually --motion, --lights, --light)")
     resolved = settings_from_args(args)
     preset = resolved.preset
     device = resolve_device(args.device)  # a GPU that is not here fails before anything is written
-    camera = SpikeCamera.from_file(args.camera) if args.camera is not None else None
+    camera = load_camera(args.camera) if args.camera is not None else None
     if args.kind == "llr":
         jobs = plan_llr(preset, seed=args.seed, camera=camera, scenes=args.scenes, quality=args.quality)
     elif args.kind == "rllr":
@@ -128,9 +127,11 @@ def run_verify(args: argparse.Namespace) -> int:
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("generate", help="generate LLR, RLLR or a user dataset (resumable, parallel)")
-    p.add_argument("kind", choices=["llr", "rllr", "scene"])
-    p.add_argument("--preset", choices=sorted(PRESETS), default="small")
-    p.add_argument("-o", "--out", type=Path, required=True)
+    p.add_argument("kind", choices=["llr", "rllr", "scene"],
+                   help="llr: the five LLR scenes; rllr: random 3D scenes, darkened; scene: your own --xml")
+    p.add_argument("--preset", choices=sorted(PRESETS), default="small",
+                   help="dataset size: small (a quick check) or paper (the paper's sizes)")
+    p.add_argument("-o", "--out", type=Path, required=True, help="dataset root (resumable: rerun to continue)")
     p.add_argument("--seed", type=nonnegative_int, default=0,
                    help="dataset seed; each scene's seed derives from it, the scene's name and its light")
     p.add_argument("--scenes", nargs="+", type=_llr_scene, help="LLR scenes by name (default: the preset's)")
@@ -147,7 +148,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--steps", type=positive_int, help="steps per RLLR scene (paper 1000)")
     p.add_argument("--gt-stride", type=positive_int, help="RLLR ground truth every this many steps (paper 1)")
     p.add_argument("--gt-spp", type=positive_int, help="samples per pixel of ground-truth renders")
-    p.add_argument("--camera", type=existing_file, help="camera config file (its size comes from the settings below)")
+    p.add_argument("--camera", type=camera_spec,
+                   help="realistic, noiseless or a JSON/TOML camera file (default: realistic; its size comes from the "
+                        "settings below)")
     p.add_argument("--render-settings", type=existing_file, metavar="FILE",
                    help="JSON/TOML file of render settings (spp, gt_spp, variant, keyframe_every, resolution); "
                         "above the preset and a scene's own film, below the flags")
@@ -170,11 +173,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="before skipping a finished scene, check every file's sha256 against the checksums recorded "
                         "when it was written (default: sizes only, which catches deleted and truncated files); "
                         "damaged scenes are rebuilt")
-    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=run)
     v = sub.add_parser("verify", help="check a dataset against its manifest", epilog=VERIFY_EPILOG,
                        description="Check every file the manifest lists (size and sha256), reading only inside the "
                                    "dataset root, and list files the manifest does not.")
-    v.add_argument("root", type=Path)
+    v.add_argument("root", type=Path, help="dataset root (the folder holding manifest.json)")
     v.add_argument("--quick", action="store_true", help="sizes only, no checksums")
     v.set_defaults(func=run_verify)

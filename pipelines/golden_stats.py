@@ -15,13 +15,12 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from pipelines.argtypes import existing_file, positive_int
+from pipelines.argtypes import camera_spec, existing_file, load_camera, positive_int
 from spikesim import golden
 
 
 def _camera(args: argparse.Namespace):
-    from spikesim.camera import SpikeCamera
-    return SpikeCamera.from_file(args.camera) if args.camera else SpikeCamera.realistic()
+    return load_camera(args.camera)
 
 
 def _backend(name: str) -> str:
@@ -104,9 +103,8 @@ def run(args: argparse.Namespace) -> int:
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("golden", help="check a camera's spike statistics against a stored reference",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--camera", type=existing_file,
-                   help="camera config file (JSON or TOML, spikesim.camera.SpikeCamera fields); default: the "
-                        "built-in realistic camera")
+    p.add_argument("--camera", type=camera_spec, default="realistic",
+                   help="realistic, noiseless or a JSON/TOML camera file (spikesim.camera.SpikeCamera fields)")
     p.add_argument("--reference", type=existing_file,
                    help=f"reference to compare with (default: the project's, {golden.PACKAGED_REFERENCE.name})")
     p.add_argument("--backend", default="numpy", choices=["numpy", "llvm", "cuda", "auto"],

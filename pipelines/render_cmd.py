@@ -1,7 +1,7 @@
 """`spikesim render`: render a scene's frames or ground truth at given steps to EXR + PNG.
 
     spikesim render ball --light low --steps 0:861:41 --ground-truth --out out/ball_low
-    spikesim render fan --variant spectral --spp 4 --steps 0:41 --resolution 125x200
+    spikesim render fan --variant spectral --spp 4 --steps 0:41 --height 125 --width 200
 
 Writes <out>/<frames|gt>/step_NNNNNN.exr (linear y, float32) and a tone-mapped .png beside each,
 plus <out>/render.json (SceneRenderer.describe() and timings). With --variant rgb it writes PNG
@@ -52,15 +52,11 @@ def parse_steps(spec: str) -> list[int]:
     return steps
 
 
-def parse_resolution(spec: str) -> tuple[int, int]:
-    """"HxW", e.g. "250x400" (rows x columns, the order of the arrays)."""
-    try:
-        h, w = (int(x) for x in spec.lower().split("x"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"resolution {spec!r} must be HEIGHTxWIDTH, e.g. 250x400") from None
-    if h <= 0 or w <= 0:
-        raise argparse.ArgumentTypeError(f"resolution {spec!r} must be positive")
-    return h, w
+def _resolution(args: argparse.Namespace) -> tuple[int, int] | None:
+    """(height, width) from --height and --width, which go together."""
+    if (args.height is None) != (args.width is None):
+        raise ValueError("--height and --width go together (or leave both out for the scene's own film)")
+    return None if args.height is None else (args.height, args.width)
 
 
 def percentile(text: str) -> float:
@@ -90,10 +86,12 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
                    help="samples per pixel per ground-truth render (default 64)")
     p.add_argument("--seed", type=nonnegative_int, default=None, help="render seed (default 0)")
     add_device_argument(p)
-    p.add_argument("--resolution", type=parse_resolution, default=None, help="HEIGHTxWIDTH override, e.g. 25x40")
+    p.add_argument("--height", type=positive_int, help="film rows, pixels (default: the scene's film; with --width)")
+    p.add_argument("--width", type=positive_int, help="film columns, pixels (default: the scene's film; with --height)")
     p.add_argument("--motion", type=existing_file, default=None, help="motion file (default: motion.json beside the XML)")
     p.add_argument("--lights", type=existing_file, default=None, help="light file (default: lights.json beside the XML)")
-    p.add_argument("--settings", type=config_file, default=None, help="JSON/TOML file of RenderSettings")
+    p.add_argument("--render-settings", type=config_file, default=None, metavar="FILE",
+                   help="JSON/TOML file of render settings (spikesim.render_settings.RenderSettings)")
     p.add_argument("--exposure", type=config_file, default=None,
                    help="JSON/TOML file of Exposure (optics, pixel, T, threshold)")
     p.add_argument("--png-scale", type=positive_float, default=None, help="PNG preview: multiply y by this before display")
@@ -110,11 +108,11 @@ def run(args: argparse.Namespace) -> int:
     from spikesim.render import Exposure, RenderSettings, SceneRenderer, write_ground_truth
 
     # A bad scene, light or config file raises SceneError/ValueError: one line from pipelines.cli.
-    settings = RenderSettings.from_file(args.settings) if args.settings is not None else None
+    settings = RenderSettings.from_file(args.render_settings) if args.render_settings is not None else None
     exposure = Exposure.from_file(args.exposure) if args.exposure is not None else None
     kw: dict[str, Any] = {"gt_spp": args.gt_spp} if args.gt_spp is not None else {}
     renderer = SceneRenderer(args.scene, light=args.light, variant=args.variant, spp=args.spp,
-                             resolution=args.resolution, seed=args.seed, motion=args.motion,
+                             resolution=_resolution(args), seed=args.seed, motion=args.motion,
                              lights=args.lights, settings=settings, exposure=exposure, device=args.device, **kw)
     kind = "gt" if args.ground_truth else ("preview" if renderer.variant == "rgb" else "frames")
     folder = args.out / kind
@@ -164,4 +162,4 @@ def _write_rgb_png(path: Path, rgb, scale: float | None, percentile: float | Non
     os.replace(tmp, path)
 
 
-__all__ = ["add_parser", "run", "parse_steps", "parse_resolution"]
+__all__ = ["add_parser", "run", "parse_steps"]

@@ -11,7 +11,8 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from pipelines.argtypes import (add_device_argument, config_file, existing_file, nonnegative_float, nonnegative_int,
+from pipelines.argtypes import (add_device_argument, camera_spec, existing_file, load_camera,
+                                nonnegative_float, nonnegative_int,
                                 output_file, positive_int)
 from spikesim.camera import SpikeCamera
 from spikesim.keyframes import keyframe_count, steps_covered
@@ -24,18 +25,15 @@ DEFAULT_STEPS = 2000  # steps of the pattern and of a rendered scene when --step
 
 
 def camera_from_args(args: argparse.Namespace) -> SpikeCamera:
-    if getattr(args, "camera", None) is not None:
-        cam = SpikeCamera.from_file(args.camera)
-    else:
-        cam = SpikeCamera.noiseless() if args.preset == "noiseless" else SpikeCamera.realistic()
+    cam = load_camera(args.camera)
     changes = {k: v for k, v in (("height", args.height), ("width", args.width)) if v is not None}
     return cam.replace(**changes) if changes else cam
 
 
 def add_camera_arguments(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("camera")
-    g.add_argument("--camera", type=config_file, help="camera config (JSON/TOML); overrides --preset")
-    g.add_argument("--preset", choices=["realistic", "noiseless"], default="realistic")
+    g.add_argument("--camera", type=camera_spec, default="realistic",
+                   help="a built-in camera (realistic: every noise term; noiseless: none) or a JSON/TOML camera file")
     g.add_argument("--height", type=positive_int, help="sensor rows (default: the camera's, 250)")
     g.add_argument("--width", type=positive_int, help="sensor columns (default: the camera's, 400)")
 
@@ -142,7 +140,8 @@ def check_outputs(args: argparse.Namespace) -> None:
     side = sidecar_path(args.out)
     if side.is_dir():
         raise ValueError(f"--out {args.out}: its sidecar {side} is a directory")
-    inputs = {"--frames": args.frames, "--camera": args.camera, "--motion": args.motion, "--lights": args.lights}
+    camera_file = args.camera if isinstance(args.camera, Path) else None
+    inputs = {"--frames": args.frames, "--camera": camera_file, "--motion": args.motion, "--lights": args.lights}
     for written in (Path(args.out), side):
         for flag, path in inputs.items():
             if path is not None and written.exists() and Path(path).exists() and written.samefile(path):
@@ -195,7 +194,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     src = p.add_argument_group("irradiance source (default: the built-in moving pattern)")
     src.add_argument("--frames", type=frames_path, help="an (N, H, W) .npy array of y, or a folder of EXR frames")
     src.add_argument("--scene", help="a bundled scene (ball, car, cook, fan, rotate) or a scene XML to render")
-    src.add_argument("--light", default="normal", help="lighting condition of the scene (normal, low)")
+    src.add_argument("--light", default="normal",
+                     help="lighting condition of the scene (normal, low; scene for an XML's own emitters)")
     src.add_argument("--motion", type=existing_file, help="motion file (default: motion.json beside the XML)")
     src.add_argument("--lights", type=existing_file, help="lights file (default: lights.json beside the XML)")
     src.add_argument("--spp", type=positive_int, help="render samples per pixel (default: the renderer's)")
@@ -207,11 +207,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     src.add_argument("--keyframe-every", type=positive_int, default=1,
                      help="frames are keyframes this many steps apart; the sensor interpolates (default 1)")
     add_camera_arguments(p)
-    p.add_argument("--backend", default="auto", choices=["auto", "numpy", "llvm", "cuda"])
-    p.add_argument("--seed", type=nonnegative_int, default=0)
+    p.add_argument("--backend", default="auto", choices=["auto", "numpy", "llvm", "cuda"],
+                   help="sensor backend: auto (cuda > llvm > numpy), the NumPy reference, Dr.Jit CPU or GPU")
+    p.add_argument("--seed", type=nonnegative_int, default=0, help="seed of the sensor's noise and fixed patterns")
     p.add_argument("--no-flip", action="store_true", help="write rows top-down (SPCS/SCSim convention)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.add_argument("-o", "--out", type=output_file, default=Path("out/stream.dat"))
+    p.add_argument("-o", "--out", type=output_file, default=Path("out/stream.dat"),
+                   help="the .dat file to write (its JSON sidecar goes beside it)")
     p.set_defaults(func=run)
 
 

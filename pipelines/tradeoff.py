@@ -1,6 +1,6 @@
 """`spikesim tradeoff`: the command line of the speed/accuracy study (spikesim.tradeoff).
 
-    spikesim tradeoff --scenes ball fan --lights low normal --resolution 50x80 --windows 3 -o out/tradeoff
+    spikesim tradeoff --scenes ball fan --light low normal --height 50 --width 80 --windows 3 -o out/tradeoff
 """
 from __future__ import annotations
 
@@ -18,15 +18,12 @@ log = logging.getLogger("spikesim.tradeoff")
 
 
 # ---- command line ---------------------------------------------------------------------------------
-def _resolution(text: str) -> tuple[int, int]:
-    """--resolution HxW, each at least SSIM's 11-pixel window."""
-    try:
-        h, w = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r}: expected HxW, e.g. 50x80") from None
-    if min(h, w) < 11:
-        raise argparse.ArgumentTypeError(f"{text!r}: height and width must each be >= 11 (SSIM's window)")
-    return h, w
+def _side(text: str) -> int:
+    """--height, --width: at least SSIM's 11-pixel window."""
+    v = positive_int(text)
+    if v < 11:
+        raise argparse.ArgumentTypeError(f"must be >= 11 (SSIM's window), got {text}")
+    return v
 
 
 def _windows(text: str) -> int:
@@ -38,8 +35,8 @@ def _windows(text: str) -> int:
 
 
 def cmd_tradeoff(args: argparse.Namespace) -> int:
-    cfg = StudyConfig.of(scenes=tuple(args.scenes), lights=tuple(args.lights),
-                      resolution=args.resolution, windows=args.windows, ref_spp=args.ref_spp, gt_spp=args.gt_spp,
+    cfg = StudyConfig.of(scenes=tuple(args.scenes), lights=tuple(args.light),
+                      resolution=(args.height, args.width), windows=args.windows, ref_spp=args.ref_spp, gt_spp=args.gt_spp,
                       seed=args.seed, backend=args.backend, device=args.device, knobs=tuple(args.knobs),
                       repeats=args.repeats)
     out = Path(args.out)
@@ -54,7 +51,7 @@ def cmd_tradeoff(args: argparse.Namespace) -> int:
         from spikesim.simulate import resolve_backend
         resolve_backend(cfg.backend)  # an unavailable backend or GPU fails before any rendering or writing
         resolve_device(cfg.device)
-        rows = run_study(cfg, out, progress=not args.no_progress)
+        rows = run_study(cfg, out, progress=not args.quiet)
     write_report(rows, out, Path(args.images) if args.images is not None else None)
     print((out / "tradeoff.md").read_text())
     log.info("wrote %s, %s and %s", out / "tradeoff.csv", out / "tradeoff.md", out / "tradeoff.png")
@@ -66,19 +63,21 @@ def add_parser(subparsers: Any) -> None:
                               description=tradeoff.__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--scenes", nargs="+", type=bundled_scene, default=list(DEFAULT_SCENES),
                    help="LLR scenes (default: all five)")
-    p.add_argument("--lights", nargs="+", default=["low", "normal"], choices=("low", "normal"))
-    p.add_argument("--resolution", type=_resolution, default=(50, 80), help="HxW of camera and renders (50x80)")
+    p.add_argument("--light", nargs="+", default=["low", "normal"], choices=("low", "normal"),
+                   help="lighting conditions to study")
+    p.add_argument("--height", type=_side, default=50, help="rows of camera and renders, pixels")
+    p.add_argument("--width", type=_side, default=80, help="columns of camera and renders, pixels")
     p.add_argument("--windows", type=_windows, default=3, help="41-step windows around the sequence centre (3)")
     p.add_argument("--ref-spp", type=positive_int, default=64, help="samples per pixel of the reference (64)")
     p.add_argument("--gt-spp", type=positive_int, default=256, help="samples per pixel of the ground truth (256)")
-    p.add_argument("--knobs", nargs="+", default=list(KNOBS), choices=KNOBS)
+    p.add_argument("--knobs", nargs="+", default=list(KNOBS), choices=KNOBS, help="the knobs to vary, one at a time")
     p.add_argument("--repeats", type=positive_int, default=3, help="simulation timing repeats (minimum kept)")
-    p.add_argument("--seed", type=nonnegative_int, default=0)
+    p.add_argument("--seed", type=nonnegative_int, default=0, help="seed of the renders and the sensor")
     p.add_argument("--backend", default="auto", choices=("auto", "numpy", "llvm", "cuda"), help="the sensor backend")
     add_device_argument(p)
     p.add_argument("-o", "--out", type=output_dir, default=Path("out/tradeoff"),
                    help="output folder (cache, CSV, Markdown, PNG)")
     p.add_argument("--images", type=output_dir, default=None, help="also write the plot as <DIR>/tradeoff_pareto.png")
     p.add_argument("--report-only", action="store_true", help="rebuild the tables and plot from the cache")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_tradeoff)

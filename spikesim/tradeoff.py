@@ -1,7 +1,7 @@
 """The speed/accuracy study: measure what each render and sensor knob costs and what it changes
 (`spikesim tradeoff` is its command line; a Python script runs it with the same objects).
 
-    spikesim tradeoff --scenes ball fan --lights low normal --resolution 50x80 --windows 3 -o out/tradeoff
+    spikesim tradeoff --scenes ball fan --light low normal --height 50 --width 80 --windows 3 -o out/tradeoff
 
 Per scene and light: a reference run (a render per step, `--ref-spp` samples, spectral, float64,
 every noise term) and one run per knob setting, each changing one knob of the reference: samples

@@ -26,7 +26,7 @@ def test_simulate_from_npy_with_keyframes(tmp_path):
     np.save(tmp_path / "f.npy", frames)
     out = tmp_path / "k.dat"
     assert main(["simulate", "--frames", str(tmp_path / "f.npy"), "--height", "8", "--width", "16",
-                 "--preset", "noiseless", "--keyframe-every", "10", "--quiet", "-o", str(out)]) == 0
+                 "--camera", "noiseless", "--keyframe-every", "10", "--quiet", "-o", str(out)]) == 0
     from spikesim.stream import read_dat
     s = read_dat(out, 8, 16)
     assert s.num_steps == 31 and np.all(s.counts() == 7)  # floor(31 * 0.25)

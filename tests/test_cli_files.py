@@ -12,7 +12,7 @@ from pipelines.cli import main
 
 
 def _report_only(out) -> list[str]:
-    return ["tradeoff", "--scenes", "ball", "--lights", "low", "--report-only", "-o", str(out), "--no-progress"]
+    return ["tradeoff", "--scenes", "ball", "--light", "low", "--report-only", "-o", str(out), "--quiet"]
 
 
 @pytest.mark.parametrize("damage", ["json", "not-an-object", "npz"])

@@ -11,7 +11,7 @@ H, W = 8, 16
 
 
 def simulate(*args: str) -> list[str]:
-    return ["simulate", "--height", str(H), "--width", str(W), "--backend", "numpy", "--preset", "noiseless",
+    return ["simulate", "--height", str(H), "--width", str(W), "--backend", "numpy", "--camera", "noiseless",
             "--quiet", *args]
 
 

@@ -73,7 +73,7 @@ def _has_cuda() -> bool:
 @pytest.mark.parametrize("command", [
     "simulate --height 8 --width 16 --steps 4 --quiet --backend cuda -o {out}/s.dat",
     "golden --backend cuda",
-    "tradeoff --scenes ball --lights low --resolution 11x11 --windows 1 --backend cuda -o {out}/t --no-progress",
+    "tradeoff --scenes ball --light low --height 11 --width 11 --windows 1 --backend cuda -o {out}/t --quiet",
 ], ids=["simulate", "golden", "tradeoff"])
 def test_cuda_without_a_gpu_is_one_line(command, tmp_path, capsys):
     rc = main(command.format(out=tmp_path).split())

@@ -60,7 +60,7 @@ def test_compare_end_to_end(tmp_path, capsys):
     a = _config(tmp_path / "a.json", "a", representation="spike", adf=False, aif=False)
     out = tmp_path / "cmp"
     argv = ["compare", "--data", str(tmp_path / "train"), "--test-data", str(tmp_path / "test"),
-            "--configs", f"E={e}", f"A={a}", "--seeds", "0", "1", "2", "--steps", "2", "--device", "cpu",
+            "--configs", f"E={e}", f"A={a}", "--seeds", "0", "1", "2", "--max-steps", "2", "--device", "cpu",
             "--quiet", "--out", str(out)]
     assert main(argv) == 0
     text = capsys.readouterr().out
@@ -106,7 +106,7 @@ def test_compare_refuses_comparisons_that_would_not_hold(tmp_path, capsys, flags
                     break
                 vals.append(f)
             base[flags[i]] = vals
-    argv = ["compare", "--data", str(tmp_path / "d"), "--test-data", str(tmp_path / "d"), "--steps", "1",
+    argv = ["compare", "--data", str(tmp_path / "d"), "--test-data", str(tmp_path / "d"), "--max-steps", "1",
             "--device", "cpu", "--out", str(tmp_path / "o")]
     for k, v in base.items():
         argv += [k, *v]
@@ -116,7 +116,7 @@ def test_compare_refuses_comparisons_that_would_not_hold(tmp_path, capsys, flags
 
 
 def test_compare_names_an_unknown_config_in_the_parser(tmp_path, capsys):
-    assert main(["compare", "--data", "d", "--test-data", "d", "--steps", "1", "--out", str(tmp_path / "o"),
+    assert main(["compare", "--data", "d", "--test-data", "d", "--max-steps", "1", "--out", str(tmp_path / "o"),
                  "--configs", "nope"]) == 2
     assert "argument --configs" in capsys.readouterr().err
 
@@ -127,7 +127,7 @@ def test_compare_checks_every_config_before_training_any(tmp_path, capsys):
     long = json.loads(e.read_text())
     long["name"], long["train"]["num_windows"] = "long", 21
     (tmp_path / "long.json").write_text(json.dumps(long))
-    assert main(["compare", "--data", str(tmp_path / "d"), "--test-data", str(tmp_path / "d"), "--steps", "1",
+    assert main(["compare", "--data", str(tmp_path / "d"), "--test-data", str(tmp_path / "d"), "--max-steps", "1",
                  "--device", "cpu", "--out", str(tmp_path / "o"), "--configs", f"E={e}", str(tmp_path / "long.json")]) == 2
     err = capsys.readouterr().err
     assert "--configs long: no scene has 21 consecutive windows" in err and not (tmp_path / "o" / "runs").exists()

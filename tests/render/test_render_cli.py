@@ -45,7 +45,7 @@ def test_render_ground_truth_to_exr_and_png(make_scene, tmp_path):
 
 def test_render_frames_and_bad_scene_exit_code(make_scene, tmp_path, capsys):
     xml = make_scene(PLANE.format(reflectance=0.5))
-    args = _parser().parse_args(["render", str(xml), "--steps", "0:2", "--resolution", "10x16", "--out", str(tmp_path)])
+    args = _parser().parse_args(["render", str(xml), "--steps", "0:2", "--height", "10", "--width", "16", "--out", str(tmp_path)])
     assert args.func(args) == 0
     assert len(list((tmp_path / "frames").glob("*.exr"))) == 2
     from pipelines.cli import main
