@@ -126,6 +126,13 @@ def _cv_and_se(values: np.ndarray) -> dict[str, float] | None:
     return {"value": float(values.std() / values.mean()), "se": float(cvs.std(ddof=1) / math.sqrt(cvs.size))}
 
 
+def _binomial_ok(fraction: float, pixels: int) -> bool:
+    """Whether a fraction of windows is far enough from 0 and 1 for its block means to be normal:
+    at least 10 expected windows on each side per block (the usual rule for the binomial)."""
+    windows_per_block = pixels / BLOCKS * (NUM_STEPS // WINDOW)
+    return min(fraction, 1.0 - fraction) * windows_per_block >= 10
+
+
 #: Which statistics each band reports.
 _BAND_STATS = {"rate_per_step", "rate_cv", "fano_41", "dark_fraction_41", "isi_cv2"}
 
@@ -148,6 +155,8 @@ def measure(camera: SpikeCamera | None = None, backend: str = "numpy", seed: int
                 value = _cv_and_se(per_pixel["rate_per_step"][sel])
             else:
                 value = _mean_and_se(per_pixel[stat][sel])
+            if stat == "dark_fraction_41" and value is not None and not _binomial_ok(value["value"], sel.size):
+                value = None
             if value is not None:
                 entry[stat] = value
         stats[name] = entry
