@@ -18,7 +18,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from pipelines.generate_jobs import run_job
-from spikesim._optional import require
 from spikesim.errors import UnavailableError
 
 if TYPE_CHECKING:
@@ -144,6 +143,7 @@ def _ray_unreachable(address: str) -> str:
 def connect_ray(address: str) -> Any:
     """The `ray` module, connected to `address` ('auto', 'host:port', or 'local' for a fresh
     one-machine instance); UnavailableError (one line) when Ray or the cluster is not there."""
+    from spikesim._optional import require
     ray = require("ray", "cluster", "--ray (leave it out to use local processes)")
     if not ray.is_initialized():
         try:
