@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from pipelines.argtypes import nonnegative_int, positive_float, positive_int
-from spikesim.stream import DatReader, detect_header_columns, read_sidecar, stream_geometry
+from spikesim.stream import DatReader, detect_header_columns, read_sidecar, recorded_geometry, stream_geometry
 
 CHUNK_PIXEL_STEPS = 1 << 20  # pixels x steps unpacked at a time (1 MB of bits)
 
@@ -159,12 +159,30 @@ def _readout_period(args: argparse.Namespace, side: dict[str, Any]) -> float:
     return args.readout_period_s or recorded or 25e-6
 
 
+def open_stream(path: Path, height: int | None = None, width: int | None = None, flip: bool | None = None,
+                header_columns: int | str | None = "auto", drop_partial: bool = False) -> tuple[DatReader, int]:
+    """(reader, header columns) of a `.dat`, its size and row order from the arguments, else from
+    the record beside it (spikesim.stream.stream_geometry); header_columns "auto" or None: detected.
+
+    A record whose size does not fit the file is named in the error: a stale sidecar or meta.json,
+    not a truncated stream, is then the likely cause, and --height/--width override it."""
+    h, w, flip = stream_geometry(path, height, width, flip)
+    header = (detect_header_columns(path, h, w, drop_partial) if header_columns in ("auto", None)
+              else header_columns)
+    try:
+        return DatReader(path, h, w, flip=flip, header_columns=header, drop_partial=drop_partial), header
+    except ValueError as exc:
+        rec = recorded_geometry(path)
+        if rec is None or (height and width):
+            raise
+        raise ValueError(f"{exc} (height {h}, width {w} as recorded in {rec['source']}; "
+                         "--height/--width override it)") from None
+
+
 def run(args: argparse.Namespace) -> int:
-    height, width, flip = stream_geometry(args.path, args.height, args.width, args.flip)
-    header = (detect_header_columns(args.path, height, width, args.drop_partial)
-              if args.header_columns == "auto" else args.header_columns)
-    reader = DatReader(args.path, height, width, flip=flip, header_columns=header,
-                       drop_partial=args.drop_partial)
+    reader, header = open_stream(args.path, args.height, args.width, args.flip, args.header_columns,
+                                 args.drop_partial)
+    flip = reader.flip
     start, stop = step_range(args.path, len(reader), args.start, args.stop)
     side = read_sidecar(args.path) or {}
     period = _readout_period(args, side)

@@ -29,11 +29,11 @@ import torch
 from model.methods import method_from_spec
 from model.streaming import StepWindows
 from pipelines.argtypes import nonnegative_int, positive_float, positive_int
-from pipelines.inspect_cmd import header_columns_arg
+from pipelines.inspect_cmd import header_columns_arg, open_stream
 from spikesim._optional import require
 from spikesim.errors import UnavailableError
 from spikesim.stream import HEADER_COLUMNS as PKU_HEADER
-from spikesim.stream import detect_header_columns, stream_geometry
+from spikesim.stream import detect_header_columns  # noqa: F401  (callers and tests reach it here)
 
 PKU_HEIGHT, PKU_WIDTH = 250, 400
 # What a run writes in --out: a rerun replaces exactly these (reconstruct.json last).
@@ -98,13 +98,9 @@ def reconstruct_file(path: Path, out: Path, method_spec: str = "tfp", height: in
     height / width / flip None: as recorded beside the stream, else 250 x 400 bottom-up;
     header_columns None: detected (spikesim.stream.detect_header_columns).
     """
-    from spikesim.stream import DatReader
-
     path, out = Path(path), Path(out)
-    height, width, flip = stream_geometry(path, height, width, flip)
-    if header_columns is None:
-        header_columns = detect_header_columns(path, height, width)
-    reader = DatReader(path, height, width, flip=flip, header_columns=header_columns)
+    reader, header_columns = open_stream(path, height, width, flip, header_columns)
+    height, width, flip = reader.height, reader.width, reader.flip
     method = method_from_spec(method_spec, window, chunk, device)
     window = method.window
     available = (reader.num_steps - start) // window

@@ -103,6 +103,8 @@ CHECK = textwrap.dedent("""
         }
     data = Path(spikesim.__file__).parent / "data"
     out["data"] = sorted(p.name for p in data.glob("*.json")) if data.is_dir() else []
+    from spikesim.golden import PACKAGED_REFERENCE, load_reference
+    out["golden"] = {"path": str(Path(PACKAGED_REFERENCE).resolve()), "statistics": sorted(load_reference())}
     from spikesim.render import SceneRenderer
     for name in SCENES:  # loadable: Mitsuba reads the XML, meshes and textures, one tiny frame
         y = SceneRenderer(name, light="low", resolution=(8, 12), spp=1, gt_spp=1, device="llvm").render_step(0)
@@ -148,6 +150,12 @@ def test_the_golden_statistics_ship_where_the_checkout_has_them(checked):
     assert checked["data"] == in_checkout
 
 
+def test_the_golden_reference_is_found_in_the_install(installed, checked):
+    """`spikesim golden` compares with the packaged reference: it must be the installed copy."""
+    assert Path(checked["golden"]["path"]).is_relative_to(installed[0].resolve()), checked["golden"]
+    assert checked["golden"]["statistics"], "the packaged reference loaded empty"
+
+
 def test_the_console_script_reports_its_version_and_simulates(installed):
     site, env, work = installed
     spikesim = site / "bin" / "spikesim"
@@ -160,3 +168,17 @@ def test_the_console_script_reports_its_version_and_simulates(installed):
     info = json.loads(run([sys.executable, "-P", str(spikesim), "inspect", "s.dat", "--json"], cwd=work,
                           env=env).stdout)
     assert (info["num_steps"], info["height"], info["width"]) == (30, 8, 12) and info["spikes"] > 0
+
+
+def test_the_demo_runs_from_the_install(installed):
+    """The README's first job, shrunk: one bundled scene, one window, rendered, simulated,
+    written as a dataset and reconstructed, all from the installed files."""
+    site, env, work = installed
+    run([sys.executable, "-P", str(site / "bin" / "spikesim"), "demo", "--out", "demo", "--scenes", "fan",
+         "--windows", "1", "--workers", "1", "--device", "llvm", "--quiet"], cwd=work, env=env)
+    scenes = sorted(p.name for p in (work / "demo" / "llr").iterdir() if p.is_dir())
+    assert scenes == ["fan_low", "fan_normal"], scenes
+    for scene in scenes:
+        assert (work / "demo" / "llr" / scene / "spikes.dat").stat().st_size > 0
+    rows = (work / "demo" / "metrics.csv").read_text().splitlines()
+    assert len(rows) > 1 and "fan_low" in "\n".join(rows), rows

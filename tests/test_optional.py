@@ -104,3 +104,13 @@ def test_every_command_loads_without_any_extra(monkeypatch, capsys):
     parser = cli.build_parser()
     commands = parser._subparsers._group_actions[0].choices
     assert set(cli._COMMAND_MODULE) <= set(commands), sorted(set(cli._COMMAND_MODULE) - set(commands))
+
+
+def test_generate_ray_without_ray_is_one_line_naming_the_cluster_extra(monkeypatch, tmp_path, capsys):
+    """--ray without Ray installed: the same one-line form as every other extra, nothing written."""
+    hide(monkeypatch, "ray")
+    code, err = run_cli(["generate", "llr", "--preset", "small", "--scenes", "fan", "--windows", 1, "--ray", "local",
+                          "-o", tmp_path / "g", "--quiet"], capsys)
+    line = one_line(err)
+    assert code == 2 and "pip install 'spikesim[cluster]'" in line and "does not import here" in line, line
+    assert "--ray" in line

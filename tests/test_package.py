@@ -48,3 +48,24 @@ def test_the_package_exports_the_simulator_lazily_in_a_fresh_interpreter():
 def test_the_package_version_is_the_distribution_version():
     import spikesim
     assert spikesim.__version__ == metadata.version("spikesim")
+
+
+def test_the_python_floor_allows_every_standard_module_the_code_imports():
+    """tomllib (camera TOML files) is new in Python 3.11: requires-python must not promise less."""
+    import ast
+    import tomllib
+    declared = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["requires-python"]
+    floor = tuple(int(x) for x in declared.removeprefix(">=").split("."))
+    since = {"tomllib": (3, 11)}  # standard modules newer than 3.10 the project may import
+    needed = {}
+    for package in ("spikesim", "model", "pipelines", "scenes"):
+        for path in (ROOT / package).rglob("*.py"):
+            for node in ast.walk(ast.parse(path.read_text())):
+                names = [a.name for a in node.names] if isinstance(node, ast.Import) else \
+                    [node.module] if isinstance(node, ast.ImportFrom) and node.module and not node.level else []
+                for name in names:
+                    if name.split(".")[0] in since:
+                        needed[path.relative_to(ROOT).as_posix()] = since[name.split(".")[0]]
+    assert needed, "no module imports tomllib any more: drop it from `since` or lower the floor deliberately"
+    too_low = {where: v for where, v in needed.items() if v > floor}
+    assert not too_low, f"requires-python {declared} but {too_low} need a newer Python"

@@ -100,3 +100,18 @@ def test_without_a_record_the_pku_camera_is_assumed(tmp_path, capsys):
     path = write_dat(tmp_path / "raw.dat", SpikeStream.from_bool(frames))  # bottom-up, as real cameras
     info = run_inspect(path, capsys)
     assert (info["height"], info["width"], info["flip"], info["spikes"]) == (250, 400, True, 3)
+
+
+@pytest.mark.parametrize("command", ["inspect", "reconstruct"])
+def test_a_record_that_does_not_fit_the_file_is_named_in_the_error(recorded, tmp_path, capsys, command):
+    """A stale sidecar or meta.json (here one row too many) is blamed, not the file: the one line
+    names the record the size came from and the flags that override it."""
+    record = recorded.parent / "meta.json" if recorded.name == "spikes.dat" else recorded.with_name("s.dat.json")
+    info = json.loads(record.read_text())
+    record.write_text(json.dumps({**info, "height": H + 1}))
+    argv = [command, recorded] + (["--out", tmp_path / "o"] if command == "reconstruct" else [])
+    code, err = run_cli(argv, capsys)
+    line = one_line(err)
+    assert code == 2 and f"height {H + 1}, width {W}" in line and record.name in line, line
+    assert "--height/--width" in line
+    assert not (tmp_path / "o").exists()

@@ -141,11 +141,8 @@ def _ray_unreachable(address: str) -> str:
 def connect_ray(address: str) -> Any:
     """The `ray` module, connected to `address` ('auto', 'host:port', or 'local' for a fresh
     one-machine instance); UnavailableError (one line) when Ray or the cluster is not there."""
-    try:
-        import ray
-    except ModuleNotFoundError:
-        raise UnavailableError("--ray: Ray is not installed here (pip install 'spikesim[cluster]'); "
-                               "leave out --ray to use local processes") from None
+    from spikesim._optional import require
+    ray = require("ray", "cluster", "--ray (leave it out to use local processes)")
     if not ray.is_initialized():
         try:
             ray.init(address=None if address == "local" else address, log_to_driver=False,
