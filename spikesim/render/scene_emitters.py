@@ -150,6 +150,8 @@ def _read_emitter(xml_path: Path, k: int, el: ET.Element, parent: ET.Element | N
         raise SceneError(xml_path, f"{where}: a textured emitter is not supported; give its {quantity} as an "
                                    "<rgb> or <spectrum>")
     given = [c for c in el if c.get("name") == quantity]
+    if not given:  # Mitsuba's default for every supported emitter: its D65 spectrum at scale 1
+        given = [ET.Element("float", name=quantity, value="1")]
     if len(given) != 1 or given[0].tag not in ("rgb", "spectrum", "float"):
         raise SceneError(xml_path, f"{where} needs one <rgb> or <spectrum name={quantity!r}>, in Mitsuba's units "
                                    f"({unit}, per nm in spectral variants)")
@@ -159,7 +161,7 @@ def _read_emitter(xml_path: Path, k: int, el: ET.Element, parent: ET.Element | N
     try:
         spectrum = spectra.register_spectrum(values)
     except ValueError:
-        raise SceneError(xml_path, f"{where} emits no visible light (its {quantity} is zero over 380-780 nm); "
+        raise SceneError(xml_path, f"{where} emits no visible light (its {quantity} is zero wherever V(lambda) > 0); "
                                    "remove it or give it a power") from None
     if parent is not None and parent.tag == "shape":
         eid = el.get("id") or parent.get("id")
