@@ -53,7 +53,9 @@ class SceneFiles:
     def resolve(cls, scene: str | Path, motion: str | Path | None = None,
                 lights: str | Path | None = None) -> "SceneFiles":
         """`scene` is a bundled scene's name (scenes.scene_path) or a path to an XML file; the
-        motion and light files default to `motion.json` and `lights.json` beside it."""
+        motion and light files default to `motion.json` and `lights.json` beside it, and each is
+        optional there (a static scene; a scene lit by its own emitters). Given explicitly, a
+        file must exist."""
         p = Path(scene)
         if p.suffix.lower() != ".xml" and not p.exists():
             from scenes import SCENES, scene_path

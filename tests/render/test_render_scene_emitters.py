@@ -299,3 +299,42 @@ def test_motion_file_moves_objects_under_the_scene_emitters(plain_scene):
     x0, x1 = centroid_x(r.render_step(0)), centroid_x(r.render_step(20))
     # 20 steps x 25 us x 1 km/s = 0.5 m, 7.5 px at this field of view
     assert x1 - x0 == pytest.approx(7.5, abs=1.0)
+
+
+def test_directional_emitter_gives_its_irradiance(plain_scene):
+    """A directional light of c W m^-2 nm^-1 along -z: E_v = K_m c integral V on the plane."""
+    c = 1e-4
+    xml = plain_scene(PLANE.format(reflectance=1.0) + f"""
+  <emitter type="directional"><vector name="direction" value="0, 0, -1"/>
+    <spectrum name="irradiance" value="{c}"/></emitter>""")
+    r = _renderer(xml, spp=1)
+    lum_per_w, electrons_per_j = _equal_energy_integrals(r.exposure.pixel)
+    em = r.lighting.emitters[0]
+    assert em.type == "directional" and np.allclose(em.direction, [0, 0, -1])
+    assert r.lighting.subject_illuminance_lux() == pytest.approx(c * lum_per_w, rel=2e-3)
+    assert r.render_step(0).mean() == pytest.approx(_white_y(r, c * electrons_per_j), rel=0.005)
+
+
+def test_area_emitter_on_a_mesh_matches_the_same_rectangle(plain_scene):
+    """An area light on an OBJ quad (two triangles) gives the illuminance of the same rectangle."""
+    xml = plain_scene(PLANE.format(reflectance=1.0) + """
+  <shape type="obj" id="quad"><string name="filename" value="quad.obj"/>
+    <emitter type="area"><rgb name="radiance" value="0.001"/></emitter></shape>""" + _PANEL.format(radiance="0.001"))
+    # the panel of _PANEL: 1.2 x 0.6 m centred at (1, 0, 2), facing down (counter-clockwise seen from below)
+    (xml.parent / "quad.obj").write_text("v 0.4 -0.3 2\nv 1.6 -0.3 2\nv 1.6 0.3 2\nv 0.4 0.3 2\nf 1 4 3\nf 1 3 2\n")
+    r = _renderer(xml, spp=1)
+    quad, panel = r.lighting.emitters
+    assert quad.area_m2 == pytest.approx(0.72, rel=1e-6)
+    for at, normal in (((0, 0, 0), (0, 0, 1)), ((1, 0.2, 1), (0, 0, 1)), ((-1, 0, 1.5), (1, 0, 0))):
+        assert quad.illuminance_at(at, normal) == pytest.approx(panel.illuminance_at(at, normal), rel=2e-3)
+
+
+def test_command_line_names_the_scene_with_no_light_at_all(plain_scene, capsys):
+    from cli_testing import one_line, run_cli
+
+    xml = plain_scene(PLANE.format(reflectance=1.0))
+    rc, err = run_cli(["render", xml, "--steps", "0"], capsys)
+    assert rc == 2
+    assert one_line(err).endswith(f"{xml}: has no <emitter> and there is no light file {xml.parent / 'lights.json'}: "
+                                  "add an area, point, spot, constant or directional emitter (Mitsuba's units) or a "
+                                  "lights.json (docs/scenes.md section 2)")
