@@ -15,8 +15,8 @@ value means here exactly what it means in a spectral Mitsuba render of the same 
 - `<rgb value="r, g, b"/>` (and `<float>`): Mitsuba's D65 illuminant times the colour's
   upsampled reflectance (Jakob and Hanika 2019), scaled so that its CIE Y, integral P ybar /
   integral ybar, equals the colour's luminance. So `<rgb value="1"/>` is D65 whose
-  ybar-weighted mean is 1 W m^-2 sr^-1 nm^-1 per unit: 683.002 x 106.857 = 72,983 cd/m^2 as a
-  radiance, 72,983 cd as an intensity (the same RGB value renders the same image in Mitsuba's
+  ybar-weighted mean is 1 W m^-2 sr^-1 nm^-1 per unit: 683.002 x 106.857 = 72,980 cd/m^2 as a
+  radiance (72,900 with Mitsuba's tabulated D65), the same number in cd as an intensity (the same RGB value renders the same image in Mitsuba's
   RGB and spectral variants, and this is its absolute meaning there).
 
 From the absolute spectral quantity P(lambda) the two numbers the project uses follow by the
