@@ -195,7 +195,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     src.add_argument("--frames", type=frames_path, help="an (N, H, W) .npy array of y, or a folder of EXR frames")
     src.add_argument("--scene", help="a bundled scene (ball, car, cook, fan, rotate) or a scene XML to render")
     src.add_argument("--light", default="normal",
-                     help="lighting condition of the scene (normal, low; scene for an XML's own emitters)")
+                     help="lighting condition of the scene (normal, low; a scene XML without a lights.json: normal, its own emitters)")
     src.add_argument("--motion", type=existing_file, help="motion file (default: motion.json beside the XML)")
     src.add_argument("--lights", type=existing_file, help="lights file (default: lights.json beside the XML)")
     src.add_argument("--spp", type=positive_int, help="render samples per pixel (default: the renderer's)")

@@ -1,6 +1,7 @@
 """Rendering: physically lit, moving Mitsuba 3 scenes turned into y (expected spikes per step).
 
-Stages, one module each: `lights` (spectra and photometric power -> emitters), `exposure`
+Stages, one module each: `lights` (spectra and photometric power -> emitters), `scene_emitters`
+(a Mitsuba scene's own emitters, in its radiometric units -> the same), `exposure`
 (radiance -> electrons -> y), `motion` (motion files), `animate` (motion -> scene parameters),
 `scene` (XML preparation and loading), `reflectance` (colours as the sensor sees them, for the
 mono path), `renderer` (SceneRenderer: frames and ground truth), `ground_truth` (EXR + PNG files),

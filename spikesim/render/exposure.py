@@ -113,10 +113,16 @@ class PixelResponse:
         """The sensor's spectral weight QE(lambda) lambda / (h c) on spectra.WAVELENGTHS_NM, e/J."""
         return self.quantum_efficiency() * spectra.photons_per_joule()
 
+    def electron_rate(self, spectral: np.ndarray) -> float:
+        """The electron-weighted quantity of a radiometric spectral one on spectra.WAVELENGTHS_NM,
+        integral P(lambda) QE(lambda) lambda / (h c) dlambda: e s^-1 m^-2 sr^-1 from a spectral
+        radiance in W m^-2 sr^-1 nm^-1 (and likewise for intensity, irradiance, flux)."""
+        return spectra.integrate(np.asarray(spectral, dtype=np.float64) * self.electrons_per_joule())
+
     def electrons_per_lumen_second(self, spectrum: str) -> float:
         """Photo-electrons per second per lumen of light with this spectrum (e s^-1 lm^-1):
         the factor that turns a photometric quantity into the electron-weighted one."""
-        return spectra.integrate(spectra.light_spectrum(spectrum) * self.electrons_per_joule())
+        return self.electron_rate(spectra.light_spectrum(spectrum))
 
 
 @dataclass(frozen=True)

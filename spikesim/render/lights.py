@@ -13,6 +13,7 @@ E = I cos(theta) / d^2 (inverse-square law).
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
@@ -27,13 +28,14 @@ from .exposure import PixelResponse
 
 EMITTER_TYPES = ("point", "spot", "rectangle", "directional", "sky")
 
-#: Power specifications and which emitter types accept each.
+#: Power specifications and which emitter types accept each ("area": a scene XML's own area
+#: emitter on any shape, scene_emitters.py; a light file refers to it by id).
 POWER_KINDS = {
     "intensity_cd": ("point", "spot"),
-    "luminance_cd_m2": ("rectangle", "sky"),
-    "luminous_flux_lm": ("point", "spot", "rectangle"),
-    "electrical_power_w": ("point", "rectangle"),
-    "illuminance_lux": EMITTER_TYPES,
+    "luminance_cd_m2": ("rectangle", "sky", "area"),
+    "luminous_flux_lm": ("point", "spot", "rectangle", "area"),
+    "electrical_power_w": ("point", "rectangle", "area"),
+    "illuminance_lux": EMITTER_TYPES + ("area",),
 }
 
 #: Lamp luminous efficacies, lm per electrical W. Sources: the "Lighting efficiency" table of
@@ -153,7 +155,7 @@ class EmitterSpec:
         """The Mitsuba XML element for this emitter in `variant` ("mono", "spectral", "rgb")."""
         quantity = {"point": "intensity", "spot": "intensity", "rectangle": "radiance",
                     "directional": "irradiance", "sky": "radiance"}[self.type]
-        spec = _spectrum_element(quantity, self.spectrum, self.photometric, variant, pixel)
+        spec = spectrum_element(quantity, self.spectrum, self.photometric, variant, pixel)
         if self.type == "rectangle":
             shape = ET.Element("shape", type="rectangle", id=self.id)
             tr = ET.SubElement(shape, "transform", name="to_world")
@@ -181,7 +183,8 @@ class EmitterSpec:
         return em
 
     def describe(self, pixel: PixelResponse | None = None) -> dict[str, Any]:
-        unit = {"point": "cd", "spot": "cd", "rectangle": "cd/m^2", "directional": "lx", "sky": "cd/m^2"}[self.type]
+        unit = {"point": "cd", "spot": "cd", "rectangle": "cd/m^2", "area": "cd/m^2", "directional": "lx",
+                "sky": "cd/m^2"}[self.type]
         out: dict[str, Any] = {"id": self.id, "type": self.type, "spectrum": self.spectrum, "power": self.power,
                                "photometric": self.photometric, "photometric_unit": unit}
         flux = self.luminous_flux_lm()
@@ -230,8 +233,11 @@ def _rectangle_geometry(em: EmitterSpec, p: np.ndarray, n: np.ndarray, samples: 
     return float(np.sum(cos_r * cos_e / dist2) * (w * h) / samples ** 2)
 
 
-def _spectrum_element(name: str, spectrum: str, photometric: float, variant: str,
-                      pixel: PixelResponse) -> ET.Element:
+def spectrum_element(name: str, spectrum: str, photometric: float, variant: str,
+                     pixel: PixelResponse) -> ET.Element:
+    """The emission of a light as Mitsuba's `name` parameter in `variant`: the absolute spectrum
+    (photometric value x normalised spectrum, W/nm per unit) in spectral, its electron-weighted
+    scalar (photometric value x k_q) in mono. Used for light-file and scene-XML emitters alike."""
     if variant == "mono":
         value = photometric * pixel.electrons_per_lumen_second(spectrum)
         return ET.Element("spectrum", name=name, value=_f(value))
@@ -394,24 +400,58 @@ class LightingCondition:
     subject: tuple[tuple[float, ...], tuple[float, ...]] | None = None
     """A point and normal where the condition's illuminance is reported (the subject)."""
     source: Path | None = field(default=None, compare=False)
+    subject_from: str = "light file"
+    """Where the subject came from: the light file's `subject`, or "view centre" (the surface the
+    camera sees at the centre of its image, scene.view_centre_subject) when it gives none."""
+
+    def illuminance_lux(self, at: Any, normal: Any) -> float:
+        """Direct illuminance (lx) of all the condition's emitters on a surface at `at` facing
+        `normal`, ignoring occlusion and inter-reflection."""
+        return float(sum(e.illuminance_at(at, normal) for e in self.emitters))
 
     def subject_illuminance_lux(self) -> float | None:
+        """Direct illuminance (lx) at the subject, whatever the lights (light file or scene XML);
+        None when the condition has no subject."""
         if self.subject is None:
             return None
-        return sum(e.illuminance_at(*self.subject) for e in self.emitters)
+        return self.illuminance_lux(*self.subject)
 
     def describe(self, pixel: PixelResponse | None = None) -> dict[str, Any]:
         out: dict[str, Any] = {"name": self.name, "description": self.description, "reference": self.reference,
                                "emitters": [e.describe(pixel) for e in self.emitters]}
         if self.subject is not None:
-            out["subject"] = {"at": list(self.subject[0]), "normal": list(self.subject[1]),
+            out["subject"] = {"at": list(self.subject[0]), "normal": list(self.subject[1]), "from": self.subject_from,
                               "direct_illuminance_lux": self.subject_illuminance_lux()}
         return out
 
 
-def load_lights(path: str | Path) -> dict[str, LightingCondition]:
-    """Read and validate a light file: {condition: {description, reference, subject, emitters}}."""
+def _scene_emitter_entry(path: Path, where: str, data: dict[str, Any], own: dict[str, Any]) -> EmitterSpec:
+    """A light-file entry without a `type`: one of the scene XML's own emitters, by id, kept where
+    and as the XML puts it; a `power` given here replaces its XML level (the spectral shape stays)."""
+    eid = data.get("id")
+    if eid not in own:
+        raise LightError(path, f"{where} has no 'type' and the scene XML has no emitter with id {eid!r} "
+                               f"(its emitters: {sorted(own) or 'none'}); give a type ({', '.join(EMITTER_TYPES)}) "
+                               "or an XML emitter's id")
+    unknown = set(data) - {"id", "power", "comment"}
+    if unknown:
+        raise LightError(path, f"{where}: unknown key(s) {sorted(unknown)} for the scene's own emitter {eid!r} "
+                               "(only 'power' can be set; its geometry and spectrum are the XML's)")
+    em = own[eid]
+    if "power" not in data:
+        return em
+    unit = dataclasses.replace(em, photometric=1.0)
+    return dataclasses.replace(em, power=data["power"], photometric=_resolve_power(path, where, unit, data["power"]))
+
+
+def load_lights(path: str | Path, scene_emitters: tuple[EmitterSpec, ...] = ()) -> dict[str, LightingCondition]:
+    """Read and validate a light file: {condition: {description, reference, subject, emitters}}.
+
+    `scene_emitters` are the scene XML's own emitters (scene_emitters.read_emitters): an entry
+    that names one by id and gives no type switches it on, optionally at a new power. Emitters
+    of the XML that a condition does not list are off under that condition."""
     path = Path(path)
+    own = {e.id: e for e in scene_emitters}
     data = read_json(path, LightError, "light file")
     if not isinstance(data, dict) or not data:
         raise LightError(path, "must be an object mapping condition names (e.g. 'normal', 'low') to lightings")
@@ -428,7 +468,9 @@ def load_lights(path: str | Path) -> dict[str, LightingCondition]:
         ems = cond.get("emitters")
         if not isinstance(ems, list) or not ems:
             raise LightError(path, f"{where}.emitters must be a non-empty list")
-        emitters = tuple(parse_emitter(path, f"{where}.emitters[{i}]", e) for i, e in enumerate(ems))
+        emitters = tuple(_scene_emitter_entry(path, f"{where}.emitters[{i}]", e, own)
+                         if isinstance(e, dict) and "type" not in e else parse_emitter(path, f"{where}.emitters[{i}]", e)
+                         for i, e in enumerate(ems))
         ids = [e.id for e in emitters]
         if len(set(ids)) != len(ids):
             raise LightError(path, f"{where}: duplicate emitter ids {ids}")
@@ -447,4 +489,4 @@ def load_lights(path: str | Path) -> dict[str, LightingCondition]:
 
 
 __all__ = ["EmitterSpec", "LightingCondition", "load_lights", "parse_emitter", "LAMP_EFFICACY_LM_PER_W",
-           "EMITTER_TYPES", "POWER_KINDS", "preview_rgb"]
+           "EMITTER_TYPES", "POWER_KINDS", "preview_rgb", "spectrum_element"]

@@ -23,12 +23,11 @@ from ..keyframes import keyframe_steps
 from ..render_settings import RenderSettings, merge_layers
 from .animate import Animator
 from .backend import dr, mi, resolve_device, use_variant, variant_name
-from .errors import LightError
 from .exposure import Exposure, Optics, PixelResponse
 from .motion import MotionSpec, load_motion
 from .projection import PinholeCamera
 from .mono import spectrum_mix
-from .scene import SceneFiles, load_scene, prepare_xml
+from .scene import SceneFiles, load_scene, prepare_xml, scene_lighting, with_subject
 
 #: Seed streams, so frames and ground truth at the same step use independent samples.
 _FRAMES, _GROUND_TRUTH, _PREVIEW = 0, 1, 2
@@ -61,11 +60,8 @@ class SceneRenderer:
                                                  "seed": seed, **overrides})])
         self.settings = RenderSettings.from_dict(values)
         self.files = SceneFiles.resolve(scene, motion=motion, lights=lights)
-        conditions = self.files.lightings()
-        if light not in conditions:
-            raise LightError(self.files.lights or self.files.xml, f"has no lighting {light!r} (it has {sorted(conditions)})")
         self.light = light
-        self.lighting = conditions[light]
+        self.lighting = scene_lighting(self.files, light)  # the light file's condition, or the XML's emitters
         self.motion = load_motion(self.files.motion) if self.files.motion else MotionSpec.static()
         self.exposure = exposure or Exposure.for_camera(camera, optics=optics, pixel=pixel)
         self.variant = self.settings.variant
@@ -78,6 +74,7 @@ class SceneRenderer:
                                                    self.exposure.pixel, self.settings.resolution)
         self.height, self.width = h, w
         self.scene = load_scene(self.files.xml, text)
+        self.lighting = with_subject(self.lighting, self.scene, self.sensor_id)  # view centre if none given
         self.params = mi.traverse(self.scene)
         self.animator = Animator(self.scene, self.params, self.motion)
         self.camera_model = PinholeCamera.from_params(self.params, self.sensor_id, w, h)

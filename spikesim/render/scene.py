@@ -1,37 +1,39 @@
-"""Scene loading: a Mitsuba XML file, made ready for one variant, with its lights added.
+"""Scene loading: a Mitsuba XML file, made ready for one variant, with its lights in sensor units.
 
-The XML holds geometry, materials, the integrator and the camera. Lights come from the scene's
-light file, where their power is given in photometric units (lights.py), or, when there is no
-light file, from the XML's own emitters, read in Mitsuba's radiometric units (scene_emitters.py).
-A light file overrides the XML's emitters: they are removed (an emitting shape stays as geometry).
-Loading does, in order:
+The XML holds geometry, materials, the integrator, the camera and, optionally, its own emitters
+in Mitsuba's radiometric units (scene_emitters.py). A lighting condition (`scene_lighting`) is
+either those emitters, or a condition of the scene's light file (lights.py), which replaces them
+(docs/scenes.md section 2, "The scene's own emitters"). Loading does, in order:
 
 1. parse the XML and check what Mitsuba would only report obscurely: a missing texture or mesh
-   file, not exactly one sensor; take the XML's emitters out;
+   file, not exactly one sensor;
 2. for the mono variant, replace every colour (RGB values and bitmap textures of reflectances)
    by its sensor reflectance under the lighting's spectrum (reflectance.py), so that the fast path
    weights colours as the silicon pixel does rather than by luminance;
 3. replace the film by the variant's film at the requested resolution, always with the `box`
    reconstruction filter (docs/design.md section 4: a Gaussian filter mixes neighbouring pixels);
-4. append the lighting condition's emitters;
+4. set the XML's own emitters to the condition: those it lists get their emission in sensor
+   units, the others are removed; append the light file's emitters;
 5. load once with `mi.load_string` (re-loading scenes in a loop leaks, docs/design.md section 4), with
    `optimize=False`: Mitsuba 3.7+ otherwise merges meshes that share a BSDF into one shape, and
    a merged wheel could no longer be moved on its own (mitsuba3 issue #1796).
 """
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from . import spectra
 from .backend import mi
-from .errors import SceneError
+from .errors import LightError, SceneError
 from .exposure import PixelResponse
 from .lights import LightingCondition, load_lights
-from .scene_emitters import XML_LIGHTING, XML_LIGHTING_ALIASES, emitting_elements, has_emitters, xml_lighting
 from .mono import to_sensor_reflectance
+from .scene_emitters import XmlEmitter, read_emitters
 
 #: Film channel holding the electron-weighted radiance in the spectral variant.
 SPECTRAL_CHANNEL = "electrons"
@@ -39,7 +41,8 @@ SPECTRAL_CHANNEL = "electrons"
 
 @dataclass(frozen=True)
 class SceneFiles:
-    """The files that make a scene: XML, motion (optional) and lights (None: the XML's own emitters)."""
+    """The files that make a scene: XML, motion (optional) and lights (optional when the XML
+    has emitters of its own)."""
 
     name: str
     xml: Path
@@ -50,8 +53,9 @@ class SceneFiles:
     def resolve(cls, scene: str | Path, motion: str | Path | None = None,
                 lights: str | Path | None = None) -> "SceneFiles":
         """`scene` is a bundled scene's name (scenes.scene_path) or a path to an XML file; the
-        motion and light files default to `motion.json` and `lights.json` beside it; without a
-        light file the XML's own emitters light the scene."""
+        motion and light files default to `motion.json` and `lights.json` beside it, and each is
+        optional there (a static scene; a scene lit by its own emitters). Given explicitly, a
+        file must exist."""
         p = Path(scene)
         if p.suffix.lower() != ".xml" and not p.exists():
             from scenes import SCENES, scene_path
@@ -68,20 +72,9 @@ class SceneFiles:
         lt = Path(lights) if lights is not None else p.parent / "lights.json"
         if lights is not None and not lt.is_file():
             raise SceneError(lt, "light file does not exist")
-        if not lt.is_file() and not has_emitters(p):
-            raise SceneError(p, f"has no emitter and there is no light file ({lt.name} beside it): "
-                                "add Mitsuba emitters to the XML or write a lights.json")
         name = p.parent.name if p.name == "scene.xml" else p.stem
         return cls(name=name, xml=p.resolve(), motion=m.resolve() if m.is_file() else None,
                    lights=lt.resolve() if lt.is_file() else None)
-
-    def lightings(self) -> dict[str, LightingCondition]:
-        """The scene's lighting conditions by name: the light file's, or the XML's own emitters as
-        `scene` (alias `normal`)."""
-        if self.lights is not None:
-            return load_lights(self.lights)
-        lighting = xml_lighting(self.xml)
-        return {XML_LIGHTING: lighting, **{alias: lighting for alias in XML_LIGHTING_ALIASES}}
 
     def digests(self) -> dict[str, str]:
         """sha256 of each file, so a description pins exactly what was rendered."""
@@ -124,26 +117,14 @@ def _int_param(el: ET.Element, name: str) -> int | None:
     return None
 
 
-def _take_out_emitters(xml_path: Path, root: ET.Element, lit_by_xml: bool) -> None:
-    """Remove the XML's emitters: the lighting (from the light file, or the same emitters converted
-    to the project's units by scene_emitters.xml_lighting) is appended afterwards."""
-    top = emitting_elements(root)
-    known = {id(em) for _, em in top}
-    for el in root.iter():
-        if el.tag == "emitter" and id(el) not in known:
-            raise SceneError(xml_path, f"has an <emitter type={el.get('type')!r}> nested below the top level or "
-                                       "a top-level shape; only those two places are supported")
-    for holder, em in top:
-        if holder is em or lit_by_xml:  # an XML-lit scene re-appends the emitting shape, converted
-            if holder in list(root):
-                root.remove(holder)
-        else:
-            holder.remove(em)  # overridden by the light file: the shape stays as geometry
+#: The lighting condition of a scene without a light file: its own emitters. Named like the light
+#: files' usual condition so that every command's default `--light normal` selects it.
+OWN_LIGHTING = "normal"
 
 
-def prepare_xml(xml_path: Path, variant: str, lighting: LightingCondition, pixel: PixelResponse,
-                resolution: tuple[int, int] | None = None) -> tuple[str, str, tuple[int, int]]:
-    """The XML text Mitsuba loads, the sensor's id, and the film (height, width)."""
+def read_scene_xml(xml_path: Path) -> ET.Element:
+    """The parsed scene, its file names made absolute; SceneError for what Mitsuba would report
+    obscurely (malformed XML, a missing texture, mesh or spectrum file, an <include>)."""
     try:
         tree = ET.parse(xml_path)
     except ET.ParseError as exc:
@@ -152,7 +133,6 @@ def prepare_xml(xml_path: Path, variant: str, lighting: LightingCondition, pixel
     if root.tag != "scene":
         raise SceneError(xml_path, f"root element is <{root.tag}>, expected <scene>")
     base = xml_path.parent
-    _take_out_emitters(xml_path, root, lit_by_xml=lighting.name == XML_LIGHTING and lighting.source == xml_path)
     for el in root.iter():
         if el.tag == "string" and el.get("name") == "filename":
             value = el.get("value", "")
@@ -165,6 +145,52 @@ def prepare_xml(xml_path: Path, variant: str, lighting: LightingCondition, pixel
             el.set("value", str(f.resolve()))
         if el.tag == "include":
             raise SceneError(xml_path, "<include> is not supported: keep a scene in one XML file")
+    return root
+
+
+def scene_lighting(files: SceneFiles, light: str = OWN_LIGHTING) -> LightingCondition:
+    """The lighting condition `light` of a scene.
+
+    With a light file, its condition `light`: it lists every light that is on, its own lights
+    and, by id, any of the XML's emitters (optionally at a new power); the XML's emitters it does
+    not list are off. Without one, the XML's own emitters, as condition "normal". A scene with
+    neither is refused, naming the files."""
+    own = read_emitters(files.xml, read_scene_xml(files.xml))
+    if files.lights is not None:
+        conditions = load_lights(files.lights, own)
+        if light not in conditions:
+            raise LightError(files.lights, f"has no lighting {light!r} (it has {sorted(conditions)})")
+        return conditions[light]
+    if not own:
+        raise SceneError(files.xml, f"has no <emitter> and there is no light file "
+                                    f"{files.xml.parent / 'lights.json'}: add an area, point, spot, constant or "
+                                    "directional emitter (Mitsuba's units) or a lights.json (docs/scenes.md section 2)")
+    if light != OWN_LIGHTING:
+        raise LightError(files.xml, f"has no lighting {light!r}: without a lights.json beside it, the scene's own "
+                                    f"emitters are its only lighting, {OWN_LIGHTING!r}")
+    return LightingCondition(name=OWN_LIGHTING, emitters=own, description="the scene's own emitters",
+                             reference=f"{files.xml.name}, Mitsuba's radiometric units", source=files.xml)
+
+
+def _set_own_emitters(root: ET.Element, lighting: LightingCondition, variant: str, pixel: PixelResponse) -> None:
+    """Give the XML's emitters that `lighting` lists their emission in sensor units; remove the rest."""
+    lit = {e.index: e for e in lighting.emitters if isinstance(e, XmlEmitter)}
+    parents = {child: parent for parent in root.iter() for child in parent}
+    for k, el in enumerate([el for el in root.iter() if el.tag == "emitter"]):
+        em = lit.get(k)
+        if em is None:
+            parents[el].remove(el)
+            continue
+        for c in [c for c in el if c.get("name") == em.quantity]:
+            el.remove(c)
+        el.append(em.emission_element(variant, pixel))
+
+
+def prepare_xml(xml_path: Path, variant: str, lighting: LightingCondition, pixel: PixelResponse,
+                resolution: tuple[int, int] | None = None) -> tuple[str, str, tuple[int, int]]:
+    """The XML text Mitsuba loads, the sensor's id, and the film (height, width)."""
+    root = read_scene_xml(xml_path)
+    _set_own_emitters(root, lighting, variant, pixel)
     if variant == "mono":
         to_sensor_reflectance(xml_path, root, lighting, pixel)
     sensors = [el for el in root if el.tag == "sensor"]
@@ -186,8 +212,39 @@ def prepare_xml(xml_path: Path, variant: str, lighting: LightingCondition, pixel
         sensor.remove(f)
     sensor.append(_film(variant, width, height, pixel))
     for em in lighting.emitters:
-        root.append(em.to_xml(variant, pixel))
+        if not isinstance(em, XmlEmitter):
+            root.append(em.to_xml(variant, pixel))
     return ET.tostring(root, encoding="unicode"), sensor_id, (height, width)
+
+
+def view_centre_subject(scene: Any, sensor_id: str) -> tuple[tuple[float, ...], tuple[float, ...]] | None:
+    """The subject when a light file names none: the surface point the camera sees at the centre
+    of its image (rest pose), with its normal turned toward the camera; None if the central ray
+    hits nothing. Where a photographer would meter, and where `subject_illuminance_lux` reports."""
+    import numpy as np
+
+    sensor = next(s for s in scene.sensors() if s.id() == sensor_id)
+    ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f(0.5, 0.5), mi.Point2f(0.5, 0.5))
+    si = scene.ray_intersect(ray)
+    if not bool(np.asarray(si.is_valid()).ravel()[0]):
+        return None
+    p = np.asarray(si.p, dtype=np.float64).ravel()[:3]
+    n = np.asarray(si.n, dtype=np.float64).ravel()[:3]
+    d = np.asarray(ray.d, dtype=np.float64).ravel()[:3]
+    if n @ d > 0:
+        n = -n
+    return tuple(float(x) for x in p), tuple(float(x) for x in n / np.linalg.norm(n))
+
+
+def with_subject(lighting: LightingCondition, scene: Any, sensor_id: str) -> LightingCondition:
+    """The condition with a subject: its light file's, else the view centre's (so that its
+    `subject_illuminance_lux()` answers for every scene the camera sees something of)."""
+    if lighting.subject is not None:
+        return lighting
+    subject = view_centre_subject(scene, sensor_id)
+    if subject is None:
+        return lighting
+    return dataclasses.replace(lighting, subject=subject, subject_from="view centre")
 
 
 def load_scene(xml_path: Path, text: str):
@@ -204,4 +261,5 @@ def load_scene(xml_path: Path, text: str):
         raise SceneError(xml_path, f"Mitsuba rejected the scene once its film and lights were added: {exc}") from None
 
 
-__all__ = ["SceneFiles", "prepare_xml", "load_scene", "SPECTRAL_CHANNEL"]
+__all__ = ["SceneFiles", "prepare_xml", "load_scene", "scene_lighting", "read_scene_xml", "with_subject",
+           "view_centre_subject", "OWN_LIGHTING", "SPECTRAL_CHANNEL"]

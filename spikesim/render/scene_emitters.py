@@ -1,280 +1,268 @@
-"""A scene's own Mitsuba emitters: read from its XML in Mitsuba's radiometric units and given the
-photometric value that carries them through the same exposure chain as a lights.json lamp.
+"""A scene's own emitters: the `<emitter>`s of an ordinary Mitsuba 3 scene, in Mitsuba's units.
 
-Units (Mitsuba 3 plugin reference): an `area` or `constant` emitter's `radiance` is in
-W m^-2 sr^-1, a `point` or `spot` emitter's `intensity` in W sr^-1, a `directional` emitter's
-`irradiance` in W m^-2, each per nm in the spectral variants. Mitsuba makes an RGB value a
-spectrum whose CIE Y equals the colour's luminance, relative to a flat spectrum of 1 per nm
-(its `srgb_d65` uplift scales the D65 illuminant that way, and its film divides by the integral
-of y-bar). So an emitter of luminance Y in Mitsuba's units has the photometric value
+Units (Mitsuba 3 plugin reference, src/emitters/{area,point,spot,constant,directional}.cpp):
+`area` and `constant` take a `radiance` in W m^-2 sr^-1, `point` and `spot` an `intensity` in
+W sr^-1, `directional` an `irradiance` in W m^-2; in spectral variants each is per nm.
 
-    K_m * integral(V dlambda) * Y      (cd/m^2, cd or lx)             [CIE 018:2019: K_m = 683 lm/W]
+What a value means is decided by Mitsuba itself: each emitter's spectral element is loaded in
+Mitsuba's `scalar_spectral` variant and evaluated on the 1 nm grid 360-830 nm (spectra.py), so a
+value means here exactly what it means in a spectral Mitsuba render of the same file:
 
-with integral(V) = 106.9 nm over 360-830 nm. The spectral shape of RGB and flat values is taken
-as D65 (what Mitsuba's uplift multiplies); a tabulated spectrum keeps its luminance but is also
-rendered with the D65 shape (docs/scenes.md, "Your own scene").
+- `<spectrum value="400:0.1, 700:0.3"/>`, `type="regular"`, a `.spd` file: that spectral
+  quantity, per nm (zero outside the given range);
+- `<spectrum value="c"/>`: c per nm at every wavelength (an equal-energy spectrum);
+- `<spectrum type="blackbody">`: Planck's law, per nm;
+- `<rgb value="r, g, b"/>` (and `<float>`): Mitsuba's D65 illuminant times the colour's
+  upsampled reflectance (Jakob and Hanika 2019), scaled so that its CIE Y, integral P ybar /
+  integral ybar, equals the colour's luminance. So `<rgb value="1"/>` is D65 whose
+  ybar-weighted mean is 1 W m^-2 sr^-1 nm^-1 per unit: 683.002 x 106.857 = 72,980 cd/m^2 as a
+  radiance (72,900 with Mitsuba's tabulated D65), the same number in cd as an intensity (the same RGB value renders the same image in Mitsuba's
+  RGB and spectral variants, and this is its absolute meaning there).
+
+From the absolute spectral quantity P(lambda) the two numbers the project uses follow by the
+same integrals as for a light file (docs/scenes.md section 2 and 4):
+
+    photometric       P_v = K_m integral P(lambda) V(lambda) dlambda      (cd/m^2, cd or lx)
+    electron-weighted P_q = integral P(lambda) QE(lambda) lambda/(h c) dlambda = P_v k_q(S)
+
+with K_m = 683.002 lm/W and V the CIE 1924 photopic curve (CIE S 017:2020, 17-21-050), and S
+= P / P_v the spectral shape, registered by name (spectra.register_spectrum) so that k_q, the
+mono path's reflectances and the spectral film treat it like any CIE lamp. Each emitter becomes
+an `XmlEmitter`, an EmitterSpec whose photometric value is P_v, so illuminance, flux and the
+light file's power overrides (lights.load_lights) work on it unchanged.
 """
 from __future__ import annotations
 
 import copy
 import math
 import xml.etree.ElementTree as ET
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from . import spectra
-from .errors import LightError, SceneError
+from .errors import SceneError
 from .exposure import PixelResponse
-from .lights import EmitterSpec, LightingCondition, _spectrum_element
+from .lights import EmitterSpec, spectrum_element
 
-#: The spectrum XML emitters are rendered with (Mitsuba's RGB uplift for emitters is D65-based).
-XML_EMITTER_SPECTRUM = "D65"
-#: The name of the lighting made from a scene's own emitters; "normal" is accepted as its alias so
-#: that commands whose default lighting is "normal" work on such a scene unchanged.
-XML_LIGHTING = "scene"
-XML_LIGHTING_ALIASES = ("normal",)
-
-#: Which child holds each emitter type's power, and the photometric unit it becomes.
-_QUANTITY = {"area": ("radiance", "cd/m^2"), "constant": ("radiance", "cd/m^2"),
-             "point": ("intensity", "cd"), "spot": ("intensity", "cd"), "directional": ("irradiance", "lx")}
-#: Samples of the Monte Carlo estimate of an area light's illuminance (relative error ~ 1/sqrt(n)).
-AREA_ILLUMINANCE_SAMPLES = 1 << 18
-
-
-def luminance_to_photometric() -> float:
-    """Photometric value per unit of Mitsuba luminance: K_m times the integral of V (lm/W nm)."""
-    return spectra.K_M * spectra.integrate(spectra.photopic_v())
-
-
-def _floats(text: str, path: Path, where: str) -> list[float]:
-    try:
-        return [float(t) for t in text.replace(",", " ").split()]
-    except ValueError:
-        raise SceneError(path, f"{where}: {text!r} is not a list of numbers") from None
-
-
-def mitsuba_luminance(el: ET.Element, path: Path, where: str) -> float:
-    """CIE Y, in Mitsuba's units, of an emitter's `<rgb>`, `<spectrum>` or `<float>` value."""
-    value = el.get("value")
-    if el.tag == "rgb" and value is not None:
-        rgb = _floats(value, path, where)
-        if len(rgb) == 1:
-            rgb = rgb * 3
-        if len(rgb) != 3:
-            raise SceneError(path, f"{where}: an rgb value needs 3 numbers, got {value!r}")
-        return float(np.dot([0.2126, 0.7152, 0.0722], rgb))  # linear sRGB luminance (IEC 61966-2-1)
-    if el.tag == "float" and value is not None:
-        return _floats(value, path, where)[0]
-    if el.tag == "spectrum" and value is not None and ":" not in value:
-        return _floats(value, path, where)[0]  # a flat spectrum: Y equals the value
-    if el.tag == "spectrum" and value is not None:
-        pairs = [p.split(":") for p in value.replace(" ", "").split(",") if p]
-        try:
-            wl, s = np.array([[float(a), float(b)] for a, b in pairs]).T
-        except ValueError:
-            raise SceneError(path, f"{where}: {value!r} is not a list of wavelength:value pairs") from None
-        v = spectra.photopic_v()
-        return spectra.integrate(np.interp(spectra.WAVELENGTHS_NM, wl, s, left=0.0, right=0.0) * v) / spectra.integrate(v)
-    raise SceneError(path, f"{where}: only rgb, float or spectrum values are supported as an emitter's power "
-                           f"(found <{el.tag}{' type=' + repr(el.get('type')) if el.get('type') else ''}>); "
-                           "give the light in a lights.json instead")
-
-
-def _power_child(em: ET.Element, quantity: str) -> ET.Element | None:
-    return next((c for c in em if c.get("name") == quantity), None)
-
-
-def _point(el: ET.Element | None) -> tuple[float, ...] | None:
-    if el is None:
-        return None
-    if el.get("value") is not None:
-        vals = [float(t) for t in el.get("value", "").replace(",", " ").split()]
-        return tuple(vals * 3 if len(vals) == 1 else vals)
-    return tuple(float(el.get(k, "0")) for k in ("x", "y", "z"))
-
-
-def _lookat(em: ET.Element) -> ET.Element | None:
-    tr = next((c for c in em if c.tag == "transform" and c.get("name") == "to_world"), None)
-    return None if tr is None else next((c for c in tr if c.tag == "lookat"), None)
-
-
-def _child(em: ET.Element, tag: str, name: str) -> ET.Element | None:
-    return next((c for c in em if c.tag == tag and c.get("name") == name), None)
-
-
-def _analytic(em: ET.Element, etype: str, eid: str, photometric: float, path: Path) -> EmitterSpec:
-    """A point, spot, directional or constant emitter as the equivalent lights.json emitter."""
-    kw: dict[str, Any] = {"id": eid, "spectrum": XML_EMITTER_SPECTRUM, "photometric": photometric,
-                          "power": {"from_scene_xml": True}}
-    look = _lookat(em)
-    if etype == "point":
-        pos = _point(_child(em, "point", "position")) or (_point_attr(look, "origin") if look is not None else None)
-        if pos is None:
-            raise SceneError(path, f"point emitter {eid!r} needs a <point name=\"position\"> (or a to_world lookat)")
-        return EmitterSpec(type="point", position=pos, **kw)
-    if etype == "spot":
-        if look is None:
-            raise SceneError(path, f"spot emitter {eid!r} needs a to_world <lookat origin=... target=...>")
-        # Mitsuba's spot defaults: cutoff_angle 20 degrees, beam_width 3/4 of it (spot.cpp)
-        cutoff = _float_param(em, "cutoff_angle", 20.0)
-        beam = _float_param(em, "beam_width", 0.75 * cutoff)
-        return EmitterSpec(type="spot", position=_point_attr(look, "origin"), target=_point_attr(look, "target"),
-                           up=_point_attr(look, "up") or (0.0, 0.0, 1.0), cutoff_deg=cutoff, beam_deg=beam, **kw)
-    if etype == "directional":
-        d = _point(_child(em, "vector", "direction"))
-        if d is None and look is not None:
-            d = tuple(np.subtract(_point_attr(look, "target"), _point_attr(look, "origin")))
-        if d is None:
-            raise SceneError(path, f"directional emitter {eid!r} needs a <vector name=\"direction\">")
-        return EmitterSpec(type="directional", direction=tuple(np.asarray(d) / np.linalg.norm(d)), **kw)
-    return EmitterSpec(type="sky", **kw)
-
-
-def _float_param(em: ET.Element, name: str, default: float) -> float:
-    el = _child(em, "float", name)
-    return default if el is None else float(el.get("value", default))
-
-
-def _point_attr(look: ET.Element, key: str) -> tuple[float, ...] | None:
-    v = look.get(key)
-    return None if v is None else tuple(float(t) for t in v.replace(",", " ").split())
+#: Mitsuba emitter type -> (the parameter holding its emission, its unit, our EmitterSpec type).
+SUPPORTED = {
+    "area": ("radiance", "W m^-2 sr^-1", "area"),
+    "point": ("intensity", "W sr^-1", "point"),
+    "spot": ("intensity", "W sr^-1", "spot"),
+    "constant": ("radiance", "W m^-2 sr^-1", "sky"),
+    "directional": ("irradiance", "W m^-2", "directional"),
+}
+#: Stratified samples per axis over an area emitter's surface for its illuminance integral.
+AREA_SAMPLES_PER_AXIS = 64
 
 
 @dataclass(frozen=True)
-class AreaEmitter:
-    """An `area` emitter on any shape of the XML, kept as that shape's XML with its radiance
-    replaced; its illuminance is a Monte Carlo estimate on the shape alone (no occlusion, as for
-    lights.json lamps)."""
+class XmlEmitter(EmitterSpec):
+    """One `<emitter>` of the scene XML (the `index`-th in document order), with its emission
+    converted as the module docstring says. `type` is the light-file vocabulary (constant ->
+    "sky"; area on any shape -> "area"); `mitsuba_type` is the XML's."""
 
-    id: str
-    shape_xml: str
-    photometric: float
-    spectrum: str = XML_EMITTER_SPECTRUM
-    type: str = "area"
-
-    def to_xml(self, variant: str, pixel: PixelResponse) -> ET.Element:
-        shape = ET.fromstring(self.shape_xml)
-        em = next(c for c in shape if c.tag == "emitter")
-        for c in [c for c in em if c.get("name") == "radiance"]:
-            em.remove(c)
-        em.append(_spectrum_element("radiance", self.spectrum, self.photometric, variant, pixel))
-        return shape
-
-    def illuminance_at(self, point: Any, normal: Any) -> float:
-        return self.photometric * _area_illuminance_per_luminance(self.shape_xml, tuple(point), tuple(normal))
+    index: int = 0
+    mitsuba_type: str = ""
+    quantity: str = ""
+    given: str = ""
+    """The emission element as written in the XML (for the record)."""
+    area_m2: float | None = None
+    samples: tuple[np.ndarray, np.ndarray, np.ndarray] | None = field(default=None, compare=False, repr=False)
+    """Area emitters: surface points, normals and weights 1/(pdf N) of stratified samples."""
 
     def luminous_flux_lm(self) -> float:
-        return math.nan  # the emitting area of an arbitrary shape is not computed
+        if self.type == "area":
+            return math.pi * self.photometric * self.area_m2  # Lambertian, one-sided: F = pi L A
+        return super().luminous_flux_lm()
+
+    def illuminance_at(self, point: Any, normal: Any) -> float:
+        """Direct illuminance (lx) at `point` facing `normal`, ignoring occlusion. An area
+        emitter (Lambertian, emitting on its normal's side as Mitsuba's `area`) integrates
+        L cos(theta_e) cos(theta_r) / d^2 over its surface by stratified samples."""
+        if self.type != "area":
+            return super().illuminance_at(point, normal)
+        p = np.asarray(point, dtype=np.float64)
+        n = np.asarray(normal, dtype=np.float64)
+        n = n / np.linalg.norm(n)
+        pts, nrm, w = self.samples
+        v = p - pts  # from the light to the point
+        d2 = np.sum(v * v, axis=-1)
+        d = np.sqrt(d2)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            cos_e = np.clip(np.sum(v * nrm, axis=-1) / d, 0.0, None)
+            cos_r = np.clip(-(v @ n) / d, 0.0, None)
+            g = np.where(d2 > 0, cos_e * cos_r / d2, 0.0)
+        return float(self.photometric * np.sum(g * w))
+
+    def emission_element(self, variant: str, pixel: PixelResponse) -> ET.Element:
+        """The element that replaces the XML's own emission value for `variant`."""
+        return spectrum_element(self.quantity, self.spectrum, self.photometric, variant, pixel)
 
     def describe(self, pixel: PixelResponse | None = None) -> dict[str, Any]:
-        out: dict[str, Any] = {"id": self.id, "type": "area", "spectrum": self.spectrum,
-                               "photometric": self.photometric, "photometric_unit": "cd/m^2", "source": "scene XML"}
-        if pixel is not None:
-            out["electrons_per_lumen_second"] = pixel.electrons_per_lumen_second(self.spectrum)
+        out = super().describe(pixel)
+        out.update({"from": "scene XML", "mitsuba_type": self.mitsuba_type, "xml": self.given})
+        if self.area_m2 is not None:
+            out["area_m2"] = self.area_m2
+            out["luminous_flux_lm"] = self.luminous_flux_lm()
         return out
 
 
-def _area_illuminance_per_luminance(shape_xml: str, point: tuple, normal: tuple) -> float:
-    """Integral over the shape's emitting surface of cos_e cos_r / d^2 dA (sr), by emitter sampling
-    in Mitsuba (the shape alone, radiance 1, seeded so that the estimate is reproducible)."""
-    from .backend import dr, mi, use_variant, variant_name
+def read_emitters(xml_path: Path, root: ET.Element) -> tuple[XmlEmitter, ...]:
+    """Every `<emitter>` of a parsed scene (file names already absolute), in document order."""
+    elements = [el for el in root.iter() if el.tag == "emitter"]
+    if not elements:
+        return ()
+    from .backend import mi
 
+    parents = {child: parent for parent in root.iter() for child in parent}
     previous = mi.variant()
-    use_variant(variant_name("mono", "llvm"))
+    mi.set_variant("scalar_spectral")
     try:
-        shape = ET.fromstring(shape_xml)
-        em = next(c for c in shape if c.tag == "emitter")
-        for c in [c for c in em if c.get("name") == "radiance"]:
-            em.remove(c)
-        ET.SubElement(em, "spectrum", name="radiance", value="1")
-        scene = mi.load_string(f'<scene version="3.0.0">{ET.tostring(shape, encoding="unicode")}</scene>')
-        n = AREA_ILLUMINANCE_SAMPLES
-        u = np.random.default_rng(0).random((2, n), dtype=np.float32)
-        it = dr.zeros(mi.Interaction3f, n)
-        it.p = mi.Point3f(*[float(c) for c in point])
-        nrm = np.asarray(normal, dtype=np.float64) / np.linalg.norm(normal)
-        ds, weight = scene.sample_emitter_direction(it, mi.Point2f(u[0], u[1]), False)
-        cos_r = dr.maximum(dr.dot(ds.d, mi.Vector3f(*[float(c) for c in nrm])), 0.0)
-        return float(dr.mean(weight[0] * cos_r)[0]) if dr.width(weight[0]) else 0.0
+        out = tuple(_read_emitter(xml_path, k, el, parents.get(el)) for k, el in enumerate(elements))
     finally:
-        if previous is not None and previous != mi.variant():
-            use_variant(previous)
-
-
-def _resolved(shape: ET.Element, base: Path) -> ET.Element:
-    """A copy of a shape with its file references made absolute (it is re-appended elsewhere)."""
-    out = copy.deepcopy(shape)
-    for el in out.iter():
-        if el.tag == "string" and el.get("name") == "filename" and "$" not in el.get("value", ""):
-            f = Path(el.get("value", ""))
-            el.set("value", str(f if f.is_absolute() else (base / f).resolve()))
+        if previous:
+            mi.set_variant(previous)
+    ids = [e.id for e in out]
+    dup = sorted({i for i in ids if ids.count(i) > 1})
+    if dup:
+        raise SceneError(xml_path, f"emitter id(s) {dup} are used twice; give each <emitter> (or its shape) its own id")
     return out
 
 
-def emitting_elements(root: ET.Element) -> list[tuple[ET.Element, ET.Element]]:
-    """(element to remove from the root, the emitter) for every emitter of the scene: top-level
-    emitters, and shapes that carry an area emitter."""
-    out = []
-    for el in root:
-        if el.tag == "emitter":
-            out.append((el, el))
-        elif el.tag == "shape":
-            out.extend((el, c) for c in el if c.tag == "emitter")
-    return out
+def _where(k: int, el: ET.Element, parent: ET.Element | None) -> str:
+    shape = f" in <shape id={parent.get('id')!r}>" if parent is not None and parent.tag == "shape" and parent.get("id") else ""
+    ident = f" id={el.get('id')!r}" if el.get("id") else ""
+    return f"<emitter type={el.get('type')!r}{ident}>{shape} (emitter {k + 1})"
 
 
-def has_emitters(xml_path: Path) -> bool:
+def _read_emitter(xml_path: Path, k: int, el: ET.Element, parent: ET.Element | None) -> XmlEmitter:
+    etype = el.get("type")
+    where = _where(k, el, parent)
+    if etype not in SUPPORTED:
+        raise SceneError(xml_path, f"{where}: only {', '.join(SUPPORTED)} emitters are supported; light the scene "
+                                   "with a lights.json instead (docs/scenes.md section 2)")
+    quantity, unit, our_type = SUPPORTED[etype]
+    if any(c.tag == "texture" for c in el):
+        raise SceneError(xml_path, f"{where}: a textured emitter is not supported; give its {quantity} as an "
+                                   "<rgb> or <spectrum>")
+    given = [c for c in el if c.get("name") == quantity]
+    if not given:  # Mitsuba's default for every supported emitter: its D65 spectrum at scale 1
+        given = [ET.Element("float", name=quantity, value="1")]
+    if len(given) != 1 or given[0].tag not in ("rgb", "spectrum", "float"):
+        raise SceneError(xml_path, f"{where} needs one <rgb> or <spectrum name={quantity!r}>, in Mitsuba's units "
+                                   f"({unit}, per nm in spectral variants)")
+    values = _spectral_values(xml_path, where, given[0], quantity)
+    if not np.all(np.isfinite(values)) or values.min() < 0:
+        raise SceneError(xml_path, f"{where}: its {quantity} must be finite and non-negative")
     try:
-        return bool(emitting_elements(ET.parse(xml_path).getroot()))
-    except ET.ParseError:
-        return False  # prepare_xml reports the parse error with its position
+        spectrum = spectra.register_spectrum(values)
+    except ValueError:
+        raise SceneError(xml_path, f"{where} emits no visible light (its {quantity} is zero wherever V(lambda) > 0); "
+                                   "remove it or give it a power") from None
+    if parent is not None and parent.tag == "shape":
+        eid = el.get("id") or parent.get("id")
+    else:
+        eid = el.get("id")
+    kw: dict[str, Any] = {"id": eid or f"emitter_{k + 1}", "type": our_type, "spectrum": spectrum,
+                          "power": {f"xml_{quantity}": ET.tostring(given[0], encoding="unicode").strip()},
+                          "photometric": spectra.photometric(values), "index": k, "mitsuba_type": etype,
+                          "quantity": quantity, "given": ET.tostring(given[0], encoding="unicode").strip()}
+    kw.update(_geometry(xml_path, where, etype, el, parent, quantity))
+    return XmlEmitter(**kw)
 
 
-def _subject_from_camera(root: ET.Element) -> tuple[tuple[float, ...], tuple[float, ...]] | None:
-    """Where the camera looks (its lookat target), facing the camera: the subject by default."""
-    sensor = next((el for el in root if el.tag == "sensor"), None)
-    look = _lookat(sensor) if sensor is not None else None
-    if look is None or look.get("target") is None or look.get("origin") is None:
-        return None
-    target, origin = np.asarray(_point_attr(look, "target")), np.asarray(_point_attr(look, "origin"))
-    n = origin - target
-    return tuple(target.tolist()), tuple((n / np.linalg.norm(n)).tolist())
+def _spectral_values(xml_path: Path, where: str, given: ET.Element, quantity: str) -> np.ndarray:
+    """The element's spectrum on spectra.WAVELENGTHS_NM, as Mitsuba's scalar_spectral variant
+    evaluates it in an emitter: a probe point light with this intensity, seen from 1 m."""
+    from .backend import mi
+
+    probe = ET.Element("emitter", {"version": "3.0.0", "type": "point"})
+    value = copy.deepcopy(given)
+    value.set("name", "intensity")
+    probe.append(value)
+    ET.SubElement(probe, "point", name="position", value="0, 0, 1")
+    try:
+        em = mi.load_string(ET.tostring(probe, encoding="unicode"))
+    except RuntimeError as exc:
+        raise SceneError(xml_path, f"{where}: Mitsuba cannot read its {quantity}: {exc}") from None
+    it = mi.Interaction3f()
+    it.p = mi.Point3f(0.0, 0.0, 0.0)
+    wl = spectra.WAVELENGTHS_NM
+    padded = np.concatenate([wl, np.full((-wl.size) % 4, wl[-1])])
+    out = []
+    for i in range(0, padded.size, 4):
+        it.wavelengths = [float(x) for x in padded[i:i + 4]]
+        _, val = em.sample_direction(it, mi.Point2f(0.5, 0.5))  # intensity / (1 m)^2
+        out.extend(float(v) for v in val)
+    return np.asarray(out[:wl.size], dtype=np.float64)
 
 
-def xml_lighting(xml_path: Path) -> LightingCondition:
-    """The lighting made of the scene's own emitters, converted to photometric values."""
-    root = ET.parse(xml_path).getroot()
-    factor = luminance_to_photometric()
-    emitters: list[Any] = []
-    for i, (holder, em) in enumerate(emitting_elements(root)):
-        etype = em.get("type", "")
-        if etype not in _QUANTITY:
-            raise LightError(xml_path, f"emitter type {etype!r} is not supported; the scene's own emitters may be "
-                                       f"{sorted(_QUANTITY)} (or describe the lights in a lights.json)")
-        quantity, _ = _QUANTITY[etype]
-        child = _power_child(em, quantity)
-        where = f"<emitter type={etype!r}>'s {quantity}"
-        if child is None:
-            raise LightError(xml_path, f"{where} is not given (Mitsuba's default of 1 W would be a guess: give it)")
-        y = mitsuba_luminance(child, xml_path, where)
-        if not (math.isfinite(y) and y > 0):
-            raise LightError(xml_path, f"{where} has luminance {y:g}: an emitter's power must be positive")
-        eid = holder.get("id") or em.get("id") or f"{etype}_{i}"
-        if etype == "area":
-            emitters.append(AreaEmitter(id=eid, shape_xml=ET.tostring(_resolved(holder, xml_path.parent), encoding="unicode"),
-                                        photometric=factor * y))
-        else:
-            emitters.append(_analytic(em, etype, eid, factor * y, xml_path))
-    if not emitters:
-        raise LightError(xml_path, "has no emitter and no lights.json beside it: add one or the other")
-    return LightingCondition(name=XML_LIGHTING, emitters=tuple(emitters), subject=_subject_from_camera(root),
-                             description="the scene's own Mitsuba emitters, converted from W m^-2 sr^-1 (W sr^-1, W m^-2)",
-                             reference="Mitsuba 3 emitter units; photometry: CIE 018:2019 (K_m = 683 lm/W)",
-                             source=xml_path)
+def _neutral(el: ET.Element, quantity: str) -> ET.Element:
+    """A copy of an emitter element with a unit spectrum in place of its emission (for geometry)."""
+    out = copy.deepcopy(el)
+    for c in [c for c in out if c.get("name") == quantity]:
+        out.remove(c)
+    ET.SubElement(out, "spectrum", name=quantity, value="1")
+    out.set("version", "3.0.0")
+    out.attrib.pop("id", None)
+    return out
 
 
-__all__ = ["XML_LIGHTING", "XML_LIGHTING_ALIASES", "XML_EMITTER_SPECTRUM", "AreaEmitter", "xml_lighting",
-           "has_emitters", "emitting_elements", "luminance_to_photometric", "mitsuba_luminance"]
+def _geometry(xml_path: Path, where: str, etype: str, el: ET.Element, parent: ET.Element | None,
+              quantity: str) -> dict[str, Any]:
+    """Where the emitter is, in EmitterSpec's terms, read from the emitter Mitsuba loads."""
+    from .backend import mi
+
+    if etype == "constant":
+        return {}
+    if etype == "area":
+        return _area_geometry(xml_path, where, el, parent)
+    try:
+        params = mi.traverse(mi.load_string(ET.tostring(_neutral(el, quantity), encoding="unicode")))
+    except RuntimeError as exc:
+        raise SceneError(xml_path, f"{where}: Mitsuba rejected it: {exc}") from None
+    if etype == "point":
+        return {"position": tuple(float(x) for x in params["position"])}
+    m = np.array(params["to_world"].matrix, dtype=np.float64)
+    axis = m[:3, 2] / np.linalg.norm(m[:3, 2])
+    if etype == "directional":
+        return {"direction": tuple(axis)}
+    position = m[:3, 3]
+    up = m[:3, 1] / np.linalg.norm(m[:3, 1])
+    return {"position": tuple(position), "target": tuple(position + axis), "up": tuple(up),
+            "cutoff_deg": float(params["cutoff_angle"]), "beam_deg": float(params["beam_width"])}
+
+
+def _area_geometry(xml_path: Path, where: str, el: ET.Element, parent: ET.Element | None) -> dict[str, Any]:
+    """The shape an area emitter sits on: its area and stratified surface samples (Mitsuba's own
+    shape sampling, so meshes, spheres, discs and rectangles are all handled)."""
+    from .backend import mi
+
+    if parent is None or parent.tag != "shape":
+        raise SceneError(xml_path, f"{where}: an area emitter belongs inside a <shape>")
+    shape = copy.deepcopy(parent)
+    for c in [c for c in shape if c.tag in ("bsdf", "ref", "emitter", "medium")]:
+        shape.remove(c)
+    shape.set("version", "3.0.0")
+    shape.attrib.pop("id", None)
+    try:
+        obj = mi.load_string(ET.tostring(shape, encoding="unicode"))
+        n = AREA_SAMPLES_PER_AXIS
+        pts, nrm, w = np.empty((n * n, 3)), np.empty((n * n, 3)), np.empty(n * n)
+        for i in range(n):
+            for j in range(n):
+                ps = obj.sample_position(0.0, mi.Point2f((i + 0.5) / n, (j + 0.5) / n))
+                pts[i * n + j], nrm[i * n + j], w[i * n + j] = tuple(ps.p), tuple(ps.n), float(ps.pdf)
+        area = float(obj.surface_area())
+    except (RuntimeError, TypeError, AttributeError) as exc:
+        raise SceneError(xml_path, f"{where}: its shape cannot be sampled for the illuminance it gives ({exc})") from None
+    if not area > 0 or not np.all(w > 0):
+        raise SceneError(xml_path, f"{where}: its shape has no area")
+    return {"area_m2": area, "samples": (pts, nrm, 1.0 / (w * n * n))}
+
+
+__all__ = ["XmlEmitter", "read_emitters", "SUPPORTED", "AREA_SAMPLES_PER_AXIS"]

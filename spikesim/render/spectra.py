@@ -10,6 +10,7 @@ grid, 360-830 nm, which is also Mitsuba's spectral range (MI_CIE_MIN/MI_CIE_MAX)
 """
 from __future__ import annotations
 
+import hashlib
 from functools import lru_cache
 
 import numpy as np
@@ -84,17 +85,54 @@ def _raw_spectrum(name: str) -> np.ndarray:
     return np.interp(WAVELENGTHS_NM, sd.wavelengths, sd.values, left=0.0, right=0.0)
 
 
-@lru_cache(maxsize=None)
+#: Spectra registered by `register_spectrum` (a scene's own emitters), by name.
+_REGISTERED: dict[str, np.ndarray] = {}
+
+
 def light_spectrum(name: str) -> np.ndarray:
     """Spectral quantity per photometric unit, W/nm per lm (or per cd, lx, cd/m^2).
 
     Normalised so that K_m * integral S V dlambda = 1: multiply by a lumen (candela, lux, nit)
-    value to get the absolute spectral flux (intensity, irradiance, radiance).
+    value to get the absolute spectral flux (intensity, irradiance, radiance). `name` is a CIE
+    illuminant (`available_spectra`) or a name `register_spectrum` returned.
     """
+    if name in _REGISTERED:
+        return _REGISTERED[name]
+    return _cie_spectrum(name)
+
+
+@lru_cache(maxsize=None)
+def _cie_spectrum(name: str) -> np.ndarray:
     raw = _raw_spectrum(name)
-    s = raw / (K_M * integrate(raw * photopic_v()))
+    s = raw / photometric(raw)
     s.setflags(write=False)
     return s
+
+
+def photometric(values: np.ndarray) -> float:
+    """The photometric quantity of a radiometric spectral one on WAVELENGTHS_NM:
+    K_m * integral P(lambda) V(lambda) dlambda (lm from W/nm, cd from W sr^-1 nm^-1, lx from
+    W m^-2 nm^-1, cd/m^2 from W m^-2 sr^-1 nm^-1; CIE S 017:2020, 17-21-050 "luminous quantity")."""
+    return K_M * integrate(np.asarray(values, dtype=np.float64) * photopic_v())
+
+
+def register_spectrum(values: np.ndarray) -> str:
+    """Name an absolute spectral distribution on WAVELENGTHS_NM (a scene's own emitter,
+    scene_emitters.py), so that everything that takes a light spectrum by name (light_spectrum,
+    the pixel's electrons per lumen, the mono path's reflectances) takes it too. The name is a
+    digest of the photometrically normalised shape, so one shape always gets one name."""
+    v = np.asarray(values, dtype=np.float64)
+    if v.shape != WAVELENGTHS_NM.shape or not np.all(np.isfinite(v)) or v.min() < 0:
+        raise ValueError(f"a spectrum needs {WAVELENGTHS_NM.size} finite non-negative values on {LAMBDA_MIN_NM:g}-"
+                         f"{LAMBDA_MAX_NM:g} nm")
+    lum = photometric(v)
+    if not lum > 0:
+        raise ValueError("a spectrum with no visible light (zero luminous quantity) has no photometric scale")
+    s = v / lum
+    s.setflags(write=False)
+    name = "xml-" + hashlib.sha256(np.round(s, 15).tobytes()).hexdigest()[:12]
+    _REGISTERED.setdefault(name, s)
+    return name
 
 
 def photons_per_joule() -> np.ndarray:
@@ -116,6 +154,6 @@ def regular_values(values: np.ndarray, step_nm: float = 5.0) -> tuple[float, flo
 
 __all__ = [
     "WAVELENGTHS_NM", "LAMBDA_MIN_NM", "LAMBDA_MAX_NM", "K_M", "PLANCK_H", "LIGHT_C", "integrate",
-    "photopic_v", "available_spectra", "light_spectrum", "photons_per_joule",
+    "photopic_v", "available_spectra", "light_spectrum", "photometric", "register_spectrum", "photons_per_joule",
     "luminous_efficacy_of_radiation", "regular_values",
 ]

@@ -37,12 +37,12 @@ def test_missing_texture_names_the_texture(make_scene):
     assert str(info.value).startswith(str(xml)) and "does not exist" in str(info.value)
 
 
-def test_nested_emitters_in_the_xml_are_refused(make_scene):
-    # emitters are read at the top level or on a top-level shape; deeper ones would be silently lost
-    xml = make_scene('<shapegroup id="g"><shape type="sphere"><emitter type="area">'
-                     '<spectrum name="radiance" value="1"/></emitter></shape></shapegroup>')
-    with pytest.raises(SceneError, match="nested below the top level"):
-        _renderer(xml)
+def test_light_file_replaces_an_emitter_it_does_not_list(make_scene):
+    """Emitters in the XML were refused before; now a light file's condition replaces them
+    (test_render_scene_emitters.py has the rest)."""
+    xml = make_scene(BALL + '<emitter type="point" id="lamp"><point name="position" value="0,0,1"/></emitter>')
+    r = _renderer(xml, spp=1)
+    assert [e.id for e in r.lighting.emitters] == ["sun"]
 
 
 def test_missing_light_condition(make_scene):
