@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import shlex
 import sys
 from pathlib import Path
@@ -83,13 +84,17 @@ def run(args: argparse.Namespace) -> int:
                          lights=None if args.lights is None else str(args.lights), camera=camera,
                          light_power_factor=1.0 if args.light_power_factor is None else args.light_power_factor,
                          name=args.name, quality=args.quality)
-    print(resolved.summary())
+    if not args.json:
+        print(resolved.summary())
     jobs = [dataclasses.replace(job, settings=resolved.table()) for job in jobs]
     report = generate(jobs, args.out, workers=args.workers, ray_address=args.ray,
                       info={"kind": args.kind, "preset": preset.to_dict(), "seed": args.seed},
                       overwrite_stale=args.overwrite, show_progress=not args.quiet, check=args.check,
                       command="spikesim " + shlex.join(sys.argv[1:]), device=device)
     saturation = report["saturation"]
+    if args.json:
+        print(json.dumps({"settings": resolved.table(), **report}, indent=2, default=str))
+        return 0
     for r in report["generated"]:
         lux = r.get("subject_illuminance_lux")
         print(f"  {r['name']}: {r['seconds']:.1f} s, {r['bytes'] / 1e6:.2f} MB, "
@@ -112,6 +117,11 @@ VERIFY_EPILOG = (f"exit status: {VERIFY_INTACT} intact; {VERIFY_DAMAGED} damaged
 def run_verify(args: argparse.Namespace) -> int:
     from spikesim.dataset import check_dataset
     found = check_dataset(args.root, checksums=not args.quick)
+    status = VERIFY_DAMAGED if found.problems else (VERIFY_EXTRAS if found.extras else VERIFY_INTACT)
+    if args.json:
+        print(json.dumps({"root": str(args.root), "scenes": found.scenes, "problems": found.problems,
+                          "extras": found.extras, "status": status}, indent=2))
+        return status
     for line in found.problems + found.extras:
         print(line)
     if found.problems:
@@ -174,10 +184,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "when it was written (default: sizes only, which catches deleted and truncated files); "
                         "damaged scenes are rebuilt")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.add_argument("--json", action="store_true", help="print the settings and the run's report as JSON")
     p.set_defaults(func=run)
     v = sub.add_parser("verify", help="check a dataset against its manifest", epilog=VERIFY_EPILOG,
                        description="Check every file the manifest lists (size and sha256), reading only inside the "
                                    "dataset root, and list files the manifest does not.")
     v.add_argument("root", type=Path, help="dataset root (the folder holding manifest.json)")
     v.add_argument("--quick", action="store_true", help="sizes only, no checksums")
+    v.add_argument("--json", action="store_true", help="print the problems and extra files as JSON")
     v.set_defaults(func=run_verify)

@@ -177,6 +177,10 @@ def run(args: argparse.Namespace) -> int:
     log.info("wrote %s: %d steps in %.2f s (%.3g pixel-steps/s)", out, len(reader), dt,
              len(reader) * cam.num_pixels / max(dt, 1e-9))
     s = summarize(reader, 0, len(reader), cam.readout_period_s, window=41)  # chunked: bounded memory
+    if args.json:
+        import json
+        print(json.dumps({"out": str(out), "seconds": dt, **s}, indent=2, default=float))
+        return 0
     print(f"{out}: {s['num_steps']} steps of {s['width']}x{s['height']} ({s['duration_s'] * 1e3:.2f} ms), "
           f"mean rate {s['mean_rate_per_step']:.4f} spikes/step ({s['mean_rate_hz']:.0f} Hz), "
           f"dark pixels {s['dark_pixel_fraction']:.1%}")
@@ -212,6 +216,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=nonnegative_int, default=0, help="seed of the sensor's noise and fixed patterns")
     p.add_argument("--no-flip", action="store_true", help="write rows top-down (SPCS/SCSim convention)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--json", action="store_true", help="print the stream's summary as JSON")
     p.add_argument("-o", "--out", type=output_file, default=Path("out/stream.dat"),
                    help="the .dat file to write (its JSON sidecar goes beside it)")
     p.set_defaults(func=run)

@@ -53,7 +53,11 @@ def cmd_tradeoff(args: argparse.Namespace) -> int:
         resolve_device(cfg.device)
         rows = run_study(cfg, out, progress=not args.quiet)
     write_report(rows, out, Path(args.images) if args.images is not None else None)
-    print((out / "tradeoff.md").read_text())
+    if args.json:
+        import json
+        print(json.dumps(rows, indent=2, default=str))
+    else:
+        print((out / "tradeoff.md").read_text())
     log.info("wrote %s, %s and %s", out / "tradeoff.csv", out / "tradeoff.md", out / "tradeoff.png")
     return 0
 
@@ -80,4 +84,5 @@ def add_parser(subparsers: Any) -> None:
     p.add_argument("--images", type=output_dir, default=None, help="also write the plot as <DIR>/tradeoff_pareto.png")
     p.add_argument("--report-only", action="store_true", help="rebuild the tables and plot from the cache")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--json", action="store_true", help="print the table's rows as JSON")
     p.set_defaults(func=cmd_tradeoff)
