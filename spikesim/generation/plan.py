@@ -108,6 +108,10 @@ class SceneJob:
         if self.quality is not None:
             from spikesim.quality import QualitySettings
             QualitySettings.from_name(self.quality)  # validates the name
+        try:  # the checks every render setting gets, before any folder is locked or worker started
+            RenderSettings.from_dict({**self.render, "keyframe_every": self.keyframe_every})
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"job {self.name}: {exc}") from None
         if self.num_steps < 1:
             raise ValueError(f"job {self.name}: num_steps must be >= 1")
         if not 0 < self.light_power_factor <= 1e6 or not np.isfinite(self.light_power_factor):
