@@ -164,3 +164,22 @@ def test_generate_scene_keeps_the_xml_film_and_spp_end_to_end(tmp_path):
     meta = json.loads((tmp_path / "d" / "myscene_low" / "meta.json").read_text())
     assert (meta["height"], meta["width"], meta["source"]["render"]["spp"]) == (50, 80, 16)
     assert meta["settings"]["spp"] == {"value": 16, "from": "scene file scene.xml"}
+
+
+def test_power_factors_that_print_alike_still_get_distinct_names(tmp_path):
+    xml = user_scene(tmp_path)
+    a, b = (user_scene_name(xml, "low", light_power_factor=f) for f in (0.1234567, 0.1234568))
+    assert a != b and a == user_scene_name(xml, "low", light_power_factor=0.1234567)
+    assert user_scene_name(xml, "low", light_power_factor=2.0) == "myscene_low_x2"
+
+
+def test_a_scene_at_another_power_under_a_taken_name_is_refused_naming_both_powers(tmp_path):
+    from spikesim.camera import SpikeCamera
+    cam = SpikeCamera.realistic(height=4, width=8).to_dict()
+
+    def job(factor: float) -> SceneJob:
+        return SceneJob(name="mine", source={"type": "pattern", "peak_y": 0.2}, camera=cam, render={},
+                        num_steps=4, gt_steps=(0,), light_power_factor=factor)
+    generate([job(1.0)], tmp_path, workers=1, show_progress=False)
+    with pytest.raises(FileExistsError, match=r"holds another scene, .*power x1\b.*this run gives .*power x0\.5"):
+        generate([job(0.5)], tmp_path, workers=1, show_progress=False)
