@@ -171,3 +171,16 @@ def test_quality_preset_is_applied_and_recorded(tmp_path):
     assert s.meta["simulator"]["camera"]["precision"] == "float32"
     with pytest.raises(ValueError, match="unknown quality"):
         SceneJob(**{**jobs[0].__dict__, "quality": "ultra"})
+
+
+@pytest.mark.parametrize("change,field", [({"keyframe_every": 0}, "keyframe_every"),
+                                          ({"render": {"spp": 0}}, "spp"),
+                                          ({"render": {"variant": "fast"}}, "variant")])
+def test_a_job_checks_its_render_knobs_where_every_render_setting_is_checked(change, field):
+    """A job's render knobs get RenderSettings' checks when the job is made, not a failure deep in
+    a worker after the output folder is locked."""
+    from spikesim.camera import SpikeCamera
+    base = dict(name="j", source={"type": "pattern", "peak_y": 0.3},
+                camera=SpikeCamera.realistic(height=4, width=8).to_dict(), render={}, num_steps=4, gt_steps=(0,))
+    with pytest.raises(ValueError, match=rf"job j: .*{field}"):
+        SceneJob(**{**base, **change})

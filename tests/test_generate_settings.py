@@ -145,3 +145,41 @@ def test_a_second_scene_under_a_taken_name_is_refused_naming_both(tmp_path):
     generate([job(0.2)], tmp_path, workers=1, show_progress=False)
     with pytest.raises(FileExistsError, match=r"holds another scene, \{.*0\.2.*under the name this run gives \{.*0\.3"):
         generate([job(0.3)], tmp_path, workers=1, show_progress=False)
+
+
+@requires_llvm
+def test_generate_scene_keeps_the_xml_film_and_spp_end_to_end(tmp_path):
+    """The issue's case: an 80 x 50, 16-spp scene under the `small` preset (100 x 64, 2 spp) keeps
+    its film and samples, says so, and records them."""
+    xml = user_scene(tmp_path)
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        rc = main(["generate", "scene", "--xml", str(xml), "--light", "low", "--windows", "1", "--keyframe-every", "40",
+                   "--gt-spp", "1", "--workers", "1", "--device", "llvm", "--quiet", "-o", str(tmp_path / "d")])
+    assert rc == 0
+    line = next(x for x in out.getvalue().splitlines() if x.startswith("settings:"))
+    for text in ("height 50 (scene file scene.xml)", "width 80 (scene file scene.xml)",
+                 "spp 16 (scene file scene.xml)", "gt_spp 1 (--gt-spp)", "keyframe_every 40 (--keyframe-every)"):
+        assert text in line
+    meta = json.loads((tmp_path / "d" / "myscene_low" / "meta.json").read_text())
+    assert (meta["height"], meta["width"], meta["source"]["render"]["spp"]) == (50, 80, 16)
+    assert meta["settings"]["spp"] == {"value": 16, "from": "scene file scene.xml"}
+
+
+def test_power_factors_that_print_alike_still_get_distinct_names(tmp_path):
+    xml = user_scene(tmp_path)
+    a, b = (user_scene_name(xml, "low", light_power_factor=f) for f in (0.1234567, 0.1234568))
+    assert a != b and a == user_scene_name(xml, "low", light_power_factor=0.1234567)
+    assert user_scene_name(xml, "low", light_power_factor=2.0) == "myscene_low_x2"
+
+
+def test_a_scene_at_another_power_under_a_taken_name_is_refused_naming_both_powers(tmp_path):
+    from spikesim.camera import SpikeCamera
+    cam = SpikeCamera.realistic(height=4, width=8).to_dict()
+
+    def job(factor: float) -> SceneJob:
+        return SceneJob(name="mine", source={"type": "pattern", "peak_y": 0.2}, camera=cam, render={},
+                        num_steps=4, gt_steps=(0,), light_power_factor=factor)
+    generate([job(1.0)], tmp_path, workers=1, show_progress=False)
+    with pytest.raises(FileExistsError, match=r"holds another scene, .*power x1\b.*this run gives .*power x0\.5"):
+        generate([job(0.5)], tmp_path, workers=1, show_progress=False)

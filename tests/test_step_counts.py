@@ -5,6 +5,7 @@ keyframe_every 1..8 fast."""
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import io
 import json
 from pathlib import Path
@@ -83,7 +84,7 @@ def test_an_npy_array_writes_the_steps_asked(k, tmp_path):
         simulate_cli(tmp_path, n, k, "--frames", npy)
 
 
-@pytest.mark.parametrize("k", [1, 3, 8])
+@pytest.mark.parametrize("k", SPACINGS)
 def test_an_exr_folder_writes_the_steps_asked(k, tmp_path):
     """--steps counts steps, not files: k-spaced files cover (m - 1) k + 1 steps."""
     from spikesim.imageio import write_exr
@@ -129,6 +130,23 @@ def test_a_generated_scene_writes_the_steps_asked(k, tmp_path):
         folder = tmp_path / job.name
         meta = json.loads((folder / "meta.json").read_text())
         assert_steps(folder / "spikes.dat", n, meta["simulator"])
+
+
+# A generated scene from a rendered source: sampled like the rendered scene above, with the case
+# that wrote 49 steps for 50 among them.
+@pytest.mark.parametrize("n,k", [(50, 4), (1, 8), (9, 8), (10, 3)])
+def test_a_generated_rendered_scene_writes_the_steps_asked(n, k, tmp_path):
+    pytest.importorskip("mitsuba")
+    from spikesim.generation import PRESETS, plan_llr
+    from spikesim.generation.job import run_job
+
+    preset = PRESETS["small"].replace(height=H, width=W, llr_windows=1, spp=1, gt_spp=1, keyframe_every=k)
+    job = dataclasses.replace(plan_llr(preset, scenes=["ball"], lights=("low",))[0], num_steps=n, gt_steps=(0,),
+                              windows=())
+    run_job(job, tmp_path, backend="numpy", device="llvm")
+    folder = tmp_path / job.name
+    meta = json.loads((folder / "meta.json").read_text())
+    assert_steps(folder / "spikes.dat", n, meta["simulator"])
 
 
 class _Stripes:

@@ -108,6 +108,10 @@ class SceneJob:
         if self.quality is not None:
             from spikesim.quality import QualitySettings
             QualitySettings.from_name(self.quality)  # validates the name
+        try:  # the checks every render setting gets, before any folder is locked or worker started
+            RenderSettings.from_dict({**self.render, "keyframe_every": self.keyframe_every})
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"job {self.name}: {exc}") from None
         if self.num_steps < 1:
             raise ValueError(f"job {self.name}: num_steps must be >= 1")
         if not 0 < self.light_power_factor <= 1e6 or not np.isfinite(self.light_power_factor):
@@ -208,6 +212,13 @@ def plan_rllr(preset: Preset, seed: int = 0, camera: Any | None = None, count: i
     return jobs
 
 
+def power_label(factor: float) -> str:
+    """A light power factor as short text that names it exactly: `g` format where that reads back
+    as the same number, else Python's shortest exact form (0.1234567 and 0.1234568 must differ)."""
+    text = f"{factor:g}"
+    return text if float(text) == factor else repr(float(factor))
+
+
 def user_scene_name(xml: str | Path, light: str, motion: str | Path | None = None, lights: str | Path | None = None,
                     light_power_factor: float = 1.0) -> str:
     """The dataset name of a user's scene: `<folder>_<light>` for a folder's scene.xml with its own
@@ -220,7 +231,7 @@ def user_scene_name(xml: str | Path, light: str, motion: str | Path | None = Non
         if given is not None and Path(given).resolve() != xml.parent / default:
             parts.append(Path(given).stem)
     if light_power_factor != 1.0:
-        parts.append(f"x{light_power_factor:g}")
+        parts.append(f"x{power_label(light_power_factor)}")
     name = "_".join(parts)
     try:
         return check_scene_name(name)

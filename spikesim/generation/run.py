@@ -26,7 +26,7 @@ from spikesim.dataset import (MANIFEST, META, SATURATION_WARN_FRACTION, SATURATI
                               holds_only_scene_files, inside_root, read_manifest, remove_inside, scene_folders,
                               scene_saturation, write_manifest)
 from spikesim.generation.lock import output_lock
-from spikesim.generation.plan import SceneJob
+from spikesim.generation.plan import SceneJob, power_label
 
 log = logging.getLogger("spikesim.generate")
 
@@ -76,11 +76,11 @@ def _jobs_to_run(jobs: list[SceneJob], root: Path, overwrite_stale: bool, full: 
                                   "(it holds other files or is a link); move it away or choose another output folder")
         if state == "stale" and not overwrite_stale:
             planned = next(job for job in jobs if job.name == name)
-            recorded = _recorded_source(root / name)
-            if recorded is not None and recorded != planned.source:
-                raise FileExistsError(f"{root / name} holds another scene, {_source_label(recorded)}, under the name "
-                                      f"this run gives {_source_label(planned.source)}; give one of them another "
-                                      "name (--name), or use --overwrite to replace it")
+            recorded = _recorded_scene(root / name)
+            if recorded is not None and recorded != _scene_identity(planned.to_dict()):
+                raise FileExistsError(f"{root / name} holds another scene, {_scene_label(recorded)}, under the name "
+                                      f"this run gives {_scene_label(_scene_identity(planned.to_dict()))}; give one "
+                                      "of them another name (--name), or use --overwrite to replace it")
             raise FileExistsError(f"{root / name} was generated with other parameters; "
                                   "use --overwrite to rebuild it, or another output folder")
     for name, (state, problems) in states.items():
@@ -91,22 +91,32 @@ def _jobs_to_run(jobs: list[SceneJob], root: Path, overwrite_stale: bool, full: 
     return [job for job in jobs if states[job.name][0] != "done"]
 
 
-def _recorded_source(folder: Path) -> dict[str, Any] | None:
-    """The source a scene folder's meta.json records, or None when unreadable."""
+def _scene_identity(job: dict[str, Any]) -> tuple[dict[str, Any], float] | None:
+    """What makes a job another scene rather than the same scene with other settings: its source
+    and its light power factor (None when the record lacks them)."""
+    source, factor = job.get("source"), job.get("light_power_factor", 1.0)
+    if not isinstance(source, dict) or not isinstance(factor, (int, float)):
+        return None
+    return source, float(factor)
+
+
+def _recorded_scene(folder: Path) -> tuple[dict[str, Any], float] | None:
+    """The scene a folder's meta.json records (`_scene_identity`), or None when unreadable."""
     try:
-        source = json.loads((folder / META).read_text())["job"]["source"]
+        job = json.loads((folder / META).read_text())["job"]
     except (OSError, ValueError, KeyError, TypeError):
         return None
-    return source if isinstance(source, dict) else None
+    return _scene_identity(job) if isinstance(job, dict) else None
 
 
-def _source_label(source: dict[str, Any]) -> str:
-    """A scene source in a few words: its XML (or kind), light and files."""
+def _scene_label(scene: tuple[dict[str, Any], float]) -> str:
+    """A scene in a few words: its XML (or kind), light, files and power factor."""
+    source, factor = scene
+    power = f"power x{power_label(factor)}"
     if not source.get("scene"):  # a pattern or random scene: its few parameters
-        return json.dumps(source, sort_keys=True)
-    what = source["scene"]
+        return f"{json.dumps(source, sort_keys=True)} ({power})"
     extras = [f"{k} {source[k]}" for k in ("light", "motion", "lights") if source.get(k)]
-    return f"{what} ({', '.join(extras)})" if extras else str(what)
+    return f"{source['scene']} ({', '.join([*extras, power])})"
 
 
 def _passing_scenes(root: Path, planned: list[str], full: bool) -> list[str]:
