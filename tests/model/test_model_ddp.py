@@ -25,7 +25,9 @@ SCRIPT = textwrap.dedent("""
     scenes = [make_scene(f"s{{i}}", 16, 20, 7 * 6, brightness=0.3, velocity=0.2, seed=i) for i in range(3)]
     exp = tiny_experiment(max_steps=3, batch_size=4, samples_per_epoch=8)
     summary = run_training(exp, scenes[:2], [], sys.argv[1], device="cpu", progress=False)
-    print("rank", os.environ.get("RANK", "0"), "of", summary["processes"], summary["weights_sha256"])
+    rank = os.environ.get("RANK", "0")
+    with open(os.path.join(sys.argv[1], f"rank{{rank}}.txt"), "w") as f:  # not stdout: torchrun may drop it
+        f.write(f"{{rank}} {{summary['processes']}} {{summary['weights_sha256']}}")
 """)
 
 
@@ -34,14 +36,14 @@ def test_two_gloo_processes_equal_one_process(tmp_path: Path) -> None:
     script.write_text(SCRIPT.format(root=str(ROOT), tests=str(ROOT / "tests" / "model")))
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     single = subprocess.run([sys.executable, str(script), str(tmp_path / "one")], env=env,
-                            capture_output=True, text=True, timeout=300)
+                            capture_output=True, text=True, timeout=600)
     assert single.returncode == 0, single.stderr[-3000:]
     multi = subprocess.run([sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2",
-                            str(script), str(tmp_path / "two")], env=env, capture_output=True, text=True, timeout=300)
+                            str(script), str(tmp_path / "two")], env=env, capture_output=True, text=True, timeout=600)
     assert multi.returncode == 0, multi.stderr[-3000:]
-    ranks = sorted(line.split() for line in multi.stdout.splitlines() if line.startswith("rank "))
-    assert [r[1] for r in ranks] == ["0", "1"] and all(r[3] == "2" for r in ranks)
-    assert ranks[0][4] == ranks[1][4]  # the same weights on both ranks, bit for bit
+    ranks = sorted((tmp_path / "two" / f"rank{r}.txt").read_text().split() for r in (0, 1))
+    assert [r[0] for r in ranks] == ["0", "1"] and all(r[1] == "2" for r in ranks)
+    assert ranks[0][2] == ranks[1][2]  # the same weights on both ranks, bit for bit
     one = load_checkpoint(tmp_path / "one" / "last.pt")["model_state"]
     two = load_checkpoint(tmp_path / "two" / "last.pt")["model_state"]
     for k in one:  # gradients averaged over the two halves of each batch = the whole batch's gradient
