@@ -41,13 +41,15 @@ def test_hand_computed_statistics():
 def test_packaged_reference_is_the_realistic_camera_on_the_test_scene():
     g = golden.load_reference()
     assert g["camera"] == golden.golden_camera().to_dict() and g["seed"] == golden.REFERENCE_SEED
-    assert g["design"] == golden.measure(seed=0)["design"]
+    assert g["design"] == golden.design()
     # dark band: the configured 94 Hz dark current and its 39 % lognormal spread
     dark = g["stats"]["y=0"]
     assert dark["rate_per_step"]["value"] / 25e-6 == pytest.approx(94.0, rel=0.05)
     assert dark["rate_cv"]["value"] == pytest.approx(0.39, abs=4 * dark["rate_cv"]["se"])
-    # shot noise: the ISI's squared CV in darkness is 1 / threshold_electrons (dark current is a current)
-    assert dark["isi_cv2"]["value"] == pytest.approx(1 / 1000, abs=4 * dark["isi_cv2"]["se"])
+    # ISI squared CV in darkness (dark current is a current): shot noise gives 1 / threshold_electrons,
+    # comparator noise adds at most 2 sigma_c^2 (the jitter of the two crossings that bound an interval)
+    cv2, se = dark["isi_cv2"]["value"], dark["isi_cv2"]["se"]
+    assert 1 / 1000 - 4 * se < cv2 < 1 / 1000 + 2 * 0.006 ** 2 + 4 * se
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
@@ -93,11 +95,12 @@ def test_write_then_check_a_users_camera(tmp_path, capsys):
     ref = tmp_path / "ref.json"
     before = golden.PACKAGED_REFERENCE.read_bytes()
     cam, ref = str(cam), str(ref)
-    assert main(["golden", "--write", "--camera", cam, "-o", ref]) == 0
-    assert main(["golden", "--camera", cam, "--reference", ref]) == 0
+    fast = ["--backend", BACKENDS[-1]]
+    assert main(["golden", "--write", "--camera", cam, "-o", ref, *fast]) == 0
+    assert main(["golden", "--camera", cam, "--reference", ref, *fast]) == 0
     assert "golden statistics: OK" in capsys.readouterr().out
     # against the project's reference the user's camera differs, and the table says where
-    assert main(["golden", "--camera", cam, "--json"]) == 1
+    assert main(["golden", "--camera", cam, "--json", *fast]) == 1
     doc = json.loads(capsys.readouterr().out)
     assert not doc["passed"] and len(doc["statistics"]) == 19
     assert {"band", "statistic", "value", "reference", "z", "passed"} == set(doc["statistics"][0])
