@@ -71,9 +71,13 @@ def _write(args: argparse.Namespace) -> int:
     seeds = list(range(args.seeds if args.seeds is not None else len(golden.REFERENCE_SEEDS)))
     if golden.MEASURE_SEED in seeds:
         raise ValueError(f"--seeds {len(seeds)}: at most {golden.MEASURE_SEED} (seed {golden.MEASURE_SEED} is the check's)")
-    with progress_bar(total=len(seeds), desc="golden reference", unit="seed") as bar:
+    with progress_bar(total=len(seeds), desc="golden reference", unit="seed", quiet=args.json) as bar:
         reference = golden.measure_reference(camera, backend, seeds, progress=bar)
     path = golden.write_reference(reference, args.output)
+    if args.json:
+        print(json.dumps({"wrote": str(path), "backend": reference["backend"], "seeds": seeds,
+                          "statistics": sum(len(e) for e in reference["stats"].values())}, indent=2))
+        return 0
     print(f"wrote {path} ({sum(len(e) for e in reference['stats'].values())} statistics, backend "
           f"{reference['backend']}, seeds {seeds[0]}..{seeds[-1]})", file=sys.stderr)
     return 0
