@@ -39,6 +39,7 @@ def _table(rows: list[golden.Row], z_crit: float) -> str:
 
 def _check(args: argparse.Namespace) -> int:
     reference = golden.load_reference(args.reference)  # a missing or damaged file fails before measuring
+    golden.check_design(reference)
     if args.seed in golden.reference_seeds(reference):
         raise ValueError(f"--seed {args.seed} is one of the reference's seeds {golden.reference_seeds(reference)}: "
                          "the check would replay the reference, not test it")
@@ -87,6 +88,7 @@ def _power(args: argparse.Namespace) -> int:
     from spikesim.progress import progress_bar
 
     reference = golden.load_reference(args.reference)
+    golden.check_design(reference)
     seeds = golden.power_seeds(args.seeds if args.seeds is not None else 4)
     total = len(seeds) * (1 + len(golden.POWER_TERMS) * len(golden.POWER_CHANGES))
     with progress_bar(total=total, desc="golden power", unit="run", quiet=args.json) as bar:

@@ -261,13 +261,23 @@ def reference_z_critical(reference: dict[str, Any], family_false_alarm: float = 
     return z_critical(n, degrees_of_freedom(len(reference_seeds(reference))), family_false_alarm)
 
 
+def check_design(reference: dict[str, Any]) -> None:
+    """Refuse a reference measured on another test scene (or another set of statistics) before
+    anything is simulated."""
+    if reference.get("design") != _design():
+        raise ValueError(_other_scene(reference))
+
+
+def _other_scene(reference: dict[str, Any]) -> str:
+    return ("the reference was measured on another test scene or with other statistics; write a new one "
+            "with `spikesim golden --write --camera CAMERA -o REF.json`")
+
+
 def compare(measured: dict[str, Any], reference: dict[str, Any],
             family_false_alarm: float = FAMILY_FALSE_ALARM) -> list[Row]:
     """One row per statistic of the reference: the measured value, z-score and verdict."""
     if measured.get("design") != reference.get("design"):
-        raise ValueError("the reference was measured on another test scene "
-                         f"({reference.get('design')}); write a new one with "
-                         "`spikesim golden --write --camera CAMERA -o REF.json`")
+        raise ValueError(_other_scene(reference))
     if measured.get("seed") in reference_seeds(reference):
         raise ValueError(f"seed {measured.get('seed')} is one of the reference's seeds "
                          f"{reference_seeds(reference)}: the check would replay the reference, not test it")
@@ -390,7 +400,7 @@ def detection_power(reference: dict[str, Any], camera: SpikeCamera | None = None
     return out
 
 
-__all__ = ["measure", "measure_reference", "compare", "load_reference", "write_reference", "detection_power",
+__all__ = ["measure", "measure_reference", "compare", "check_design", "load_reference", "write_reference", "detection_power",
            "detection_rate", "golden_camera", "changed", "power_seeds", "z_critical", "reference_z_critical",
            "degrees_of_freedom", "Row", "PACKAGED_REFERENCE", "POWER_TERMS", "POWER_CHANGES", "BANDS",
            "BAND_STATISTICS", "REFERENCE_SEEDS", "MEASURE_SEED"]

@@ -157,3 +157,14 @@ def test_bad_camera_file_is_one_line(tmp_path, capsys):
     assert main(["golden", "--camera", str(cam)]) == 2
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and "gain_spread" in err
+
+
+def test_a_reference_of_another_scene_is_refused_before_measuring(tmp_path, monkeypatch, capsys):
+    old = golden.load_reference()
+    old["design"] = {**old["design"], "switch_y": [0.9, 0.3]}  # the previous scene's switch band
+    path = tmp_path / "old.json"
+    path.write_text(json.dumps(old))
+    monkeypatch.setattr(golden, "simulate", lambda *a: pytest.fail("measured before refusing the reference"))
+    assert main(["golden", "--reference", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "another test scene" in err and "-o REF.json" in err
