@@ -168,3 +168,15 @@ def test_a_reference_of_another_scene_is_refused_before_measuring(tmp_path, monk
     assert main(["golden", "--reference", str(path)]) == 2
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and "another test scene" in err and "-o REF.json" in err
+
+
+def test_power_prints_a_table_per_term_and_change(monkeypatch, capsys):
+    # one term, two changes, one seed: the table's layout and a doubled comparator noise caught
+    monkeypatch.setattr(golden, "POWER_TERMS", ("comparator_noise",))
+    monkeypatch.setattr(golden, "POWER_CHANGES", (-1.0, 1.0))
+    assert main(["golden", "--power", "--seeds", "1", "--backend", BACKENDS[-1]]) == 0
+    out = capsys.readouterr().out
+    (row,) = [line for line in out.splitlines() if line.startswith("| comparator_noise")]
+    cells = [c.strip() for c in row.strip("|").split("|")]
+    assert cells[1].startswith("100%") and cells[2].startswith("100%") and cells[3] == "y=0.03 isi_cv2", row
+    assert "unchanged camera: failed at 0% of 1 seeds" in out
