@@ -12,10 +12,9 @@ import argparse
 import json
 import math
 import sys
-from pathlib import Path
 from typing import Any
 
-from pipelines.argtypes import camera_spec, existing_file, load_camera, positive_int
+from pipelines.argtypes import camera_spec, existing_file, load_camera, nonnegative_int, output_file, positive_int
 from spikesim import golden
 
 
@@ -39,9 +38,13 @@ def _table(rows: list[golden.Row], z_crit: float) -> str:
 
 def _check(args: argparse.Namespace) -> int:
     reference = golden.load_reference(args.reference)  # a missing or damaged file fails before measuring
+    golden.check_design(reference)
+    if args.seed in golden.reference_seeds(reference):
+        raise ValueError(f"--seed {args.seed} is one of the reference's seeds {golden.reference_seeds(reference)}: "
+                         "the check would replay the reference, not test it")
     measured = golden.measure(_camera(args), _backend(args.backend), args.seed)
     rows = golden.compare(measured, reference)
-    z_crit = golden.z_critical(len(rows))
+    z_crit = golden.reference_z_critical(reference)
     failed = [r for r in rows if not r.passed]
     if args.json:
         print(json.dumps({"reference": str(args.reference or golden.PACKAGED_REFERENCE), "backend": measured["backend"],
@@ -62,10 +65,21 @@ def _num(x: float) -> Any:
 
 
 def _write(args: argparse.Namespace) -> int:
-    measured = golden.measure(_camera(args), _backend(args.backend), golden.REFERENCE_SEED)
-    path = golden.write_reference(measured, args.output)
-    print(f"wrote {path} ({sum(len(e) for e in measured['stats'].values())} statistics, backend "
-          f"{measured['backend']}, seed {golden.REFERENCE_SEED})", file=sys.stderr)
+    from spikesim.progress import progress_bar
+
+    camera, backend = _camera(args), _backend(args.backend)
+    seeds = list(range(args.seeds if args.seeds is not None else len(golden.REFERENCE_SEEDS)))
+    if golden.MEASURE_SEED in seeds:
+        raise ValueError(f"--seeds {len(seeds)}: at most {golden.MEASURE_SEED} (seed {golden.MEASURE_SEED} is the check's)")
+    with progress_bar(total=len(seeds), desc="golden reference", unit="seed", quiet=args.json) as bar:
+        reference = golden.measure_reference(camera, backend, seeds, progress=bar)
+    path = golden.write_reference(reference, args.output)
+    if args.json:
+        print(json.dumps({"wrote": str(path), "backend": reference["backend"], "seeds": seeds,
+                          "statistics": sum(len(e) for e in reference["stats"].values())}, indent=2))
+        return 0
+    print(f"wrote {path} ({sum(len(e) for e in reference['stats'].values())} statistics, backend "
+          f"{reference['backend']}, seeds {seeds[0]}..{seeds[-1]})", file=sys.stderr)
     return 0
 
 
@@ -73,21 +87,35 @@ def _power(args: argparse.Namespace) -> int:
     from spikesim.progress import progress_bar
 
     reference = golden.load_reference(args.reference)
-    seeds = list(range(1, args.seeds + 1))
-    total = len(seeds) * (1 + len(golden.POWER_TERMS) * len(golden.POWER_CHANGES))
+    golden.check_design(reference)
+    seeds = golden.power_seeds(args.seeds if args.seeds is not None else 4)
+    cam = _camera(args)
+    cells = sum(golden.changed(cam, t, c) is not None for t in golden.POWER_TERMS for c in golden.POWER_CHANGES)
+    total = len(seeds) * (1 + cells)
     with progress_bar(total=total, desc="golden power", unit="run", quiet=args.json) as bar:
-        result = golden.detection_power(reference, _camera(args), _backend(args.backend), seeds, progress=bar)
+        result = golden.detection_power(reference, cam, _backend(args.backend), seeds, progress=bar)
     if args.json:
         print(json.dumps(result, indent=2))
         return 0
-    changes = list(next(iter(result["terms"].values())))
-    print("| term | " + " | ".join(changes) + " |")
-    print("|---|" + "---|" * len(changes))
-    for term, by in result["terms"].items():
-        print(f"| {term} | " + " | ".join(f"{v['detected']:.0%}" for v in by.values()) + " |")
+    print(_power_table(result))
     print(f"\nunchanged camera: failed at {result['unchanged']['detected']:.0%} of {len(seeds)} seeds "
-          f"(family false-alarm rate by design {golden.FAMILY_FALSE_ALARM:g})")
+          f"(median largest |z| {result['unchanged']['median_max_abs_z']:.1f}; family false-alarm rate by "
+          f"design {golden.FAMILY_FALSE_ALARM:g})")
     return 0
+
+
+def _power_table(result: dict[str, Any]) -> str:
+    """Markdown: per term and change, the share of seeds that failed and (in brackets) the median
+    largest |z| against the threshold."""
+    changes = list(next(iter(result["terms"].values())))
+    lines = [f"detection rate over {len(result['seeds'])} seeds (median largest |z|; threshold "
+             f"{result['z_critical']:.2f}), backend {result['backend']}", "",
+             "| term | " + " | ".join(changes) + " | largest z in |", "|---|" + "---|" * (len(changes) + 1)]
+    for term, by in result["terms"].items():
+        cells = ["n/a" if v is None else f"{v['detected']:.0%} ({v['median_max_abs_z']:.1f})" for v in by.values()]
+        first = next((v["failing"] for v in (by.get("+20%"), by.get("+100%")) if v and v["failing"]), "-")
+        lines.append(f"| {term} | " + " | ".join(cells) + f" | {first} |")
+    return "\n".join(lines)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -109,14 +137,19 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help=f"reference to compare with (default: the project's, {golden.PACKAGED_REFERENCE.name})")
     p.add_argument("--backend", default="numpy", choices=["numpy", "llvm", "cuda", "auto"],
                    help="simulator backend to measure with (default: numpy, the reference's)")
-    p.add_argument("--seed", type=int, default=golden.MEASURE_SEED,
-                   help=f"measurement seed (default: {golden.MEASURE_SEED}; references use {golden.REFERENCE_SEED})")
+    p.add_argument("--seed", type=nonnegative_int, default=golden.MEASURE_SEED,
+                   help="seed of the check's measurement; refused if the reference used it (references use "
+                        "0 .. N-1 for --seeds N)")
     mode = p.add_mutually_exclusive_group()
-    mode.add_argument("--write", action="store_true", help="measure and write a new reference to -o")
+    mode.add_argument("--write", action="store_true",
+                      help="measure and write a new reference to -o (the mean over --seeds replicate seeds)")
     mode.add_argument("--power", action="store_true",
                       help="measure the check's detection rate for changes of each noise term")
-    p.add_argument("-o", "--output", type=Path, help="with --write: the reference file to write")
-    p.add_argument("--seeds", type=positive_int, default=4, help="with --power: seeds per change (default: 4)")
+    p.add_argument("-o", "--output", type=output_file,
+                   help="with --write: the reference file to write (written whole: temporary file, then rename)")
+    p.add_argument("--seeds", type=positive_int,
+                   help=f"with --write: replicate seeds of the reference (default {len(golden.REFERENCE_SEEDS)}); "
+                        "with --power: seeds per change (default 4)")
     p.add_argument("--json", action="store_true", help="print the results as JSON")
     p.set_defaults(func=run)
 
