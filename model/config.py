@@ -133,6 +133,8 @@ class TrainConfig:
     val_max_samples: int = 4
     val_every: int = 1
     ckpt_every: int = 1
+    ckpt_every_steps: int | None = None
+    """Also write last.pt every this many steps, so a run cut anywhere loses at most that many."""
     max_steps: int | None = None
     num_workers: int = 0
     precision: str = "auto"
@@ -149,7 +151,7 @@ class TrainConfig:
         for name in ("num_windows", "crop", "batch_size", "epochs", "start_stride", "val_max_samples",
                      "val_every", "ckpt_every"):
             pos_int(name)
-        for name in ("samples_per_epoch", "val_crop", "max_steps"):
+        for name in ("samples_per_epoch", "val_crop", "max_steps", "ckpt_every_steps"):
             pos_int(name, allow_none=True)
         _require(self.crop % 4 == 0, f"train.crop must be divisible by 4 (PCD pyramid), got {self.crop}")
         _require(self.lr > 0, f"train.lr must be > 0, got {self.lr}")

@@ -94,6 +94,44 @@ class _CsvLog:
         with self.path.open("a", newline="") as f:
             csv.writer(f).writerow([row.get(k, "") for k in self.fields])
 
+    def keep_steps_up_to(self, step: int) -> None:
+        """Drop rows a cut run wrote after its last checkpoint (the resumed run writes them again),
+        replacing the file whole."""
+        with self.path.open(newline="") as f:
+            rows = list(csv.reader(f))
+        kept = rows[:1] + [r for r in rows[1:] if int(r[self.fields.index("step")]) <= step]
+        tmp = self.path.with_name(f".{self.path.name}.part")
+        with tmp.open("w", newline="") as f:
+            csv.writer(f).writerows(kept)
+        os.replace(tmp, self.path)
+
+
+class _StopOnSignal:
+    """SIGTERM (a scheduler's time limit) or Ctrl-C finishes the current step, then the run writes
+    last.pt and returns, so `--resume` loses nothing."""
+
+    def __init__(self) -> None:
+        self.signal: str | None = None
+        self._old: dict[int, Any] = {}
+
+    def __enter__(self) -> "_StopOnSignal":
+        import signal
+        import threading
+
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGTERM, signal.SIGINT):
+                self._old[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def _handle(self, signum: int, frame: Any) -> None:
+        import signal
+        self.signal = signal.Signals(signum).name
+
+    def __exit__(self, *exc: Any) -> None:
+        import signal
+        for sig, old in self._old.items():
+            signal.signal(sig, old)
+
 
 class _Tensorboard:
     """SummaryWriter when tensorboard imports; otherwise a no-op with one warning."""
@@ -332,7 +370,7 @@ def run_training(experiment: ExperimentConfig, train_scenes: Sequence[Scene], va
     run = _build_run(experiment, dev, dist)
     train_ds, val_ds = _datasets(experiment, train_scenes, val_scenes)
     epoch, batch_in_epoch, step, best = _start_or_resume(out, resume, experiment, run, dev, dist)
-    logs = _Logs(out, enabled=dist.is_main)
+    logs = _Logs(out, enabled=dist.is_main, resumed_at=step if resume else None)
     batches_per_epoch = sum(1 for i in range(0, len(train_ds), tc.batch_size)
                             if min(tc.batch_size, len(train_ds) - i) >= dist.world)
     if dist.is_main:
@@ -349,43 +387,49 @@ def run_training(experiment: ExperimentConfig, train_scenes: Sequence[Scene], va
     bar = progress_bar(total=_total_steps(tc, batches_per_epoch), initial=step, desc=f"train {experiment.name}",
                        unit="step", quiet=not (progress and dist.is_main))
     timer, last_loss, stopped = _Timer(), math.nan, False
-    run.model.train()
-    while epoch < tc.epochs and not stopped:
-        train_ds.set_epoch(epoch)
-        order = _epoch_order(len(train_ds), tc.seed, epoch)
-        # a last batch too small to give every process a sample is skipped by all of them alike
-        batches = [dist.shard(b) for b in (order[i:i + tc.batch_size] for i in range(0, len(order), tc.batch_size))
-                   if len(b) >= dist.world]
-        loader = DataLoader(train_ds, batch_sampler=batches[batch_in_epoch:],
-                            num_workers=tc.num_workers, worker_init_fn=_worker_init, pin_memory=dev.type == "cuda")
-        for batch in loader:
-            waited = timer.batch_arrived()
-            last_loss = _train_step(run, batch, dev, tc, step, dist)
-            took = timer.step_done(batch["spikes"].shape[0] * dist.world)
-            step += 1
-            batch_in_epoch += 1
-            logs.train_step(epoch, step, last_loss, run.opt.param_groups[0]["lr"],
-                            batch["spikes"].shape[0] * dist.world / max(waited + took, 1e-9), waited)
-            bar.update(1)
-            bar.set_postfix(loss=f"{last_loss:.4f}", refresh=False)
-            if tc.max_steps is not None and step >= tc.max_steps:
-                stopped = True
-                break
-        if not stopped:
-            epoch, batch_in_epoch = epoch + 1, 0
-            with warnings.catch_warnings():  # a run resumed exactly at an epoch's end steps no batch first
-                warnings.filterwarnings("ignore", message="Detected call of `lr_scheduler.step")
-                run.sched.step()
-        if dist.is_main and val_ds is not None and (stopped or epoch % tc.val_every == 0):
-            scores = validate(run.model, val_ds, dev)
-            logs.validation(epoch, step, scores)
-            bar.write(f"[train] epoch {epoch} step {step}: loss {last_loss:.4f}, val PSNR {scores['psnr']:.2f} dB "
-                      f"(TFP {scores['psnr_tfp']:.2f}), SSIM {scores['ssim']:.4f}", file=sys.stderr)
-            if scores["psnr"] > best:
-                best = scores["psnr"]
-                checkpoint(out / "best.pt")
-        if stopped or epoch % tc.ckpt_every == 0 or epoch >= tc.epochs:
-            checkpoint(out / "last.pt")
+    stop = _StopOnSignal().__enter__()
+    try:
+        run.model.train()
+        while epoch < tc.epochs and not stopped:
+            train_ds.set_epoch(epoch)
+            order = _epoch_order(len(train_ds), tc.seed, epoch)
+            # a last batch too small to give every process a sample is skipped by all of them alike
+            batches = [dist.shard(b) for b in (order[i:i + tc.batch_size] for i in range(0, len(order), tc.batch_size))
+                       if len(b) >= dist.world]
+            loader = DataLoader(train_ds, batch_sampler=batches[batch_in_epoch:],
+                                num_workers=tc.num_workers, worker_init_fn=_worker_init, pin_memory=dev.type == "cuda")
+            for batch in loader:
+                waited = timer.batch_arrived()
+                last_loss = _train_step(run, batch, dev, tc, step, dist)
+                took = timer.step_done(batch["spikes"].shape[0] * dist.world)
+                step += 1
+                batch_in_epoch += 1
+                logs.train_step(epoch, step, last_loss, run.opt.param_groups[0]["lr"],
+                                batch["spikes"].shape[0] * dist.world / max(waited + took, 1e-9), waited)
+                bar.update(1)
+                bar.set_postfix(loss=f"{last_loss:.4f}", refresh=False)
+                if tc.ckpt_every_steps is not None and step % tc.ckpt_every_steps == 0:
+                    checkpoint(out / "last.pt")
+                if (tc.max_steps is not None and step >= tc.max_steps) or _signalled(stop, dist):
+                    stopped = True
+                    break
+            if not stopped:
+                epoch, batch_in_epoch = epoch + 1, 0
+                with warnings.catch_warnings():  # a run resumed exactly at an epoch's end steps no batch first
+                    warnings.filterwarnings("ignore", message="Detected call of `lr_scheduler.step")
+                    run.sched.step()
+            if dist.is_main and val_ds is not None and (stopped or epoch % tc.val_every == 0):
+                scores = validate(run.model, val_ds, dev)
+                logs.validation(epoch, step, scores)
+                bar.write(f"[train] epoch {epoch} step {step}: loss {last_loss:.4f}, val PSNR {scores['psnr']:.2f} dB "
+                          f"(TFP {scores['psnr_tfp']:.2f}), SSIM {scores['ssim']:.4f}", file=sys.stderr)
+                if scores["psnr"] > best:
+                    best = scores["psnr"]
+                    checkpoint(out / "best.pt")
+            if stopped or epoch % tc.ckpt_every == 0 or epoch >= tc.epochs:
+                checkpoint(out / "last.pt")
+    finally:
+        stop.__exit__()  # the usual signal handling is back, whatever ended the loop
     bar.close()
     logs.close()
     fingerprint = _weights_fingerprint(run.model)
@@ -395,7 +439,7 @@ def run_training(experiment: ExperimentConfig, train_scenes: Sequence[Scene], va
         tdist.all_gather_object(seen, fingerprint)  # also: no rank leaves while rank 0 still writes
         if len(set(seen)) != 1:
             raise RuntimeError(f"DDP ranks ended with different weights (fingerprints {seen}): a bug")
-    return {"steps": step, "weights_sha256": fingerprint, "epoch": epoch, "last_loss": last_loss, "best_val_psnr": best, "precision": run.precision,
+    return {"steps": step, "weights_sha256": fingerprint, "stopped_by": stop.signal, "epoch": epoch, "last_loss": last_loss, "best_val_psnr": best, "precision": run.precision,
             "processes": dist.world, **timer.summary(), "out": str(out)}
 
 
@@ -409,15 +453,29 @@ def _weights_fingerprint(model: torch.nn.Module) -> str:
     return h.hexdigest()
 
 
-class _Logs:
-    """train_log.csv, val_log.csv and TensorBoard, written by one process only."""
+def _signalled(stop: _StopOnSignal, dist: _Distributed) -> bool:
+    """Whether any process was asked to stop (they all stop at the same step)."""
+    if dist.world == 1:
+        return stop.signal is not None
+    import torch.distributed as tdist
+    flag = torch.tensor([1.0 if stop.signal else 0.0])
+    tdist.all_reduce(flag)
+    return bool(flag.item() > 0)
 
-    def __init__(self, out: Path, enabled: bool) -> None:
+
+class _Logs:
+    """train_log.csv, val_log.csv and TensorBoard, written by one process only. A resumed run first
+    drops rows written after its checkpoint, so the logs read as one uninterrupted run."""
+
+    def __init__(self, out: Path, enabled: bool, resumed_at: int | None = None) -> None:
         self.enabled = enabled
         if enabled:
             self.train = _CsvLog(out / "train_log.csv",
                                  ["time", "epoch", "step", "loss", "lr", "samples_per_s", "data_wait_s"])
             self.val = _CsvLog(out / "val_log.csv", ["time", "epoch", "step", "psnr", "ssim", "psnr_tfp", "ssim_tfp"])
+            if resumed_at is not None:
+                self.train.keep_steps_up_to(resumed_at)
+                self.val.keep_steps_up_to(resumed_at)
             self.tb = _Tensorboard(out / "tb")
 
     def train_step(self, epoch: int, step: int, loss: float, lr: float, rate: float, waited: float) -> None:
@@ -440,7 +498,8 @@ class _Logs:
 def _apply_overrides(exp: ExperimentConfig, args: argparse.Namespace) -> ExperimentConfig:
     mapping = {"epochs": "epochs", "max_steps": "max_steps", "batch_size": "batch_size",
                "num_windows": "num_windows", "crop": "crop", "lr": "lr", "seed": "seed",
-               "num_workers": "num_workers", "samples_per_epoch": "samples_per_epoch", "val_crop": "val_crop"}
+               "num_workers": "num_workers", "samples_per_epoch": "samples_per_epoch", "val_crop": "val_crop",
+               "ckpt_every_steps": "ckpt_every_steps"}
     changes = {field: getattr(args, arg) for arg, field in mapping.items() if getattr(args, arg, None) is not None}
     if getattr(args, "precision", None) is not None:
         changes["precision"] = args.precision
@@ -463,7 +522,8 @@ def cmd_train(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else Path("runs") / exp.name
     summary = run_training(exp, train_scenes, val_scenes, out, args.device, args.resume, progress=not args.quiet)
     print(json.dumps(summary, indent=2))
-    return 0
+    # stopped by a signal: last.pt is written; the status says which (128 + its number), as a shell does
+    return {"SIGINT": 130, "SIGTERM": 143}.get(summary["stopped_by"], 0)
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -490,6 +550,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     g.add_argument("--seed", type=nonnegative_int, help="seed of the weights, the sample order and the crops")
     g.add_argument("--num-workers", type=nonnegative_int, help="data-loader processes (0: load in the training process)")
     g.add_argument("--samples-per-epoch", type=positive_int, help="random samples drawn per epoch (default: every start once)")
+    g.add_argument("--ckpt-every-steps", type=positive_int,
+                   help="also write last.pt every this many steps (a run cut anywhere then loses at most that many)")
     prec = g.add_mutually_exclusive_group()
     prec.add_argument("--precision", choices=PRECISIONS,
                       help="auto (the config's default: bf16 autocast on a GPU that supports it, fp16 on an older "

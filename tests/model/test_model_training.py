@@ -155,3 +155,50 @@ def test_summary_reports_throughput_and_data_wait(scenes, tmp_path):
     assert summary["samples_per_s"] > 0 and 0 <= summary["data_wait_share"] < 1
     rows = list(csv.DictReader((tmp_path / "train_log.csv").open()))
     assert len(rows) == 3 and all(float(r["data_wait_s"]) >= 0 for r in rows)
+
+
+def test_a_run_cut_between_checkpoints_resumes_bit_for_bit(scenes, tmp_path, monkeypatch):
+    """A crash after step 3 with step checkpoints every 2: the resumed run redoes step 3, drops the
+    log row the crashed run wrote for it, and ends equal to the run that was never cut."""
+    from pipelines import train as train_module
+
+    straight = run_training(tiny_experiment(max_steps=5), scenes[:2], [], tmp_path / "a", device="cpu", progress=False)
+    real_step, calls = train_module._train_step, {"n": 0}
+
+    def crash_after_three(*args, **kwargs):
+        if calls["n"] == 3:
+            raise KeyboardInterrupt  # a kill between checkpoints, after step 3's log row
+        calls["n"] += 1
+        return real_step(*args, **kwargs)
+
+    monkeypatch.setattr(train_module, "_train_step", crash_after_three)
+    with pytest.raises(KeyboardInterrupt):
+        run_training(tiny_experiment(max_steps=5, ckpt_every_steps=2), scenes[:2], [], tmp_path / "b",
+                     device="cpu", progress=False)
+    assert load_checkpoint(tmp_path / "b" / "last.pt")["step"] == 2
+    monkeypatch.setattr(train_module, "_train_step", real_step)
+    resumed = run_training(tiny_experiment(max_steps=5, ckpt_every_steps=2), scenes[:2], [], tmp_path / "b",
+                           device="cpu", resume=True, progress=False)
+    assert resumed["weights_sha256"] == straight["weights_sha256"]
+    losses = [[r["loss"] for r in csv.DictReader((tmp_path / x / "train_log.csv").open())] for x in "ab"]
+    assert losses[0] == losses[1] and len(losses[0]) == 5
+
+
+def test_sigterm_finishes_the_step_and_writes_last(scenes, tmp_path, monkeypatch):
+    import os
+    import signal
+
+    from pipelines import train as train_module
+    real_step, calls = train_module._train_step, {"n": 0}
+
+    def terminated_during_step_two(*args, **kwargs):
+        calls["n"] += 1
+        if calls["n"] == 2:
+            os.kill(os.getpid(), signal.SIGTERM)
+        return real_step(*args, **kwargs)
+
+    monkeypatch.setattr(train_module, "_train_step", terminated_during_step_two)
+    summary = run_training(tiny_experiment(max_steps=50), scenes[:2], [], tmp_path, device="cpu", progress=False)
+    assert summary["stopped_by"] == "SIGTERM" and summary["steps"] == 2
+    assert load_checkpoint(tmp_path / "last.pt")["step"] == 2
+    assert signal.getsignal(signal.SIGTERM) is not None  # the handler was put back
