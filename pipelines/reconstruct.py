@@ -193,7 +193,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                               description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("input", help=".dat spike stream")
     p.add_argument("-o", "--out", required=True, help="output folder")
-    p.add_argument("--method", default="tfp", help="tfp, tfi or a checkpoint path (default tfp)")
+    p.add_argument("--method", default="tfp", help="tfp, tfi, black, mean (floors) or a checkpoint path")
     p.add_argument("--height", type=positive_int, help=f"rows (default: as recorded, else {PKU_HEIGHT})")
     p.add_argument("--width", type=positive_int,
                    help=f"image width without header columns (default: as recorded, else {PKU_WIDTH})")
