@@ -33,6 +33,9 @@ def mean_windows(windows: torch.Tensor) -> torch.Tensor:
     return rate.expand(windows.shape[:1] + windows.shape[2:]).contiguous()
 
 
+#: Images without structure, the floor every table shows.
+FLOORS = ("black", "mean")
+
 #: Methods that map each window to an image on its own: the paper's baselines and two floors.
 MAP_METHODS = {"tfp": tfp_windows, "tfi": tfi_windows, "black": black_windows, "mean": mean_windows}
 

@@ -21,7 +21,7 @@ from pipelines.argtypes import (add_device_argument, bundled_scene, existing_fil
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from model.methods import ModelMethod, method_from_spec
+    from model.methods import FLOORS, ModelMethod, method_from_spec
     from model.streaming import StepWindows
     from pipelines.evaluate import evaluate, json_safe, markdown_table, scores_json, write_results
     from spikesim.generation import PRESETS, generate, plan_llr
@@ -33,7 +33,7 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     device = resolve_device(args.device)  # an unavailable GPU fails before any work
     # the methods first: a checkpoint that does not load fails now, not after the rendering
-    methods = [method_from_spec(m) for m in ("tfp", "tfi", "black", "mean")]  # black, mean: the floors
+    methods = [method_from_spec(m) for m in ("tfp", "tfi", *FLOORS)]
     if args.checkpoint is not None:  # not through a spec: a path may contain "=" (runs/lr=1e-3/best.pt)
         methods.append(ModelMethod(args.checkpoint.parent.name or args.checkpoint.stem, args.checkpoint))
     preset = dataclasses.replace(PRESETS["small"], llr_windows=args.windows)
@@ -65,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
         scale = 1.0 / max(float(np.percentile(gt, 99.5)), 1e-6)
         write_png(out / "previews" / f"{sc.name}_gt.png", gt, scale=scale)
         src = StepWindows(sc.spikes, c - 20, 41, 1)
-        for m in methods[:2] + methods[4:]:  # not the floors
+        for m in (m for m in methods if getattr(m, "kind", None) not in FLOORS):  # the floors show nothing
             (_, frame), = list(m.frames(src))
             write_png(out / "previews" / f"{sc.name}_{m.name}.png", np.asarray(frame), scale=scale)
     print(f"[demo] done in {time.perf_counter() - t0:.0f} s (rendering and simulation {t_gen:.0f} s); "
