@@ -43,12 +43,17 @@ def time_inference(config: str, height: int, width: int, windows: int, chunk: in
             "seconds_total": best, "seconds_per_frame": best / windows}
 
 
-def time_training(config: str, steps: int, seed: int = 0) -> dict:
-    """Samples per second of forward + backward + Adam at the config's crop, batch and K."""
+def time_training(config: str, steps: int, seed: int = 0, precision: str = "fp32", channels_last: bool = False) -> dict:
+    """Samples per second of forward + backward + Adam at the config's crop, batch and K, in fp32
+    or under bf16 autocast, with the weights in the default or the channels-last memory format."""
+    from .precision import autocast
+
     exp = load_config(config)
     tc = exp.train
     torch.manual_seed(seed)
     model = build_model(exp.model)
+    if channels_last:
+        model = model.to(memory_format=torch.channels_last)
     opt = torch.optim.Adam(model.parameters(), lr=tc.lr, betas=tuple(tc.betas))
     loss_fn = build_loss(tc.loss)
     g = torch.Generator().manual_seed(seed)
@@ -56,7 +61,9 @@ def time_training(config: str, steps: int, seed: int = 0) -> dict:
     gt = torch.rand(tc.batch_size, tc.num_windows, tc.crop, tc.crop, generator=g) * 0.1
 
     def step() -> None:
-        loss = loss_fn(model(spikes), gt)
+        with autocast(precision, torch.device("cpu")):
+            pred = model(spikes)
+        loss = loss_fn(pred.float(), gt)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
@@ -65,7 +72,8 @@ def time_training(config: str, steps: int, seed: int = 0) -> dict:
     for _ in range(steps):
         step()
     dt = time.perf_counter() - t0
-    return {"config": config, "batch_size": tc.batch_size, "num_windows": tc.num_windows, "crop": tc.crop,
+    return {"config": config, "precision": precision, "channels_last": channels_last,
+            "batch_size": tc.batch_size, "num_windows": tc.num_windows, "crop": tc.crop,
             "threads": torch.get_num_threads(), "steps": steps, "seconds_per_step": dt / steps,
             "samples_per_s": steps * tc.batch_size / dt}
 
@@ -80,10 +88,23 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--repeats", type=int, default=1)
     p.add_argument("--train-steps", type=int, default=0, help="also time this many training steps")
+    p.add_argument("--train-variants", action="store_true",
+                   help="time training in fp32 and bf16, each with and without channels_last, interleaved "
+                        "(ratios from one run: the machine drifts)")
     a = p.parse_args(argv)
     torch.set_num_threads(a.threads)
     print(json.dumps(time_inference(a.config, a.height, a.width, a.windows, a.chunk, repeats=a.repeats)))
-    if a.train_steps:
+    if a.train_steps and a.train_variants:
+        variants = [(p, cl) for p in ("fp32", "bf16") for cl in (False, True)]
+        rates: dict[tuple[str, bool], list[float]] = {v: [] for v in variants}
+        for _ in range(2):  # interleaved, twice, so a drift of the machine hits every variant alike
+            for p_, cl in variants:
+                rates[(p_, cl)].append(time_training(a.config, a.train_steps, precision=p_, channels_last=cl)["samples_per_s"])
+        base = max(rates[("fp32", False)])
+        for (p_, cl), r in rates.items():
+            print(json.dumps({"config": a.config, "precision": p_, "channels_last": cl, "samples_per_s": max(r),
+                              "ratio_to_fp32": max(r) / base, "threads": torch.get_num_threads()}))
+    elif a.train_steps:
         print(json.dumps(time_training(a.config, a.train_steps)))
     return 0
 

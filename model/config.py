@@ -20,6 +20,7 @@ CONFIG_DIR = resources.files(__package__) / "configs"  # the named configs, ship
 
 REPRESENTATIONS = ("lr_rep", "spike", "tfp", "tfi")
 INTERVALS = ("gisi", "lisi")
+LR_SCHEDULES = ("multistep", "cosine")
 DEFORM_BACKENDS = ("auto", "torch", "torchvision")
 
 
@@ -114,6 +115,13 @@ class TrainConfig:
     precision: "auto" (bf16 autocast on a GPU that supports it, fp16 on an older one, fp32 on the
       CPU), "bf16", "fp16" (autocast with a GradScaler) or "fp32" (model/precision.py). Configs
       written before it had `amp` (true: "auto", false: "fp32"), still read.
+    lr_schedule: "multistep" (the paper's: x lr_gamma at each epoch of lr_milestones) or "cosine"
+      (per step, from lr down to lr * lr_final_ratio at the run's last step: max_steps, the steps a
+      budget allows, or every epoch's batches).
+    budget_minutes: a wall-clock budget for the training steps. The run measures its step rate over
+      its first calibration_steps steps, plans the number of steps that fits the budget, records it
+      in its checkpoints (a resumed run keeps the same plan, so the same schedule) and ends there;
+      with "cosine" the decay ends at the budget. max_steps, when also given, caps the plan.
     """
 
     num_windows: int = 21
@@ -140,6 +148,10 @@ class TrainConfig:
     precision: str = "auto"
     grad_clip: float | None = None
     seed: int = 0
+    lr_schedule: str = "multistep"
+    lr_final_ratio: float = 0.01
+    budget_minutes: float | None = None
+    calibration_steps: int = 10
 
     def __post_init__(self) -> None:
         def pos_int(name: str, allow_none: bool = False) -> None:
@@ -167,6 +179,15 @@ class TrainConfig:
         _require(self.grad_clip is None or self.grad_clip > 0, f"train.grad_clip must be > 0, got {self.grad_clip}")
         _require(isinstance(self.seed, int), f"train.seed must be an integer, got {self.seed!r}")
         _require(self.precision in PRECISIONS, f"train.precision must be one of {PRECISIONS}, got {self.precision!r}")
+        _require(self.lr_schedule in LR_SCHEDULES,
+                 f"train.lr_schedule must be one of {LR_SCHEDULES}, got {self.lr_schedule!r}")
+        _require(isinstance(self.lr_final_ratio, (int, float)) and 0 <= self.lr_final_ratio <= 1,
+                 f"train.lr_final_ratio must be in [0, 1], got {self.lr_final_ratio!r}")
+        _require(self.budget_minutes is None or (isinstance(self.budget_minutes, (int, float))
+                                                 and not isinstance(self.budget_minutes, bool)
+                                                 and 0 < self.budget_minutes <= 60 * 24 * 365),
+                 f"train.budget_minutes must be a positive number of minutes (at most a year), got {self.budget_minutes!r}")
+        pos_int("calibration_steps")
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)

@@ -34,5 +34,23 @@ def l1_sum_pixels(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     return (pred - target).abs().sum() / pred.shape[0]
 
 
+#: The light level below which l1_sum_relative stops dividing (y, expected spikes per step): about
+#: the dark current of the realistic camera (docs/sensor.md), below which no stream says more.
+RELATIVE_LOSS_FLOOR_Y = 1e-3
+
+
+@LOSS_REGISTRY.register("l1_sum_relative")
+def l1_sum_relative(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """l1_sum with each sample's error divided by its light level (the mean ground truth over its K
+    windows, at least RELATIVE_LOSS_FLOOR_Y). Why: with plain L1 a 100 lx sample outweighs a 1 lx
+    one a hundredfold, so a small network spends itself on the bright scenes and learns little of
+    the dark ones it is judged on; relative to the light, every sample counts alike, as the
+    light-normalised and aligned metrics count every frame alike (model/metrics.py)."""
+    _check(pred, target)
+    level = target.detach().flatten(1).mean(dim=1).clamp_min(RELATIVE_LOSS_FLOOR_Y)
+    per_sample_window = (pred - target).abs().flatten(2).mean(dim=2) / level[:, None]  # (B, K)
+    return per_sample_window.mean(dim=0).sum()
+
+
 def build_loss(name: str) -> Loss:
     return LOSS_REGISTRY.get(name)

@@ -58,34 +58,96 @@ class MapMethod:
 
 
 @dataclass
-class ModelMethod:
-    """A trained network (any config), run with exact chunked streaming inference."""
+class SpanTFPMethod:
+    """TFP over `span` steps centred on each window's centre (`tfp:N`): plain photon counting given
+    as many steps as a network sees. The span is an odd number of whole windows, so it covers
+    windows i - n .. i + n exactly; near the ends of the source it averages the windows there are
+    (what anyone holding that stream has), so every frame has a value."""
 
     name: str
-    checkpoint: Path
-    chunk: int = 8
-    device: str = "cpu"
+    span: int
+    window: int = 41
+    chunk: int = 64
 
     def __post_init__(self) -> None:
-        self.model, self.experiment = model_from_checkpoint(self.checkpoint, self.device)
+        if self.span % self.window or (self.span // self.window) % 2 == 0:
+            raise ValueError(f"tfp:{self.span}: the span must be an odd number of {self.window}-step windows "
+                             f"(e.g. {3 * self.window}, {5 * self.window}, {21 * self.window})")
+
+    def frames(self, source: WindowSource) -> Iterator[tuple[int, torch.Tensor]]:
+        half, total = self.span // self.window // 2, source.num_windows
+        counts: dict[int, torch.Tensor] = {}  # spikes per pixel of the windows in reach
+        loaded = 0
+        for i in range(total):
+            while loaded < min(total, i + half + 1):
+                b = min(loaded + self.chunk, total)
+                per_window = source.windows(loaded, b).sum(dim=1, dtype=torch.float32)
+                counts.update({loaded + j: per_window[j] for j in range(b - loaded)})
+                loaded = b
+            lo, hi = max(0, i - half), min(total - 1, i + half)
+            yield i, torch.stack([counts[j] for j in range(lo, hi + 1)]).sum(0) / ((hi - lo + 1) * self.window)
+            counts.pop(i - half, None)
+
+
+def span_method_spec(body: str, window: int) -> int | None:
+    """The span of a `tfp:N` spec (N steps), None for any other spec."""
+    if not body.startswith("tfp:"):
+        return None
+    try:
+        span = int(body[4:])
+    except ValueError:
+        raise ValueError(f"method {body!r}: tfp:N takes a number of steps, e.g. tfp:{3 * window}") from None
+    if span < 1:
+        raise ValueError(f"method {body!r}: the span must be a positive number of steps")
+    return span
+
+
+@dataclass
+class ModelMethod:
+    """A trained network (any config), run with exact chunked streaming inference: a checkpoint
+    file, or shipped weights by name (`pretrained`, model/pretrained.py)."""
+
+    name: str
+    checkpoint: Path | None
+    chunk: int = 8
+    device: str = "cpu"
+    pretrained: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.pretrained is not None:
+            from .pretrained import load_pretrained
+            self.model, self.experiment = load_pretrained(self.pretrained, self.device)
+        else:
+            self.model, self.experiment = model_from_checkpoint(self.checkpoint, self.device)
+            # GISI beyond the training horizon (K*T + 1) is clipped: see ReconNet.max_interval.
+            self.model.max_interval = float(self.experiment.train.num_windows * self.experiment.model.window + 1)
         self.model.eval()
         self.window = self.experiment.model.window
-        # GISI beyond the training horizon (K*T + 1) is clipped: see ReconNet.max_interval.
-        self.model.max_interval = float(self.experiment.train.num_windows * self.window + 1)
+
+    @property
+    def span(self) -> int:
+        """Steps the network saw per training sample (K windows): the span of the fair TFP."""
+        return self.experiment.train.num_windows * self.window
 
     def frames(self, source: WindowSource) -> Iterator[tuple[int, torch.Tensor]]:
         yield from stream_reconstruct(self.model, source, self.chunk, self.device)
 
 
+#: The shipped network's name in every command (`--method lrrep`, `--methods lrrep`).
+PRETRAINED_METHOD = "lrrep"
+
+
 def method_from_spec(spec: str, window: int = 41, chunk: int = 8, device: str = "cpu") -> Method:
-    """"tfp", "tfi", "black", "mean", or a checkpoint path; "label=..." names the method in tables."""
+    """"tfp", "tfi", "black", "mean", "tfp:N" (TFP over N steps), "lrrep" (the shipped weights) or
+    a checkpoint path; "label=..." names the method in tables."""
     label, _, body = spec.rpartition("=") if "=" in spec else ("", "", spec)
     if body in MAP_METHODS:
         return MapMethod(label or (body.upper() if body in ("tfp", "tfi") else body), body, window)
-    if body == "lrrep":  # the name shipped weights will load by; none ship yet
-        raise ValueError("method 'lrrep': no trained weights ship with this version (training at the paper's "
-                         "scale needs a GPU, docs/model.md); train a model with `spikesim train` and pass "
-                         "LABEL=path/to/best.pt")
+    span = span_method_spec(body, window)
+    if span is not None:
+        return SpanTFPMethod(label or f"TFP-{span}", span, window)
+    if body == PRETRAINED_METHOD:
+        return ModelMethod(label or "LR-Rep", None, chunk, device, pretrained=PRETRAINED_METHOD)
     path = Path(body.removeprefix("ckpt:"))
     if not path.is_file():
         raise ValueError(f"method {spec!r}: expected one of {', '.join(MAP_METHODS)} or an existing checkpoint file")

@@ -7,7 +7,7 @@ greater than std_a + std_b (the sample standard deviations over seeds). Below th
 says "within spread": a reordering by another seed would be no surprise.
 
     spikesim compare --data rllr --test-data llr --configs E=tiny A=tiny_ablation_a \\
-        --seeds 0 1 2 --steps 150 --out runs/compare
+        --seeds 0 1 2 --max-steps 150 --out runs/compare
 
 Writes <out>/runs/<label>/seed<k>/ (training runs, resumable: a finished run is kept, an
 unfinished one continued), <out>/metrics.csv (every run on every scene, evaluate's rows),
@@ -30,7 +30,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from pipelines.argtypes import nonnegative_int, output_dir, positive_int
+from pipelines.argtypes import nonnegative_int, output_dir, positive_float, positive_int
 
 MIN_SEEDS = 3
 BASELINES = ("tfp", "tfi")
@@ -87,35 +87,45 @@ def run_dir(out: Path, label: str, seed: int) -> Path:
     return out / "runs" / label / f"seed{seed}"
 
 
-def _steps_done(last: Path) -> int | None:
-    """Steps of a run's last checkpoint, None when there is none."""
+def _steps_done(last: Path) -> tuple[int | None, int | None]:
+    """(steps of a run's last checkpoint, the steps its budget planned), None where there is none."""
     if not last.exists():
-        return None
+        return None, None
     from model.checkpoint import load_checkpoint
-    return int(load_checkpoint(last)["step"])
+    state = load_checkpoint(last)
+    planned = state.get("extra", {}).get("budget_planned_steps")
+    return int(state["step"]), None if planned is None else int(planned)
 
 
-def train_seeds(configs: Sequence[tuple[str, Any]], seeds: Sequence[int], steps: int, train_scenes: Sequence[Any],
-                out: Path, device: str = "auto", precision: str | None = None, progress: bool = False) -> dict[tuple[str, int], Path]:
-    """Train every (config, seed) for exactly `steps` steps; returns each run's last checkpoint.
-    A finished run is kept; an unfinished one is continued (--resume); one past `steps` is refused."""
-    from pipelines.train import run_training
+def train_seeds(configs: Sequence[tuple[str, Any]], seeds: Sequence[int], steps: int | None, train_scenes: Sequence[Any],
+                out: Path, device: str = "auto", precision: str | None = None, progress: bool = False,
+                budget_minutes: float | None = None) -> dict[tuple[str, int], Path]:
+    """Train every (config, seed) for exactly `steps` steps, or for `budget_minutes` of wall time
+    each (equal time: the steps are what each config's speed allows); returns each run's last
+    checkpoint. A finished run is kept; an unfinished one is continued (--resume); one past
+    `steps` is refused."""
+    from model.training import run_training
 
+    if (steps is None) == (budget_minutes is None):
+        raise ValueError("give either a number of steps or a budget in minutes")
     done: dict[tuple[str, int], Path] = {}
     for (label, exp), seed in itertools.product(configs, seeds):
-        train = dataclasses.replace(exp.train, seed=int(seed), max_steps=steps,
+        limits = {"max_steps": steps} if steps is not None else {"budget_minutes": budget_minutes, "max_steps": None}
+        train = dataclasses.replace(exp.train, seed=int(seed), **limits,
                                     **({"precision": precision} if precision else {}))
         run = dataclasses.replace(exp, name=f"{label}_seed{seed}", train=train)
         folder = run_dir(out, label, seed)
         last = folder / "last.pt"
-        have = _steps_done(last)
-        if have is not None and have > steps:
-            raise ValueError(f"{last} has {have} steps, more than --steps {steps}: choose another --out")
-        if have != steps:
-            print(f"[compare] training {label} seed {seed} for {steps} steps"
+        have, planned = _steps_done(last)
+        target = steps if steps is not None else planned
+        if have is not None and target is not None and have > target:
+            raise ValueError(f"{last} has {have} steps, more than --max-steps {steps}: choose another --out")
+        if have is None or have != target:
+            what = f"{steps} steps" if steps is not None else f"{budget_minutes:g} minutes"
+            print(f"[compare] training {label} seed {seed} for {what}"
                   + (f" (continuing from step {have})" if have else ""), file=sys.stderr)
             summary = run_training(run, train_scenes, [], folder, device, resume=have is not None, progress=progress)
-            if summary["steps"] != steps:
+            if steps is not None and summary["steps"] != steps:
                 raise ValueError(f"config {label}: its {exp.train.epochs} epochs end after {summary['steps']} steps, "
                                  f"before --steps {steps}; raise its epochs or lower --steps")
         done[(label, seed)] = last
@@ -141,12 +151,29 @@ def evaluate_runs(checkpoints: dict[tuple[str, int], Path], test_scenes: Sequenc
                   baselines: Sequence[str] = BASELINES, device: str = "cpu", chunk: int = 8,
                   progress: bool = False) -> list[Any]:
     """evaluate's rows for every run (method names label#seed) and the baselines."""
-    from model.methods import MapMethod, ModelMethod
+    from model.methods import ModelMethod, method_from_spec
     from pipelines.evaluate import evaluate
 
-    methods: list[Any] = [MapMethod(b.upper(), b, window) for b in baselines]
+    methods: list[Any] = [method_from_spec(b, window) for b in baselines]
     methods += [ModelMethod(run_name(label, seed), path, chunk, device) for (label, seed), path in checkpoints.items()]
     return evaluate(test_scenes, methods, window, progress=progress)
+
+
+def baseline_label(spec: str, window: int = 41) -> str:
+    """The column a baseline spec gets in the tables (TFP, TFI, TFP-205, black, ...)."""
+    from model.methods import method_from_spec
+    return method_from_spec(spec, window).name
+
+
+def baseline_spec(text: str) -> str:
+    """argparse type: a seedless method evaluate knows (tfp, tfi, black, mean, tfp:N)."""
+    try:
+        baseline_label(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    if "=" in text or text == "lrrep" or not (text in ("tfp", "tfi", "black", "mean") or text.startswith("tfp:")):
+        raise argparse.ArgumentTypeError(f"{text!r}: a baseline is tfp, tfi, black, mean or tfp:N")
+    return text
 
 
 def aggregate(rows: Sequence[Any], labels: Sequence[str], baselines: Sequence[str] = BASELINES) -> list[SeedStat]:
@@ -157,7 +184,7 @@ def aggregate(rows: Sequence[Any], labels: Sequence[str], baselines: Sequence[st
     groups = [g for g in dict.fromkeys(r.scene for r in rows) if g.startswith(ALL)]
     stats = []
     for group in groups:
-        for label in [b.upper() for b in baselines] + list(labels):
+        for label in [baseline_label(b) for b in baselines] + list(labels):
             mine = [r for r in rows if r.scene == group and (r.method == label or r.method.startswith(label + "#"))]
             for metric in METRICS:
                 stats.append(seed_stat(label, group, metric, [r.value(metric) for r in mine]))
@@ -169,20 +196,30 @@ def _fmt(s: SeedStat, fmt: str) -> str:
     return body if s.n == 1 else f"{body} ± {fmt.format(s.std)}"
 
 
+def _steps_per_run(checkpoints: dict[tuple[str, int], Path]) -> dict[tuple[str, int], int]:
+    return {key: int(_steps_done(path)[0] or 0) for key, path in checkpoints.items()}
+
+
 def markdown(stats: Sequence[SeedStat], labels: Sequence[str], baselines: Sequence[str], seeds: Sequence[int],
-             steps: int) -> str:
+             length: int | str, steps_per_run: dict[tuple[str, int], int] | None = None) -> str:
     """Per group, a table of mean +- std over seeds; then every pair of configs, with the
     difference called only where it exceeds the spread."""
     from model.metrics import METRICS
     from pipelines.evaluate import ALL
 
-    cols = [b.upper() for b in baselines] + list(labels)
+    cols = [baseline_label(b) for b in baselines] + list(labels)
     by = {(s.label, s.group, s.metric): s for s in stats}
     groups = list(dict.fromkeys(s.group for s in stats))
     groups = [g for g in groups if g != ALL] + [ALL]
-    lines = [f"{len(seeds)} training seeds ({', '.join(map(str, seeds))}) x {steps} steps per config; mean ± "
-             f"standard deviation over seeds (TFP/TFI have no seed). A difference is called only where "
+    length = f"{length} steps" if isinstance(length, int) else length
+    lines = [f"{len(seeds)} training seeds ({', '.join(map(str, seeds))}) x {length} per config; mean ± "
+             f"standard deviation over seeds (baselines have no seed). A difference is called only where "
              f"|mean_a - mean_b| > std_a + std_b.", ""]
+    if steps_per_run:
+        per_label: dict[str, list[int]] = {}
+        for (label, _), n in steps_per_run.items():
+            per_label.setdefault(label, []).append(n)
+        lines += ["Steps per run: " + "; ".join(f"{label} {', '.join(map(str, n))}" for label, n in per_label.items()), ""]
     for g in groups:
         title = "All scenes" if g == ALL else f"{g.split('_', 1)[1].capitalize()} light"
         lines += [f"**{title}**", "", "| Metric | " + " | ".join(cols) + " |", "|---|" + "---|" * len(cols)]
@@ -232,7 +269,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
     from model.data import open_scenes
     from model.precision import resolve_precision
-    from pipelines.train import resolve_device
+    from model.training import resolve_device
 
     dev = resolve_device(args.device)
     if args.precision:
@@ -245,7 +282,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     labels = [label for label, _ in args.configs]
     if len(set(labels)) != len(labels):
         raise ValueError(f"--configs: labels must be unique, got {labels}; name them with LABEL=CONFIG")
-    taken = sorted(set(labels) & {b.upper() for b in args.baselines})
+    taken = sorted(set(labels) & {baseline_label(b) for b in args.baselines})
     if taken:
         raise ValueError(f"--configs: label(s) {', '.join(taken)} name a baseline; choose others with LABEL=CONFIG")
     windows = {exp.model.window for _, exp in args.configs}
@@ -256,12 +293,15 @@ def cmd_compare(args: argparse.Namespace) -> int:
     check_samples(args.configs, train_scenes)
     out = Path(args.out)
     checkpoints = train_seeds(args.configs, seeds, args.max_steps, train_scenes, out, str(dev), args.precision,
-                              progress=not args.quiet)
+                              progress=not args.quiet, budget_minutes=args.budget_minutes)
     rows = evaluate_runs(checkpoints, test_scenes, window, args.baselines, str(dev), progress=not args.quiet)
     stats = aggregate(rows, labels, args.baselines)
-    text = markdown(stats, labels, args.baselines, seeds, args.max_steps)
+    length = f"{args.max_steps} steps" if args.max_steps else f"{args.budget_minutes:g} minutes of wall time"
+    text = markdown(stats, labels, args.baselines, seeds, length, _steps_per_run(checkpoints))
     meta = {"command": "spikesim " + shlex.join(sys.argv[1:]), "data": str(args.data),
             "test_data": str(args.test_data), "seeds": seeds, "steps": args.max_steps,
+            "budget_minutes": args.budget_minutes, "steps_per_run": {f"{k[0]}#{k[1]}": v for k, v in
+                                                                    _steps_per_run(checkpoints).items()},
             "configs": {label: exp.to_dict() for label, exp in args.configs}}
     write_comparison(stats, rows, text, meta, out)
     if args.json:
@@ -284,10 +324,15 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                    help="named configs or JSON files, each labelled (default label: the config's name)")
     p.add_argument("--seeds", nargs="+", type=nonnegative_int, default=[0, 1, 2],
                    help=f"training seeds, at least {MIN_SEEDS} (default: 0 1 2)")
-    p.add_argument("--max-steps", type=positive_int, required=True,
-                   help="optimiser steps of every run (equal for all; as train --max-steps)")
-    p.add_argument("--baselines", nargs="*", choices=BASELINES, default=list(BASELINES),
-                   help="seedless baselines in the tables (default: tfp tfi)")
+    length = p.add_mutually_exclusive_group(required=True)
+    length.add_argument("--max-steps", type=positive_int,
+                        help="optimiser steps of every run (equal for all; as train --max-steps)")
+    length.add_argument("--budget-minutes", type=positive_float,
+                        help="wall minutes of every run (equal time, as train --budget-minutes: each config takes "
+                             "the steps its speed allows)")
+    p.add_argument("--baselines", nargs="*", type=baseline_spec, default=list(BASELINES),
+                   help="seedless baselines in the tables: tfp, tfi, black, mean, tfp:N (TFP over N steps, an odd "
+                        "number of windows: the span a network sees, e.g. tfp:205 for K = 5) (default: tfp tfi)")
     p.add_argument("-o", "--out", type=output_dir, required=True, help="folder for the runs and the tables")
     p.add_argument("--precision", choices=("bf16", "fp16", "fp32"),
                    help="training precision of every run (default: each config's, auto)")

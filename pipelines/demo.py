@@ -2,7 +2,8 @@
 
 Renders a bundled scene (Mitsuba 3, physical lights) under normal and low light, streams the
 frames through the realistic sensor into `.dat` files with ground truth (the LLR layout, small
-preset), reconstructs every window with TFP and TFI (and a trained checkpoint if given), and
+preset), reconstructs every window with TFP, TFI, TFP over the shipped network's span and the shipped
+network (and a trained checkpoint if given), and
 prints the PSNR/SSIM table and the streams' statistics; previews go next to the data.
 """
 from __future__ import annotations
@@ -21,9 +22,9 @@ from pipelines.argtypes import (add_device_argument, bundled_scene, existing_fil
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from model.methods import FLOORS, ModelMethod, method_from_spec
+    from model.methods import FLOORS, PRETRAINED_METHOD, ModelMethod, method_from_spec
     from model.streaming import StepWindows
-    from pipelines.evaluate import evaluate, json_safe, markdown_table, scores_json, write_results
+    from pipelines.evaluate import evaluate, evaluation_run, json_safe, markdown_table, scores_json, write_results
     from spikesim.generation import PRESETS, generate, plan_llr
     from spikesim.dataset import open_dataset
     from spikesim.imageio import write_png
@@ -33,9 +34,12 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     device = resolve_device(args.device)  # an unavailable GPU fails before any work
     # the methods first: a checkpoint that does not load fails now, not after the rendering
-    methods = [method_from_spec(m) for m in ("tfp", "tfi", *FLOORS)]
+    models = [] if args.no_model else [method_from_spec(PRETRAINED_METHOD)]
     if args.checkpoint is not None:  # not through a spec: a path may contain "=" (runs/lr=1e-3/best.pt)
-        methods.append(ModelMethod(args.checkpoint.parent.name or args.checkpoint.stem, args.checkpoint))
+        models.append(ModelMethod(args.checkpoint.parent.name or args.checkpoint.stem, args.checkpoint))
+    # TFP over the span each network saw in training: what plain counting makes of the same steps
+    spans = sorted({m.span for m in models})
+    methods = [method_from_spec(m) for m in ("tfp", "tfi", *(f"tfp:{n}" for n in spans), *FLOORS)] + models
     preset = dataclasses.replace(PRESETS["small"], llr_windows=args.windows)
     t0 = time.perf_counter()
     jobs = plan_llr(preset, seed=args.seed, scenes=args.scenes)
@@ -57,20 +61,22 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(json_safe(scores_json(rows, names, {"data": str(out / "llr")})), indent=2))
     else:
         print(markdown_table(rows, names))
-    # previews of the middle window: ground truth and each method, scaled to the scene's
-    # brightest ground-truth value (so low light looks dark, as it is)
+    # previews of the middle window of each scene's run (a network sees the whole run, as in the
+    # table): every image stretched to its own 99.5th percentile, so a person sees what each method
+    # made, dark or bright (a shared scale shows low-light TFP black and TFI white)
     for sc in scenes:
-        c = sc.gt_steps[len(sc.gt_steps) // 2]
-        gt = sc.ground_truth(c)
-        scale = 1.0 / max(float(np.percentile(gt, 99.5)), 1e-6)
-        write_png(out / "previews" / f"{sc.name}_gt.png", gt, scale=scale)
-        src = StepWindows(sc.spikes, c - 20, 41, 1)
-        for m in (m for m in methods if getattr(m, "kind", None) not in FLOORS):  # the floors show nothing
-            (_, frame), = list(m.frames(src))
-            write_png(out / "previews" / f"{sc.name}_{m.name}.png", np.asarray(frame), scale=scale)
+        first, n = evaluation_run(sc, 41)
+        mid = n // 2
+        write_png(out / "previews" / f"{sc.name}_gt_p99.png", sc.ground_truth(first + mid * 41), percentile=99.5)
+        src = StepWindows(sc.spikes, first - 20, 41, n)
+        for m in (m for m in methods if m.name not in FLOORS):  # the floors show nothing
+            frame = next(f for i, f in m.frames(src) if i == mid)
+            write_png(out / "previews" / f"{sc.name}_{m.name}_p99.png", np.asarray(frame), percentile=99.5)
     print(f"[demo] done in {time.perf_counter() - t0:.0f} s (rendering and simulation {t_gen:.0f} s); "
-          f"data in {out / 'llr'}, table in {out / 'metrics.md'}, previews in {out / 'previews'}", file=sys.stderr)
+          f"data in {out / 'llr'}, table in {out / 'metrics.md'}, previews in {out / 'previews'} (each image "
+          "stretched to its own 99.5th percentile: _p99)", file=sys.stderr)
     return 0
+
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -81,6 +87,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--windows", type=positive_int, default=3, help="41-step windows per scene")
     p.add_argument("--checkpoint", type=existing_file,
                    help="also reconstruct with a trained model (a train run's best.pt)")
+    p.add_argument("--no-model", action="store_true",
+                   help="leave the shipped network (lrrep) out: baselines only")
     p.add_argument("--workers", type=positive_int, default=None,
                    help="worker processes (default: one per core; one with a GPU)")
     add_device_argument(p)

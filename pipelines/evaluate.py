@@ -164,15 +164,21 @@ def evaluate_pair(dat: Path, gt: np.ndarray, center: int, methods: Sequence[Meth
     if center - half < 0 or center + (window - half) > reader.num_steps:
         raise ValueError(f"--center {center}: a {window}-step window around it needs steps {center - half}.."
                          f"{center + window - half - 1}, but {dat} has steps 0..{reader.num_steps - 1}")
-    source = StepWindows(lambda a, b: reader.read(a, b).unpack(), center - half, window, 1)
+    # every whole window that fits on each side of the centre window: a network (and TFP over a
+    # span) sees the stream around the frame, as on a dataset; TFP and TFI use the centre window only
+    before = (center - half) // window
+    after = (reader.num_steps - (center - half + window)) // window
+    source = StepWindows(lambda a, b: reader.read(a, b).unpack(), center - half - before * window, window,
+                         before + 1 + after)
     target = np.clip(gt.astype(np.float32), 0.0, SATURATION_Y)
     rows = []
     for m in methods:
-        (_, frame), = list(m.frames(source))
+        frame = next(f for i, f in m.frames(source) if i == before)
         pred = frame.numpy() if isinstance(frame, torch.Tensor) else np.asarray(frame)
         rows.append(Score(dat.stem, m.name, frames=1, **{k: fn(pred, target) for k, (fn, _, _) in METRICS.items()}))
     rows += [pooled([r], ALL, r.method) for r in rows]
-    read = {"dat": str(dat), "center": center, "window": window, "height": height, "width": width,
+    read = {"dat": str(dat), "center": center, "window": window, "windows": before + 1 + after,
+            "first_step": center - half - before * window, "height": height, "width": width,
             "header_columns": header_columns, "flip": flip, "gt_mean_y": float(target.mean())}
     return rows, read
 
@@ -261,7 +267,7 @@ def write_results(rows: Sequence[Score], methods: Sequence[str], out: Path) -> t
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
-    from pipelines.train import resolve_device
+    from model.training import resolve_device
     device = str(resolve_device(args.device))
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -344,7 +350,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--no-flip", action="store_true",
                    help="with --dat: rows stored top-down (SPCS/SCSim); default as recorded, else bottom-up")
     p.add_argument("--methods", nargs="+", default=["tfp", "tfi"],
-                   help="tfp, tfi, black, mean (floors), or checkpoint paths; 'label=spec' names a column")
+                   help="tfp, tfi, tfp:N (TFP over N steps centred on each frame, N an odd number of windows: "
+                        "the span a network sees), lrrep (the shipped network), black, mean (floors), or checkpoint "
+                        "paths; 'label=spec' names a column")
     p.add_argument("--json", action="store_true", help="print the scores as JSON (every metric convention)")
     p.add_argument("--scenes", nargs="+", help="only these scenes")
     p.add_argument("-o", "--out", default="results/evaluate", help="folder for metrics.csv and metrics.md (with --data)")

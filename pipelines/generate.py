@@ -14,6 +14,7 @@ from pipelines.argtypes import (add_device_argument, camera_spec, existing_file,
                                 positive_float, positive_int)
 from spikesim._drjit import resolve_device
 from spikesim.dataset import check_scene_name
+from spikesim.generation.plan import DARKENINGS, LOG_DARKENING_MIN
 from spikesim.generation import (PRESETS, bundled_scene, generate, percent, plan_llr, plan_rllr, plan_user,
                                  saturation_summary)
 from spikesim.generation.settings import ResolvedSettings, resolve_settings
@@ -39,7 +40,7 @@ def _plain_name(text: str) -> str:
 
 # Options that only some kinds take: given to another kind, they would be silently ignored.
 _ONLY_FOR = {
-    "scenes": ("llr",), "count": ("rllr",), "pattern": ("rllr",), "steps": ("rllr",), "gt_stride": ("rllr",),
+    "scenes": ("llr",), "count": ("rllr",), "pattern": ("rllr",), "darkening": ("rllr",), "steps": ("rllr",), "gt_stride": ("rllr",),
     "windows": ("llr", "scene"), "xml": ("scene",), "motion": ("scene",), "lights": ("scene",),
     "light": ("scene",), "light_power_factor": ("scene",), "name": ("scene",),
 }
@@ -77,7 +78,8 @@ def run(args: argparse.Namespace) -> int:
         jobs = plan_llr(preset, seed=args.seed, camera=camera, scenes=args.scenes, quality=args.quality)
     elif args.kind == "rllr":
         jobs = plan_rllr(preset, seed=args.seed, camera=camera, count=args.count,
-                         source="pattern" if args.pattern else "random", quality=args.quality)
+                         source="pattern" if args.pattern else "random", quality=args.quality,
+                         darkening=args.darkening or "uniform")
     else:
         jobs = plan_user(str(args.xml), args.light or "normal", preset, seed=args.seed,
                          motion=None if args.motion is None else str(args.motion),
@@ -146,6 +148,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="dataset seed; each scene's seed derives from it, the scene's name and its light")
     p.add_argument("--scenes", nargs="+", type=_llr_scene, help="LLR scenes by name (default: the preset's)")
     p.add_argument("--count", type=positive_int, help="RLLR scenes (default: the preset's)")
+    p.add_argument("--darkening", choices=DARKENINGS,
+                   help="how each RLLR scene's light power factor is drawn: uniform in (0, 1) (the paper's, the "
+                        f"default) or log-uniform in [{LOG_DARKENING_MIN}, 1) (as many scenes per decade of light)")
     p.add_argument("--pattern", action="store_true", help="RLLR from the built-in pattern instead of random 3D scenes")
     p.add_argument("--xml", type=existing_file, help="scene XML (generate scene)")
     p.add_argument("--motion", type=existing_file, help="motion file (default: motion.json beside the XML)")

@@ -173,7 +173,7 @@ def replace_outputs(stage: Path, out: Path) -> None:
 
 
 def cmd_reconstruct(args: argparse.Namespace) -> int:
-    from pipelines.train import resolve_device
+    from model.training import resolve_device
     device = str(resolve_device(args.device))
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -193,7 +193,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                               description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("input", help=".dat spike stream")
     p.add_argument("-o", "--out", required=True, help="output folder")
-    p.add_argument("--method", default="tfp", help="tfp, tfi, black, mean (floors) or a checkpoint path")
+    p.add_argument("--method", default="tfp",
+                   help="tfp, tfi, tfp:N (TFP over N steps), lrrep (the shipped network), black, mean (floors) or a "
+                        "checkpoint path")
     p.add_argument("--height", type=positive_int, help=f"rows (default: as recorded, else {PKU_HEIGHT})")
     p.add_argument("--width", type=positive_int,
                    help=f"image width without header columns (default: as recorded, else {PKU_WIDTH})")

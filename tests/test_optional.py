@@ -62,7 +62,7 @@ def test_tradeoff_without_matplotlib_is_one_line_naming_the_plot_extra(monkeypat
 
 
 def test_training_without_tensorboard_says_which_extra_and_goes_on(monkeypatch, tmp_path, capsys):
-    from pipelines.train import _Tensorboard
+    from model.training import _Tensorboard
     hide(monkeypatch, "tensorboard", "torch.utils.tensorboard")
     board = _Tensorboard(tmp_path / "tb")
     assert board.writer is None

@@ -187,20 +187,41 @@ def plan_llr(preset: Preset, seed: int = 0, camera: Any | None = None, scenes: l
     return jobs
 
 
+#: How RLLR draws each scene's darkening factor: "uniform" in (0, 1) (the paper's), or
+#: "log-uniform" in [LOG_DARKENING_MIN, 1), which puts as many scenes in each decade of light as in
+#: the brightest: with the 30-250 lx lamps, 0.15-250 lx at the subject instead of a 10 % chance of
+#: going below 25 lx (what a budgeted model needs to see of the low light it is judged on).
+DARKENINGS = ("uniform", "log-uniform")
+LOG_DARKENING_MIN = 0.005
+
+
+def darkening_factor(rng: np.random.Generator, darkening: str = "uniform") -> float:
+    """One RLLR scene's light power factor (DARKENINGS)."""
+    if darkening == "log-uniform":
+        return float(10.0 ** rng.uniform(np.log10(LOG_DARKENING_MIN), 0.0))
+    if darkening != "uniform":
+        raise ValueError(f"darkening={darkening!r}; expected one of {DARKENINGS}")
+    factor = float(rng.uniform(0.0, 1.0))
+    while factor == 0.0:  # (0, 1): open at 0
+        factor = float(rng.uniform(0.0, 1.0))
+    return factor
+
+
 def plan_rllr(preset: Preset, seed: int = 0, camera: Any | None = None, count: int | None = None,
-              source: str = "random", quality: str | None = None) -> list[SceneJob]:
-    """RLLR: random scenes, each darkened by a random factor in (0, 1) (paper, "RLLR"). A random
-    scene's job records its lamps' range (scenes.random_scene.LAMPS_LUX), so scenes built with
-    another range are not taken for finished ones."""
+              source: str = "random", quality: str | None = None, darkening: str = "uniform") -> list[SceneJob]:
+    """RLLR: random scenes, each darkened by a random factor (paper, "RLLR": uniform in (0, 1);
+    DARKENINGS for the other choice). A random scene's job records its lamps' range
+    (scenes.random_scene.LAMPS_LUX), so scenes built with another range are not taken for finished
+    ones; the factor is part of each job, so a dataset drawn another way is never taken for this one."""
     from scenes.random_scene import LAMPS_LUX
+    if darkening not in DARKENINGS:
+        raise ValueError(f"darkening={darkening!r}; expected one of {DARKENINGS}")
     rng = np.random.default_rng(np.random.SeedSequence([seed, 7]))
     n = preset.rllr_scenes if count is None else count
     gt = tuple(range(0, preset.rllr_steps, preset.rllr_gt_stride))
     jobs = []
     for i in range(n):
-        factor = float(rng.uniform(0.0, 1.0))
-        while factor == 0.0:  # (0, 1): open at 0
-            factor = float(rng.uniform(0.0, 1.0))
+        factor = darkening_factor(rng, darkening)
         name = f"rllr_{i:04d}"
         s = scene_seed(seed, name, source)
         src = ({"type": "random", "index": i, "scene_seed": s, "lamps_lux": list(LAMPS_LUX)} if source == "random"

@@ -160,10 +160,10 @@ def test_summary_reports_throughput_and_data_wait(scenes, tmp_path):
 def test_a_run_cut_between_checkpoints_resumes_bit_for_bit(scenes, tmp_path, monkeypatch):
     """A crash after step 3 with step checkpoints every 2: the resumed run redoes step 3, drops the
     log row the crashed run wrote for it, and ends equal to the run that was never cut."""
-    from pipelines import train as train_module
+    from model import training as training_module
 
     straight = run_training(tiny_experiment(max_steps=5), scenes[:2], [], tmp_path / "a", device="cpu", progress=False)
-    real_step, calls = train_module._train_step, {"n": 0}
+    real_step, calls = training_module._train_step, {"n": 0}
 
     def crash_after_three(*args, **kwargs):
         if calls["n"] == 3:
@@ -171,12 +171,12 @@ def test_a_run_cut_between_checkpoints_resumes_bit_for_bit(scenes, tmp_path, mon
         calls["n"] += 1
         return real_step(*args, **kwargs)
 
-    monkeypatch.setattr(train_module, "_train_step", crash_after_three)
+    monkeypatch.setattr(training_module, "_train_step", crash_after_three)
     with pytest.raises(KeyboardInterrupt):
         run_training(tiny_experiment(max_steps=5, ckpt_every_steps=2), scenes[:2], [], tmp_path / "b",
                      device="cpu", progress=False)
     assert load_checkpoint(tmp_path / "b" / "last.pt")["step"] == 2
-    monkeypatch.setattr(train_module, "_train_step", real_step)
+    monkeypatch.setattr(training_module, "_train_step", real_step)
     resumed = run_training(tiny_experiment(max_steps=5, ckpt_every_steps=2), scenes[:2], [], tmp_path / "b",
                            device="cpu", resume=True, progress=False)
     assert resumed["weights_sha256"] == straight["weights_sha256"]
@@ -188,8 +188,8 @@ def test_sigterm_finishes_the_step_and_writes_last(scenes, tmp_path, monkeypatch
     import os
     import signal
 
-    from pipelines import train as train_module
-    real_step, calls = train_module._train_step, {"n": 0}
+    from model import training as training_module
+    real_step, calls = training_module._train_step, {"n": 0}
 
     def terminated_during_step_two(*args, **kwargs):
         calls["n"] += 1
@@ -197,7 +197,7 @@ def test_sigterm_finishes_the_step_and_writes_last(scenes, tmp_path, monkeypatch
             os.kill(os.getpid(), signal.SIGTERM)
         return real_step(*args, **kwargs)
 
-    monkeypatch.setattr(train_module, "_train_step", terminated_during_step_two)
+    monkeypatch.setattr(training_module, "_train_step", terminated_during_step_two)
     summary = run_training(tiny_experiment(max_steps=50), scenes[:2], [], tmp_path, device="cpu", progress=False)
     assert summary["stopped_by"] == "SIGTERM" and summary["steps"] == 2
     assert load_checkpoint(tmp_path / "last.pt")["step"] == 2

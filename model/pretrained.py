@@ -1,0 +1,91 @@
+"""Weights that ship inside the package, loaded by name (`--method lrrep`, `load_pretrained()`).
+
+A shipped file is weights-only: the network's config, its parameters and where they came from, no
+optimiser state. The registry below holds each file's sha256 and its weights' fingerprint (the
+model card in docs/model.md prints the same); a file that does not match is refused, so a damaged
+or swapped file never reconstructs anything.
+"""
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from .checkpoint import FORMAT_VERSION, atomic_torch_save, load_checkpoint, model_from_checkpoint, state_fingerprint
+from .config import ExperimentConfig
+
+WEIGHTS_DIR = resources.files(__package__) / "weights"
+
+
+@dataclass(frozen=True)
+class PretrainedWeights:
+    """One shipped weights file and what it must hash to."""
+
+    name: str
+    file: str
+    file_sha256: str
+    weights_sha256: str
+    summary: str
+
+
+#: The shipped weights by name (docs/model.md, "Model card").
+PRETRAINED: dict[str, PretrainedWeights] = {}
+
+
+def _register(entry: PretrainedWeights) -> None:
+    PRETRAINED[entry.name] = entry
+
+
+def pretrained_path(name: str = "lrrep") -> Path:
+    """The file of shipped weights `name`, checked against the registry's sha256."""
+    if name not in PRETRAINED:
+        known = ", ".join(sorted(PRETRAINED)) or "none"
+        raise ValueError(f"no shipped weights called {name!r} (shipped: {known})")
+    entry = PRETRAINED[name]
+    path = Path(str(WEIGHTS_DIR / entry.file))
+    if not path.is_file():
+        raise FileNotFoundError(f"shipped weights {name!r}: {path} is missing from the installed package "
+                                "(reinstall spikesim)")
+    digest = hashlib.sha256(path.read_bytes()).hexdigest()
+    if digest != entry.file_sha256:
+        raise ValueError(f"shipped weights {name!r}: {path} has sha256 {digest[:16]}..., the model card says "
+                         f"{entry.file_sha256[:16]}...: the file is damaged or was replaced (reinstall spikesim)")
+    return path
+
+
+def load_pretrained(name: str = "lrrep", device: str | torch.device = "cpu"
+                    ) -> tuple[torch.nn.Module, ExperimentConfig]:
+    """The shipped network `name` in eval mode, with its config, on `device`.
+
+    GISI is clipped at the training horizon (K*T + 1 steps), as for any trained checkpoint
+    (model/methods.py ModelMethod)."""
+    path = pretrained_path(name)
+    model, experiment = model_from_checkpoint(path, device)
+    fingerprint = state_fingerprint(model.state_dict())
+    if fingerprint != PRETRAINED[name].weights_sha256:
+        raise ValueError(f"shipped weights {name!r}: weights fingerprint {fingerprint[:16]}... differs from the "
+                         f"model card's {PRETRAINED[name].weights_sha256[:16]}...")
+    model.max_interval = float(experiment.train.num_windows * experiment.model.window + 1)
+    return model.eval(), experiment
+
+
+def export_weights(checkpoint: str | Path, out: str | Path, provenance: dict[str, Any] | None = None) -> dict[str, str]:
+    """Write a training checkpoint's network as a weights-only file (config, fp32 parameters,
+    provenance; no optimiser): what ships. Returns the file's sha256 and the weights' fingerprint,
+    the two values a registry entry holds."""
+    state = load_checkpoint(checkpoint)
+    weights = {k: v.float() if v.is_floating_point() else v for k, v in state["model_state"].items()}
+    doc = {"format_version": FORMAT_VERSION, "experiment": state["experiment"], "model_state": weights,
+           "optimizer_state": None, "step": state.get("step", 0), "epoch": state.get("epoch", 0),
+           "weights_sha256": state_fingerprint(weights),
+           "extra": {"provenance": provenance or {}, "source_checkpoint_step": int(state.get("step", 0))}}
+    atomic_torch_save(doc, out)
+    return {"file_sha256": hashlib.sha256(Path(out).read_bytes()).hexdigest(),
+            "weights_sha256": doc["weights_sha256"]}
+
+
+__all__ = ["PRETRAINED", "PretrainedWeights", "load_pretrained", "pretrained_path", "export_weights", "WEIGHTS_DIR"]

@@ -1,0 +1,567 @@
+"""Training as a library: one run of a reconstruction network on scenes in the project's layout
+(`run_training`), its resume, validation, logs and the device it runs on. `spikesim train`
+(pipelines/train.py) only parses arguments and prints; a notebook calls `run_training` directly.
+
+The default config ("full") is the paper's recipe: 41-step windows, 64x64 random crops, batch 8,
+K = 21 consecutive windows, Adam (0.9, 0.99), lr 1e-4 x0.1 at epoch 70 of 100, L1 summed over the
+K windows. Writes <out>/last.pt (every ckpt_every epochs and on stopping; atomic), <out>/best.pt
+(best validation PSNR), <out>/train_log.csv, <out>/val_log.csv, <out>/tb/ (TensorBoard) and
+<out>/config.json; `--resume` continues from <out>/last.pt exactly where it stopped. Precision:
+bf16 autocast on GPUs that support it, fp32 on the CPU, `--precision` to choose (model/precision.py).
+"""
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import math
+import os
+import random
+import sys
+import time
+import warnings
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+import torch
+from torch.utils.data import DataLoader
+
+from .arch import build_model, count_parameters
+from .checkpoint import load_checkpoint, save_checkpoint, state_fingerprint
+from .config import ExperimentConfig
+from .data import Scene, SequenceDataset
+from .losses import build_loss
+from .metrics import psnr, psnr_aligned, ssim
+from .precision import autocast, grad_scaler, resolve_precision
+from .representations import tfp_windows
+from spikesim._optional import require
+
+
+def seed_everything(seed: int) -> None:
+    """Python, NumPy and torch (CPU and CUDA) generators from one seed."""
+    random.seed(seed)
+    np.random.seed(seed % 2**32)
+    torch.manual_seed(seed)
+
+
+def _worker_init(worker_id: int) -> None:
+    s = torch.initial_seed() % 2**32
+    random.seed(s)
+    np.random.seed(s)
+
+
+DEVICES = "auto, cpu, cuda, cuda:N or mps"
+
+
+def resolve_device(name: str) -> torch.device:
+    """The torch device for --device: auto (CUDA when torch sees one, else CPU), cpu, cuda,
+    cuda:N or mps. A name torch does not know is a ValueError; a device this machine lacks is an
+    UnavailableError, both naming --device."""
+    from spikesim.errors import UnavailableError
+
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    try:
+        dev = torch.device(name)
+    except (RuntimeError, ValueError, TypeError):
+        dev = None
+    if dev is None or dev.type not in ("cpu", "cuda", "mps"):
+        raise ValueError(f"--device {name!r} is not a device; expected {DEVICES}")
+    if dev.type == "cuda":
+        if not torch.cuda.is_available():
+            build = f"CUDA {torch.version.cuda}" if torch.version.cuda else "a CPU-only build"
+            raise UnavailableError(f"--device {name} asked for, but torch sees no CUDA device (torch "
+                                   f"{torch.__version__}, {build}); use --device cpu or auto")
+        if dev.index is not None and dev.index >= torch.cuda.device_count():
+            raise UnavailableError(f"--device {name} asked for, but torch sees only "
+                                   f"{torch.cuda.device_count()} CUDA device(s)")
+    if dev.type == "mps" and not torch.backends.mps.is_available():
+        raise UnavailableError(f"--device {name} asked for, but torch sees no MPS device; use --device cpu or auto")
+    return dev
+
+
+class _CsvLog:
+    """Append-only CSV with a fixed header (kept across resumes)."""
+
+    def __init__(self, path: Path, fields: Sequence[str]) -> None:
+        self.path, self.fields = path, list(fields)
+        if not path.exists():
+            with path.open("w", newline="") as f:
+                csv.writer(f).writerow(self.fields)
+
+    def write(self, row: dict[str, Any]) -> None:
+        with self.path.open("a", newline="") as f:
+            csv.writer(f).writerow([row.get(k, "") for k in self.fields])
+
+    def keep_steps_up_to(self, step: int) -> None:
+        """Drop rows a cut run wrote after its last checkpoint (the resumed run writes them again),
+        replacing the file whole."""
+        with self.path.open(newline="") as f:
+            rows = list(csv.reader(f))
+        kept = rows[:1] + [r for r in rows[1:] if int(r[self.fields.index("step")]) <= step]
+        tmp = self.path.with_name(f".{self.path.name}.part")
+        with tmp.open("w", newline="") as f:
+            csv.writer(f).writerows(kept)
+        os.replace(tmp, self.path)
+
+
+class _StopOnSignal:
+    """SIGTERM (a scheduler's time limit) or Ctrl-C finishes the current step, then the run writes
+    last.pt and returns, so `--resume` loses nothing."""
+
+    def __init__(self) -> None:
+        self.signal: str | None = None
+        self._old: dict[int, Any] = {}
+
+    def __enter__(self) -> "_StopOnSignal":
+        import signal
+        import threading
+
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGTERM, signal.SIGINT):
+                self._old[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def _handle(self, signum: int, frame: Any) -> None:
+        import signal
+        self.signal = signal.Signals(signum).name
+
+    def __exit__(self, *exc: Any) -> None:
+        import signal
+        for sig, old in self._old.items():
+            signal.signal(sig, old)
+
+
+class _Tensorboard:
+    """SummaryWriter when tensorboard imports; otherwise a no-op with one warning."""
+
+    def __init__(self, log_dir: Path) -> None:
+        try:
+            require("tensorboard", "train", "TensorBoard logging")
+            from torch.utils.tensorboard import SummaryWriter
+            self.writer = SummaryWriter(str(log_dir))
+        except Exception as e:  # tensorboard missing or broken: CSV logs still carry everything
+            print(f"[train] TensorBoard disabled ({e}); CSV logs only", file=sys.stderr)
+            self.writer = None
+
+    def scalar(self, tag: str, value: float, step: int) -> None:
+        if self.writer is not None:
+            self.writer.add_scalar(tag, value, step)
+
+    def close(self) -> None:
+        if self.writer is not None:
+            self.writer.close()
+
+
+@torch.no_grad()
+def validate(model: torch.nn.Module, dataset: SequenceDataset, device: torch.device) -> dict[str, float]:
+    """Mean PSNR / SSIM / aligned PSNR over every frame of the validation samples, for the model
+    and for TFP on the same windows (the yardstick the model has to beat). The aligned PSNR judges
+    dark and bright frames on one scale (model/metrics.py), so it is what picks best.pt."""
+    model.eval()
+    scores: dict[str, list[float]] = {k: [] for k in VALIDATION_COLUMNS}
+    for i in range(len(dataset)):
+        item = dataset[i]
+        spikes = item["spikes"].to(device)
+        pred = model(spikes.unsqueeze(0))[0].float().cpu().numpy()
+        base = tfp_windows(spikes).cpu().numpy()
+        gt = item["gt"].numpy()
+        for k in range(gt.shape[0]):
+            for name, image in (("", pred[k]), ("_tfp", base[k])):
+                scores["psnr" + name].append(psnr(image, gt[k]))
+                scores["ssim" + name].append(ssim(image, gt[k]))
+                scores["psnr_aligned" + name].append(psnr_aligned(image, gt[k]))
+    model.train()
+    return {k: float(np.mean(v)) for k, v in scores.items()}
+
+
+#: The validation log's metrics: the model's, then TFP's on the same windows.
+VALIDATION_COLUMNS = ("psnr", "ssim", "psnr_aligned", "psnr_tfp", "ssim_tfp", "psnr_aligned_tfp")
+
+
+def _epoch_order(n: int, seed: int, epoch: int) -> list[int]:
+    """The shuffled sample order of one epoch, a pure function of (seed, epoch) so a resumed run
+    continues with exactly the batches it would have seen."""
+    g = torch.Generator().manual_seed(seed * 1_000_003 + epoch)
+    return torch.randperm(n, generator=g).tolist()
+
+
+def _resume(last_path: Path, dev: torch.device, mc: Any, model: torch.nn.Module, opt: Any, sched: Any,
+            scaler: Any) -> tuple[int, int, int, float, dict[str, Any]]:
+    """Restore a run from its last checkpoint; returns (epoch, batch in epoch, step, best aligned
+    validation PSNR, the checkpoint's extra record).
+    A checkpoint that does not fit this run is an error naming the file, never a traceback."""
+    if not last_path.exists():
+        raise FileNotFoundError(f"--resume: no checkpoint at {last_path}")
+    state = load_checkpoint(last_path, dev)
+    try:
+        saved = ExperimentConfig.from_dict(state["experiment"])
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"--resume: {last_path}: its config is not valid: {exc}") from None
+    if saved.model != mc:
+        raise ValueError(f"--resume: {last_path} holds a different model config: {saved.model} vs {mc}")
+    try:
+        model.load_state_dict(state["model_state"])
+        opt.load_state_dict(state["optimizer_state"])
+        sched.load_state_dict(state["scheduler_state"])
+        if state.get("scaler_state"):
+            scaler.load_state_dict(state["scaler_state"])
+        torch.set_rng_state(state["rng"]["torch"].cpu())
+        extra = state["extra"]
+        return (int(state["epoch"]), int(extra.get("batch_in_epoch", 0)), int(state["step"]),
+                float(extra.get("best_val_psnr", -math.inf)), dict(extra))
+    except (KeyError, TypeError, ValueError, AttributeError, RuntimeError) as exc:
+        text = str(exc).strip().splitlines()
+        raise ValueError(f"--resume: {last_path} cannot continue this run: "
+                         f"{text[0] if text else type(exc).__name__}") from None
+
+
+@dataclasses.dataclass
+class _Distributed:
+    """This process's place in a `torchrun` job (rank 0 of 1 without one). Every rank computes the
+    same global batches (a pure function of seed and epoch) and takes every world-th sample of
+    each, so the run equals one process with the same global batch size, within float rounding."""
+
+    rank: int = 0
+    world: int = 1
+
+    @property
+    def is_main(self) -> bool:
+        return self.rank == 0
+
+    @classmethod
+    def from_env(cls, dev: torch.device) -> tuple["_Distributed", torch.device]:
+        world = int(os.environ.get("WORLD_SIZE", "1"))
+        if world == 1:
+            return cls(), dev
+        import torch.distributed as tdist
+
+        if dev.type == "cuda":
+            dev = torch.device("cuda", int(os.environ.get("LOCAL_RANK", "0")))
+            torch.cuda.set_device(dev)
+        if not tdist.is_initialized():
+            tdist.init_process_group("nccl" if dev.type == "cuda" else "gloo")
+        return cls(tdist.get_rank(), tdist.get_world_size()), dev
+
+    def shard(self, batch: list[int]) -> list[int]:
+        return batch[self.rank::self.world]
+
+
+@dataclasses.dataclass
+class _Run:
+    """What one training run holds: the model (and its DDP wrapper), optimiser, schedule, scaler."""
+
+    model: torch.nn.Module
+    forward: torch.nn.Module
+    opt: Any
+    sched: Any
+    scaler: Any
+    loss_fn: Any
+    precision: str
+
+
+def _build_run(experiment: ExperimentConfig, dev: torch.device, dist: _Distributed) -> _Run:
+    tc, mc = experiment.train, experiment.model
+    seed_everything(tc.seed)
+    model = build_model(mc).to(dev)
+    forward = model
+    if dist.world > 1:
+        from torch.nn.parallel import DistributedDataParallel
+        forward = DistributedDataParallel(model, device_ids=[dev.index] if dev.type == "cuda" else None)
+    opt = torch.optim.Adam(model.parameters(), lr=tc.lr, betas=tuple(tc.betas))
+    sched = torch.optim.lr_scheduler.MultiStepLR(opt, milestones=list(tc.lr_milestones), gamma=tc.lr_gamma)
+    precision = resolve_precision(tc.precision, dev)
+    return _Run(model, forward, opt, sched, grad_scaler(precision, dev), build_loss(tc.loss), precision)
+
+
+def _datasets(experiment: ExperimentConfig, train_scenes: Sequence[Scene],
+              val_scenes: Sequence[Scene]) -> tuple[SequenceDataset, SequenceDataset | None]:
+    tc, mc = experiment.train, experiment.model
+    train_ds = SequenceDataset(train_scenes, mc.window, tc.num_windows, tc.crop, random_crop=True,
+                               seed=tc.seed, start_stride=tc.start_stride, samples_per_epoch=tc.samples_per_epoch)
+    val_ds = None
+    if val_scenes:
+        per_scene = max(1, tc.val_max_samples // len(val_scenes))
+        val_ds = SequenceDataset(val_scenes, mc.window, tc.num_windows, tc.val_crop, random_crop=False,
+                                 seed=tc.seed, max_per_scene=per_scene)
+    return train_ds, val_ds
+
+
+def _start_or_resume(out: Path, resume: bool, experiment: ExperimentConfig, run: _Run, dev: torch.device,
+                     dist: _Distributed) -> tuple[int, int, int, float, dict[str, Any]]:
+    """(epoch, batch in epoch, step, best validation PSNR, the checkpoint's extra record) to start from."""
+    last_path = out / "last.pt"
+    if resume:
+        return _resume(last_path, dev, experiment.model, run.model, run.opt, run.sched, run.scaler)
+    if last_path.exists():
+        raise FileExistsError(f"{last_path} exists: pass --resume to continue that run, or choose another --out")
+    if dist.is_main:
+        for stale in ("train_log.csv", "val_log.csv", "best.pt"):
+            (out / stale).unlink(missing_ok=True)
+        (out / "config.json").write_text(json.dumps(experiment.to_dict(), indent=2))
+    return 0, 0, 0, -math.inf, {}
+
+
+def _total_steps(tc: Any, batches_per_epoch: int) -> int:
+    total = tc.epochs * batches_per_epoch
+    return min(total, tc.max_steps) if tc.max_steps is not None else total
+
+
+def cosine_lr(tc: Any, step: int, total: int) -> float:
+    """The cosine schedule's rate for the step about to be taken (0-based): lr at step 0, then down
+    half a cosine to lr * lr_final_ratio at the run's last step (SGDR, Loshchilov and Hutter 2017,
+    without restarts)."""
+    low = tc.lr * tc.lr_final_ratio
+    frac = min(step, total) / max(total, 1)
+    return low + (tc.lr - low) * 0.5 * (1.0 + math.cos(math.pi * frac))
+
+
+@dataclasses.dataclass
+class _BudgetPlan:
+    """A wall-clock budget turned into a number of steps, once, from the measured step rate; kept
+    in every checkpoint so that a resumed run follows the same schedule to the same last step."""
+
+    budget_s: float
+    calibration_steps: int
+    planned_steps: int | None = None
+    elapsed_s: float = 0.0
+    """Training time spent before this process started (earlier legs of a resumed run)."""
+
+    def plan(self, step: int, seconds_so_far: float, cap: int | None, seconds_per_step: float) -> int:
+        """The run's last step: the steps taken plus those the rest of the budget allows at the
+        measured time per step (validation included: it is measured too), at most `cap`."""
+        left = max(self.budget_s - seconds_so_far, 0.0)
+        planned = step + int(left / max(seconds_per_step, 1e-9))
+        self.planned_steps = max(step, min(planned, cap) if cap is not None else planned)
+        return self.planned_steps
+
+    def record(self) -> dict[str, Any]:
+        return {"budget_planned_steps": self.planned_steps, "budget_elapsed_s": self.elapsed_s}
+
+
+class _Timer:
+    """Where the time goes: waiting for the next batch versus the step itself (samples/s and the
+    data-wait share tell whether the loader or the model bounds training)."""
+
+    def __init__(self) -> None:
+        self.wait = self.busy = 0.0
+        self.samples = 0
+        self.first_step_s: float | None = None
+        self._mark = self._start = time.perf_counter()
+
+    def batch_arrived(self) -> float:
+        now = time.perf_counter()
+        waited, self._mark = now - self._mark, now
+        self.wait += waited
+        return waited
+
+    def step_done(self, samples: int) -> float:
+        now = time.perf_counter()
+        took, self._mark = now - self._mark, now
+        self.busy += took
+        self.samples += samples
+        if self.first_step_s is None:
+            self.first_step_s = now - self._start
+        return took
+
+    def summary(self) -> dict[str, float]:
+        total = self.wait + self.busy
+        return {"samples_per_s": self.samples / total if total > 0 else math.nan,
+                "data_wait_share": self.wait / total if total > 0 else math.nan}
+
+
+def _train_step(run: _Run, batch: dict, dev: torch.device, tc: Any, step: int, dist: _Distributed) -> float:
+    """One optimiser step; returns the loss of the whole (global) batch."""
+    spikes = batch["spikes"].to(dev, non_blocking=True)
+    gt = batch["gt"].to(dev, non_blocking=True)
+    with autocast(run.precision, dev):
+        pred = run.forward(spikes)
+    loss = run.loss_fn(pred.float(), gt)
+    if not torch.isfinite(loss):
+        raise FloatingPointError(f"loss became {loss.item()} at step {step}")
+    run.opt.zero_grad(set_to_none=True)
+    run.scaler.scale(loss).backward()
+    if tc.grad_clip is not None:
+        run.scaler.unscale_(run.opt)
+        torch.nn.utils.clip_grad_norm_(run.model.parameters(), tc.grad_clip)
+    run.scaler.step(run.opt)
+    run.scaler.update()
+    if dist.world > 1:  # each rank saw its share: log the mean over the global batch
+        import torch.distributed as tdist
+        loss = loss.detach().clone()
+        tdist.all_reduce(loss)
+        loss /= dist.world
+    return float(loss.item())
+
+
+def run_training(experiment: ExperimentConfig, train_scenes: Sequence[Scene], val_scenes: Sequence[Scene],
+                 out_dir: str | Path, device: str = "auto", resume: bool = False,
+                 progress: bool = True) -> dict[str, Any]:
+    """Train; returns a summary (steps, last loss, best validation PSNR, samples/s, data-wait share).
+    Under `torchrun` each process trains its share of every batch (DDP); rank 0 writes."""
+    from spikesim.progress import progress_bar
+
+    out = Path(out_dir)
+    dist, dev = _Distributed.from_env(resolve_device(device))
+    tc = experiment.train
+    if tc.batch_size % dist.world:
+        raise ValueError(f"batch size {tc.batch_size} does not split over {dist.world} processes")
+    out.mkdir(parents=True, exist_ok=True)
+    run = _build_run(experiment, dev, dist)
+    train_ds, val_ds = _datasets(experiment, train_scenes, val_scenes)
+    epoch, batch_in_epoch, step, best, saved = _start_or_resume(out, resume, experiment, run, dev, dist)
+    budget = None
+    if tc.budget_minutes is not None:
+        budget = _BudgetPlan(60.0 * tc.budget_minutes, tc.calibration_steps,
+                             saved.get("budget_planned_steps"), float(saved.get("budget_elapsed_s", 0.0)))
+    logs = _Logs(out, enabled=dist.is_main, resumed_at=step if resume else None)
+    batches_per_epoch = sum(1 for i in range(0, len(train_ds), tc.batch_size)
+                            if min(tc.batch_size, len(train_ds) - i) >= dist.world)
+    if dist.is_main:
+        print(f"[train] {experiment.name}: {count_parameters(run.model):,} parameters, device {dev}"
+              f"{f' x {dist.world} processes' if dist.world > 1 else ''}, {run.precision}, {len(train_ds)} "
+              f"samples/epoch from {len(train_scenes)} scenes, {len(val_ds) if val_ds else 0} validation samples",
+              file=sys.stderr)
+
+    def checkpoint(path: Path) -> None:
+        if dist.is_main:
+            record = {} if budget is None else {**budget.record(),
+                                                "budget_elapsed_s": budget.elapsed_s + time.perf_counter() - started}
+            save_checkpoint(path, run.model, experiment, run.opt, run.sched, run.scaler, epoch, step,
+                            extra={"batch_in_epoch": batch_in_epoch, "best_val_psnr": best, **record})
+
+    def last_step() -> int:
+        """The step the run ends at: the budget's plan (until it is made, the cap), else max_steps or
+        every epoch's batches."""
+        total = _total_steps(tc, batches_per_epoch)
+        if budget is not None and budget.planned_steps is not None:
+            return min(budget.planned_steps, total)
+        return total
+
+    bar = progress_bar(total=_total_steps(tc, batches_per_epoch), initial=step, desc=f"train {experiment.name}",
+                       unit="step", quiet=not (progress and dist.is_main))
+    timer, last_loss, stopped = _Timer(), math.nan, False
+    started, first_step = time.perf_counter(), step
+    stop = _StopOnSignal().__enter__()
+    try:
+        run.model.train()
+        while epoch < tc.epochs and not stopped:
+            train_ds.set_epoch(epoch)
+            order = _epoch_order(len(train_ds), tc.seed, epoch)
+            # a last batch too small to give every process a sample is skipped by all of them alike
+            batches = [dist.shard(b) for b in (order[i:i + tc.batch_size] for i in range(0, len(order), tc.batch_size))
+                       if len(b) >= dist.world]
+            loader = DataLoader(train_ds, batch_sampler=batches[batch_in_epoch:],
+                                num_workers=tc.num_workers, worker_init_fn=_worker_init, pin_memory=dev.type == "cuda")
+            for batch in loader:
+                waited = timer.batch_arrived()
+                if tc.lr_schedule == "cosine":
+                    for group in run.opt.param_groups:
+                        group["lr"] = cosine_lr(tc, step, last_step())
+                last_loss = _train_step(run, batch, dev, tc, step, dist)
+                took = timer.step_done(batch["spikes"].shape[0] * dist.world)
+                step += 1
+                batch_in_epoch += 1
+                logs.train_step(epoch, step, last_loss, run.opt.param_groups[0]["lr"],
+                                batch["spikes"].shape[0] * dist.world / max(waited + took, 1e-9), waited)
+                bar.update(1)
+                bar.set_postfix(loss=f"{last_loss:.4f}", refresh=False)
+                if budget is not None and budget.planned_steps is None and step - first_step >= budget.calibration_steps:
+                    spent = time.perf_counter() - started
+                    # the first step is slower (allocations): the rate comes from the steps after it
+                    budget.plan(step, budget.elapsed_s + spent, tc.max_steps,
+                                _budget_seconds_per_step(timer, step - first_step, spent))
+                    bar.total = last_step()
+                    bar.write(f"[train] budget {tc.budget_minutes:g} min: {budget.planned_steps} steps planned "
+                              f"({_budget_seconds_per_step(timer, step - first_step, spent):.3f} s per step measured)",
+                              file=sys.stderr)
+                if tc.ckpt_every_steps is not None and step % tc.ckpt_every_steps == 0:
+                    checkpoint(out / "last.pt")
+                if step >= last_step() or _signalled(stop, dist):
+                    stopped = True
+                    break
+            if not stopped:
+                epoch, batch_in_epoch = epoch + 1, 0
+                with warnings.catch_warnings():  # a run resumed exactly at an epoch's end steps no batch first
+                    warnings.filterwarnings("ignore", message="Detected call of `lr_scheduler.step")
+                    run.sched.step()
+            if dist.is_main and val_ds is not None and (stopped or epoch % tc.val_every == 0):
+                scores = validate(run.model, val_ds, dev)
+                logs.validation(epoch, step, scores)
+                bar.write(f"[train] epoch {epoch} step {step}: loss {last_loss:.4f}, val aligned PSNR "
+                          f"{scores['psnr_aligned']:.2f} dB (TFP {scores['psnr_aligned_tfp']:.2f}), PSNR "
+                          f"{scores['psnr']:.2f} dB (TFP {scores['psnr_tfp']:.2f}), SSIM {scores['ssim']:.4f}",
+                          file=sys.stderr)
+                if scores["psnr_aligned"] > best:
+                    best = scores["psnr_aligned"]
+                    checkpoint(out / "best.pt")
+            if stopped or epoch % tc.ckpt_every == 0 or epoch >= tc.epochs:
+                checkpoint(out / "last.pt")
+    finally:
+        stop.__exit__()  # the usual signal handling is back, whatever ended the loop
+    bar.close()
+    logs.close()
+    fingerprint = state_fingerprint(run.model.state_dict())
+    if dist.world > 1:
+        import torch.distributed as tdist
+        seen = [None] * dist.world
+        tdist.all_gather_object(seen, fingerprint)  # also: no rank leaves while rank 0 still writes
+        if len(set(seen)) != 1:
+            raise RuntimeError(f"DDP ranks ended with different weights (fingerprints {seen}): a bug")
+    wall = time.perf_counter() - started + (budget.elapsed_s if budget is not None else 0.0)
+    return {"steps": step, "weights_sha256": fingerprint, "stopped_by": stop.signal, "epoch": epoch,
+            "last_loss": last_loss, "best_val_psnr_aligned": best, "precision": run.precision,
+            "processes": dist.world, **timer.summary(), "train_seconds": wall,
+            "budget_minutes": tc.budget_minutes, "planned_steps": None if budget is None else budget.planned_steps,
+            "out": str(out)}
+
+
+def _budget_seconds_per_step(timer: "_Timer", steps: int, spent: float) -> float:
+    """Wall seconds per step from the calibration steps, the first one left out where there are
+    others (its allocations make it several times slower than the rest)."""
+    if steps > 1 and timer.first_step_s is not None:
+        return max(spent - timer.first_step_s, 1e-9) / (steps - 1)
+    return spent / max(steps, 1)
+
+
+def _signalled(stop: _StopOnSignal, dist: _Distributed) -> bool:
+    """Whether any process was asked to stop (they all stop at the same step)."""
+    if dist.world == 1:
+        return stop.signal is not None
+    import torch.distributed as tdist
+    flag = torch.tensor([1.0 if stop.signal else 0.0])
+    tdist.all_reduce(flag)
+    return bool(flag.item() > 0)
+
+
+class _Logs:
+    """train_log.csv, val_log.csv and TensorBoard, written by one process only. A resumed run first
+    drops rows written after its checkpoint, so the logs read as one uninterrupted run."""
+
+    def __init__(self, out: Path, enabled: bool, resumed_at: int | None = None) -> None:
+        self.enabled = enabled
+        if enabled:
+            self.train = _CsvLog(out / "train_log.csv",
+                                 ["time", "epoch", "step", "loss", "lr", "samples_per_s", "data_wait_s"])
+            self.val = _CsvLog(out / "val_log.csv", ["time", "epoch", "step", *VALIDATION_COLUMNS])
+            if resumed_at is not None:
+                self.train.keep_steps_up_to(resumed_at)
+                self.val.keep_steps_up_to(resumed_at)
+            self.tb = _Tensorboard(out / "tb")
+
+    def train_step(self, epoch: int, step: int, loss: float, lr: float, rate: float, waited: float) -> None:
+        if self.enabled:
+            self.train.write({"time": time.time(), "epoch": epoch, "step": step, "loss": loss, "lr": lr,
+                              "samples_per_s": rate, "data_wait_s": waited})
+            self.tb.scalar("train/loss", loss, step)
+
+    def validation(self, epoch: int, step: int, scores: dict[str, float]) -> None:
+        if self.enabled:
+            self.val.write({"time": time.time(), "epoch": epoch, "step": step, **scores})
+            for k, v in scores.items():
+                self.tb.scalar(f"val/{k}", v, step)
+
+    def close(self) -> None:
+        if self.enabled:
+            self.tb.close()

@@ -1,0 +1,172 @@
+"""The budgeted recipe: a wall-clock budget planned into steps, the cosine schedule, the loss
+relative to the light, span TFP, checkpoint content hashes and RLLR's log-uniform darkening."""
+from __future__ import annotations
+
+import csv
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from model.checkpoint import load_checkpoint, state_fingerprint
+from model.config import ExperimentConfig, ModelConfig, TrainConfig
+from model.losses import RELATIVE_LOSS_FLOOR_Y, build_loss
+from model.methods import SpanTFPMethod, method_from_spec
+from model.streaming import TensorWindows
+from model.training import cosine_lr, run_training
+from modeltest_fakes import make_scene
+
+TINY_MODEL = ModelConfig(window=7, num_features=8, num_blocks=1, deform_groups=2)
+
+
+def budget_experiment(**train) -> ExperimentConfig:
+    base = dict(num_windows=3, crop=16, batch_size=2, epochs=1000, lr=3e-3, samples_per_epoch=4, val_crop=16,
+                val_max_samples=1, val_every=1000, seed=0, lr_schedule="cosine", calibration_steps=2)
+    base.update(train)
+    return ExperimentConfig("budget", model=TINY_MODEL, train=TrainConfig(**base))
+
+
+@pytest.fixture(scope="module")
+def scenes():
+    return [make_scene(f"s{i}", 16, 20, 7 * 6, brightness=0.3, velocity=0.2, seed=i) for i in range(2)]
+
+
+def test_cosine_schedule_runs_from_lr_to_the_final_ratio():
+    tc = TrainConfig(lr=1e-3, lr_schedule="cosine", lr_final_ratio=0.01)
+    assert cosine_lr(tc, 0, 100) == pytest.approx(1e-3)
+    assert cosine_lr(tc, 50, 100) == pytest.approx(1e-5 + (1e-3 - 1e-5) * 0.5)
+    assert cosine_lr(tc, 100, 100) == pytest.approx(1e-5)
+    assert cosine_lr(tc, 500, 100) == pytest.approx(1e-5)  # past the end: stays at the floor
+    rates = [cosine_lr(tc, s, 100) for s in range(101)]
+    assert all(a >= b for a, b in zip(rates, rates[1:]))
+
+
+@pytest.mark.parametrize("bad", [{"lr_schedule": "linear"}, {"lr_final_ratio": 1.5}, {"budget_minutes": 0},
+                                 {"budget_minutes": -1}, {"budget_minutes": True}, {"calibration_steps": 0}])
+def test_budget_fields_are_checked(bad):
+    with pytest.raises(ValueError, match="train\\."):
+        TrainConfig(**bad)
+
+
+def test_a_spent_budget_ends_at_the_calibration_steps(scenes, tmp_path):
+    """A budget already used up by the calibration plans no more steps: the run ends there, and
+    the plan is in the summary and the checkpoint."""
+    summary = run_training(budget_experiment(budget_minutes=1e-6, calibration_steps=3), scenes, [], tmp_path,
+                           device="cpu", progress=False)
+    assert summary["steps"] == 3 and summary["planned_steps"] == 3
+    assert load_checkpoint(tmp_path / "last.pt")["extra"]["budget_planned_steps"] == 3
+
+
+def test_the_cosine_decay_ends_at_the_planned_step(scenes, tmp_path):
+    """max_steps caps the plan; the logged rate falls along the cosine and reaches the floor at the
+    last step's schedule position."""
+    summary = run_training(budget_experiment(budget_minutes=10_000, max_steps=6), scenes, [], tmp_path,
+                           device="cpu", progress=False)
+    assert summary["planned_steps"] == 6 and summary["steps"] == 6
+    lrs = [float(r["lr"]) for r in csv.DictReader((tmp_path / "train_log.csv").open())]
+    tc = budget_experiment(max_steps=6).train
+    # before the plan is made (calibration), the schedule runs on the cap
+    assert lrs == pytest.approx([cosine_lr(tc, s, 6) for s in range(6)])
+
+
+def test_a_cut_budget_run_resumes_onto_the_same_plan(scenes, tmp_path, monkeypatch):
+    from model import training as training_module
+
+    straight = run_training(budget_experiment(budget_minutes=10_000, max_steps=6), scenes, [], tmp_path / "a",
+                            device="cpu", progress=False)
+    real_step, calls = training_module._train_step, {"n": 0}
+
+    def crash_after_four(*args, **kwargs):
+        if calls["n"] == 4:
+            raise KeyboardInterrupt
+        calls["n"] += 1
+        return real_step(*args, **kwargs)
+
+    monkeypatch.setattr(training_module, "_train_step", crash_after_four)
+    exp = budget_experiment(budget_minutes=10_000, max_steps=6, ckpt_every_steps=4)
+    with pytest.raises(KeyboardInterrupt):
+        run_training(exp, scenes, [], tmp_path / "b", device="cpu", progress=False)
+    saved = load_checkpoint(tmp_path / "b" / "last.pt")
+    assert saved["step"] == 4 and saved["extra"]["budget_planned_steps"] == 6
+    assert saved["extra"]["budget_elapsed_s"] > 0
+    monkeypatch.setattr(training_module, "_train_step", real_step)
+    resumed = run_training(exp, scenes, [], tmp_path / "b", device="cpu", resume=True, progress=False)
+    assert resumed["steps"] == 6 and resumed["weights_sha256"] == straight["weights_sha256"]
+
+
+def test_relative_loss_weighs_every_light_level_alike():
+    loss = build_loss("l1_sum_relative")
+    g = torch.Generator().manual_seed(0)
+    target = torch.rand(3, 2, 8, 8, generator=g) * 0.5 + 0.1
+    pred = target + 0.05 * torch.randn(3, 2, 8, 8, generator=g)
+    # by hand: each window's mean |error| over the sample's mean light, summed over windows, mean over samples
+    level = target.flatten(1).mean(1)
+    expected = ((pred - target).abs().flatten(2).mean(2) / level[:, None]).mean(0).sum()
+    assert loss(pred, target).item() == pytest.approx(expected.item(), rel=1e-6)
+    # a scene 100 times darker with errors 100 times smaller costs the same
+    assert loss(pred / 100, target / 100).item() == pytest.approx(loss(pred, target).item(), rel=1e-5)
+    # and plain L1 does not: that is the point
+    assert build_loss("l1_sum")(pred / 100, target / 100).item() == pytest.approx(
+        build_loss("l1_sum")(pred, target).item() / 100, rel=1e-5)
+    # a black target divides by the floor, not by zero
+    dark = loss(torch.full((1, 2, 4, 4), 1e-3), torch.zeros(1, 2, 4, 4)).item()
+    assert math.isfinite(dark) and dark == pytest.approx(2 * 1e-3 / RELATIVE_LOSS_FLOOR_Y)
+
+
+def test_span_tfp_averages_the_windows_around_each_frame():
+    g = torch.Generator().manual_seed(1)
+    spikes = torch.rand(7, 5, 4, 6, generator=g) < 0.2
+    flat = spikes.reshape(-1, 4, 6).float()
+    for chunk in (1, 3, 64):
+        out = dict(SpanTFPMethod("span", 15, window=5, chunk=chunk).frames(TensorWindows(spikes)))
+        assert sorted(out) == list(range(7))
+        for i in range(7):
+            lo, hi = max(0, i - 1), min(6, i + 1)  # clipped at the ends of the stream
+            torch.testing.assert_close(out[i], flat[lo * 5:(hi + 1) * 5].mean(0))
+    one = dict(method_from_spec("tfp:5", window=5).frames(TensorWindows(spikes)))
+    plain = dict(method_from_spec("tfp", window=5).frames(TensorWindows(spikes)))
+    assert all(torch.allclose(one[i], plain[i]) for i in range(7))
+    assert method_from_spec("tfp:205").name == "TFP-205" and method_from_spec("x=tfp:123").name == "x"
+
+
+@pytest.mark.parametrize("spec, message", [("tfp:82", "odd number"), ("tfp:100", "odd number"),
+                                           ("tfp:abc", "number of steps"), ("tfp:0", "positive")])
+def test_span_tfp_refuses_spans_that_are_not_odd_whole_windows(spec, message):
+    with pytest.raises(ValueError, match=message):
+        method_from_spec(spec)
+
+
+def test_a_flipped_bit_in_a_checkpoint_is_refused(scenes, tmp_path):
+    run_training(budget_experiment(max_steps=2), scenes, [], tmp_path, device="cpu", progress=False)
+    path = tmp_path / "last.pt"
+    state = torch.load(path, weights_only=True)
+    assert state["weights_sha256"] == state_fingerprint(state["model_state"])
+    for part in ("model_state", "optimizer_state"):
+        damaged = torch.load(path, weights_only=True)
+        tensor = next(v for v in (damaged[part].values() if part == "model_state"
+                                  else damaged[part]["state"][0].values()) if isinstance(v, torch.Tensor) and v.numel() > 1)
+        bits = tensor.view(torch.int32).reshape(-1)
+        bits[0] ^= 1 << 20  # one bit of one weight
+        torch.save(damaged, tmp_path / f"{part}.pt")
+        with pytest.raises(ValueError, match="damaged"):
+            load_checkpoint(tmp_path / f"{part}.pt")
+    load_checkpoint(path)  # the untouched file still loads
+
+
+def test_log_uniform_darkening_fills_every_decade():
+    from spikesim.generation import PRESETS
+    from spikesim.generation.plan import LOG_DARKENING_MIN, plan_rllr
+
+    jobs = plan_rllr(PRESETS["small"], seed=0, count=300, darkening="log-uniform")
+    f = np.array([j.light_power_factor for j in jobs])
+    assert f.min() >= LOG_DARKENING_MIN and f.max() < 1
+    decades = np.histogram(np.log10(f), bins=[np.log10(LOG_DARKENING_MIN), -2, -1, 0])[0]
+    # log10(0.005) .. -2 is 0.3 of a decade: expected 300 * 0.3 / 2.3, 300 / 2.3, 300 / 2.3
+    assert decades[0] > 20 and decades[1] > 90 and decades[2] > 90
+    uniform = np.array([j.light_power_factor for j in plan_rllr(PRESETS["small"], seed=0, count=300)])
+    assert (uniform < 0.1).mean() < 0.2  # the paper's draw: a tenth of the scenes below 0.1
+    # the first uniform draws are what they always were (datasets made before keep their identity)
+    assert [j.light_power_factor for j in plan_rllr(PRESETS["small"], seed=0, count=3)] == list(uniform[:3])
+    with pytest.raises(ValueError, match="darkening"):
+        plan_rllr(PRESETS["small"], darkening="gaussian")
