@@ -212,6 +212,13 @@ class ExperimentConfig:
     model: ModelConfig = field(default_factory=ModelConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
 
+    def __post_init__(self) -> None:
+        name = self.name
+        _require(isinstance(name, str) and bool(name) and not name.startswith(".")
+                 and not any(c in name for c in "/\\\0"),
+                 f"config name {name!r} must be a plain name (no path separators, not starting with a dot): "
+                 "it names the run's folder")
+
     def to_dict(self) -> dict[str, Any]:
         return {"name": self.name, "description": self.description,
                 "model": self.model.to_dict(), "train": self.train.to_dict()}
@@ -225,9 +232,14 @@ class ExperimentConfig:
             raise ValueError(f"{where}: unknown top-level field(s) {unknown}")
         if "name" not in data:
             raise ValueError(f"{where}: missing 'name'")
-        return cls(name=str(data["name"]), description=str(data.get("description", "")),
-                   model=ModelConfig.from_dict(data.get("model", {})),
-                   train=TrainConfig.from_dict(data.get("train", {})))
+        if not isinstance(data["name"], str):
+            raise ValueError(f"{where}: name must be a string, got {data['name']!r}")
+        try:
+            return cls(name=data["name"], description=str(data.get("description", "")),
+                       model=ModelConfig.from_dict(data.get("model", {})),
+                       train=TrainConfig.from_dict(data.get("train", {})))
+        except ValueError as exc:
+            raise ValueError(f"{where}: {exc}") from None
 
 
 def available_configs() -> list[str]:

@@ -288,17 +288,30 @@ def _datasets(experiment: ExperimentConfig, train_scenes: Sequence[Scene],
     return train_ds, val_ds
 
 
+#: What a run folder holds; a new run refuses a folder holding any of it unless told to overwrite.
+RUN_FILES = ("last.pt", "best.pt", "train_log.csv", "val_log.csv", "config.json", "tb")
+
+
 def _start_or_resume(out: Path, resume: bool, experiment: ExperimentConfig, run: _Run, dev: torch.device,
-                     dist: _Distributed) -> tuple[int, int, int, float, dict[str, Any]]:
+                     dist: _Distributed, overwrite: bool = False) -> tuple[int, int, int, float, dict[str, Any]]:
     """(epoch, batch in epoch, step, best validation PSNR, the checkpoint's extra record) to start from."""
     last_path = out / "last.pt"
     if resume:
         return _resume(last_path, dev, experiment.model, run.model, run.opt, run.sched, run.scaler)
-    if last_path.exists():
-        raise FileExistsError(f"{last_path} exists: pass --resume to continue that run, or choose another --out")
+    existing = [name for name in RUN_FILES if (out / name).exists()]
+    if existing and not overwrite:
+        raise FileExistsError(f"{out} holds a run ({', '.join(existing)}): pass --resume to continue it, "
+                              "--overwrite to replace it, or choose another --out")
+    if dist.world > 1:  # every rank has looked before rank 0 writes
+        import torch.distributed as tdist
+        tdist.barrier()
     if dist.is_main:
-        for stale in ("train_log.csv", "val_log.csv", "best.pt"):
-            (out / stale).unlink(missing_ok=True)
+        for stale in RUN_FILES:
+            if (out / stale).is_dir() and not (out / stale).is_symlink():
+                import shutil
+                shutil.rmtree(out / stale)
+            else:
+                (out / stale).unlink(missing_ok=True)
         (out / "config.json").write_text(json.dumps(experiment.to_dict(), indent=2))
     return 0, 0, 0, -math.inf, {}
 
@@ -397,7 +410,7 @@ def _train_step(run: _Run, batch: dict, dev: torch.device, tc: Any, step: int, d
 
 def run_training(experiment: ExperimentConfig, train_scenes: Sequence[Scene], val_scenes: Sequence[Scene],
                  out_dir: str | Path, device: str = "auto", resume: bool = False,
-                 progress: bool = True) -> dict[str, Any]:
+                 progress: bool = True, overwrite: bool = False) -> dict[str, Any]:
     """Train; returns a summary (steps, last loss, best validation PSNR, samples/s, data-wait share).
     Under `torchrun` each process trains its share of every batch (DDP); rank 0 writes."""
     from spikesim.progress import progress_bar
@@ -410,7 +423,7 @@ def run_training(experiment: ExperimentConfig, train_scenes: Sequence[Scene], va
     out.mkdir(parents=True, exist_ok=True)
     run = _build_run(experiment, dev, dist)
     train_ds, val_ds = _datasets(experiment, train_scenes, val_scenes)
-    epoch, batch_in_epoch, step, best, saved = _start_or_resume(out, resume, experiment, run, dev, dist)
+    epoch, batch_in_epoch, step, best, saved = _start_or_resume(out, resume, experiment, run, dev, dist, overwrite)
     budget = None
     if tc.budget_minutes is not None:
         budget = _BudgetPlan(60.0 * tc.budget_minutes, tc.calibration_steps,

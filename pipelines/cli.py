@@ -22,6 +22,7 @@ _SUBCOMMANDS = (
     "pipelines.evaluate",
     "pipelines.compare",
     "pipelines.reconstruct",
+    "pipelines.panel",
     "pipelines.tradeoff",
 )
 
@@ -33,6 +34,7 @@ _COMMAND_MODULE = {
     "bench": "pipelines.bench", "golden": "pipelines.golden_stats", "generate": "pipelines.generate",
     "verify": "pipelines.generate", "render": "pipelines.render_cmd", "train": "pipelines.train",
     "evaluate": "pipelines.evaluate", "compare": "pipelines.compare", "reconstruct": "pipelines.reconstruct", "tradeoff": "pipelines.tradeoff",
+    "panel": "pipelines.panel",
 }
 
 

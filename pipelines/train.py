@@ -52,7 +52,8 @@ def cmd_train(args: argparse.Namespace) -> int:
     else:
         train_scenes, val_scenes = split_scenes(scenes, exp.train.val_fraction, exp.train.val_scenes, exp.train.seed)
     out = Path(args.out) if args.out else Path("runs") / exp.name
-    summary = run_training(exp, train_scenes, val_scenes, out, args.device, args.resume, progress=not args.quiet)
+    summary = run_training(exp, train_scenes, val_scenes, out, args.device, args.resume, progress=not args.quiet,
+                           overwrite=args.overwrite)
     print(json.dumps(summary, indent=2))
     # stopped by a signal: last.pt is written; the status says which (128 + its number), as a shell does
     return {"SIGINT": 130, "SIGTERM": 143}.get(summary["stopped_by"], 0)
@@ -67,7 +68,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--data", required=True, help="dataset root (project layout: manifest.json, <scene>/...)")
     p.add_argument("--val-data", help="separate validation dataset root (default: split --data by scene)")
     p.add_argument("-o", "--out", help="run folder (default: runs/<config name>)")
-    p.add_argument("--resume", action="store_true", help="continue from <out>/last.pt")
+    resume = p.add_mutually_exclusive_group()
+    resume.add_argument("--resume", action="store_true", help="continue from <out>/last.pt")
+    resume.add_argument("--overwrite", action="store_true",
+                        help="replace the run in --out (its checkpoints, logs and config); without it a folder "
+                             "holding a run is refused")
     p.add_argument("--device", default="auto", help="auto (CUDA when present), cpu, cuda, cuda:N or mps")
     p.add_argument("--threads", type=nonnegative_int, default=0, help="torch CPU threads (0: torch's default)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")

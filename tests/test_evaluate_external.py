@@ -93,3 +93,42 @@ def test_bad_pairs_get_one_line(tmp_path, capsys, argv, match) -> None:
 def test_gt_without_dat_is_refused(tmp_path, capsys) -> None:
     rc, err = run_cli(["evaluate", "--data", tmp_path, "--gt", __file__, "--center", 3], capsys)
     assert rc == 2 and "--gt and --center go with --dat" in one_line(err)
+
+
+def test_span_tfp_sees_the_windows_around_the_centre(tmp_path, capsys) -> None:
+    """The pair's stream is cut into every whole window around the centre one, so TFP over 3
+    windows averages 123 steps: in low light on a still scene it beats the 41-step TFP (aligned),
+    and the record says which windows were read."""
+    dat, gt = _pair(tmp_path, 0.01, SpikeCamera.realistic())
+    doc = _scores(["--dat", dat, "--gt", gt, "--center", 30, "--methods", "tfp", "tfp:123"], capsys)
+    assert doc["input"]["windows"] == 1 and doc["input"]["first_step"] == 10  # 61 steps: one whole window
+    (tmp_path / "long").mkdir()
+    y = np.load(gt)
+    cam = dataclasses.replace(SpikeCamera.realistic(), height=H, width=W)
+    long_dat = Simulator(cam, backend="numpy", seed=1).run_to_dat([y] * 205, tmp_path / "long" / "s.dat", flip=False)
+    doc = _scores(["--dat", long_dat, "--gt", gt, "--center", 102, "--methods", "tfp", "tfp:123"], capsys)
+    assert doc["input"]["windows"] == 5 and doc["input"]["first_step"] == 0
+    assert doc["methods"]["TFP-123"]["psnr_aligned"] > doc["methods"]["TFP"]["psnr_aligned"] + 2
+
+
+def test_panel_measures_every_method_on_the_same_pixels(tmp_path, capsys) -> None:
+    """`panel` on a still scene in low light: the long average is less noisy than one window (at
+    under one spike per window the count's quantisation dominates, and three windows hold three
+    times the spikes), and the picture holds one tile per method."""
+    from PIL import Image
+    y = np.full((64, 64), 0.02, np.float32)
+    y[:, 32:] = 0.005  # two flat halves and one edge, in low light (under one spike per window)
+    cam = dataclasses.replace(SpikeCamera.realistic(), height=64, width=64)
+    dat = Simulator(cam, backend="numpy", seed=2).run_to_dat([y] * 123, tmp_path / "still.dat", flip=False)
+    capsys.readouterr()
+    rc = main(["panel", str(dat), "--methods", "tfp", "tfp:123", "-o", str(tmp_path / "p.png"), "--json"])
+    out = capsys.readouterr()
+    assert rc == 0, out.err
+    doc = json.loads(out.out)
+    noise = {k: v["flat_noise"] for k, v in doc["scores"].items()}
+    assert doc["read"]["windows"] == 3 and doc["read"]["frame"] == 1
+    assert noise["TFP"] > 1.4 * noise["TFP-123"]
+    image = Image.open(tmp_path / "p.png")
+    assert image.width > 2 * 64 and image.height > 64
+    rc, err = run_cli(["panel", dat, "--frame", 7, "-o", tmp_path / "q.png"], capsys)
+    assert rc == 2 and "numbered 0..2" in one_line(err)

@@ -62,3 +62,29 @@ def test_the_library_does_not_import_the_command_line():
     sources = [p for p in (ROOT / "spikesim").rglob("*.py")
                if "import pipelines" in p.read_text() or "from pipelines" in p.read_text()]
     assert sources == []
+
+
+def test_a_script_trains_and_evaluates_a_model_without_the_command_line(tmp_path):
+    """The training loop, its resume and the evaluation are the model package's: a notebook runs
+    a (tiny) budgeted run, continues it, and scores it, and `pipelines` is never imported."""
+    out = run_script("""
+        import dataclasses, sys
+        from model.config import ExperimentConfig, ModelConfig, TrainConfig
+        from model.methods import ModelMethod, method_from_spec
+        from model.training import run_training
+        from spikesim.dataset import open_dataset
+        from spikesim.generation import PRESETS, generate, plan_rllr
+        preset = PRESETS["small"].replace(height=16, width=16, rllr_steps=30, rllr_gt_stride=1)
+        generate(plan_rllr(preset, seed=3, count=2, source="pattern"), "data", workers=1, show_progress=False)
+        scenes = open_dataset("data")
+        exp = ExperimentConfig("nb", model=ModelConfig(window=7, num_features=8, num_blocks=1, deform_groups=2),
+                               train=TrainConfig(num_windows=3, crop=8, batch_size=2, max_steps=2, epochs=100,
+                                                 lr_schedule="cosine", val_every=100))
+        first = run_training(exp, scenes[:1], [], "run", device="cpu", progress=False)
+        more = dataclasses.replace(exp, train=dataclasses.replace(exp.train, max_steps=3))
+        second = run_training(more, scenes[:1], [], "run", device="cpu", resume=True, progress=False)
+        model = ModelMethod("nb", __import__("pathlib").Path("run/last.pt"))
+        print(first["steps"], second["steps"], model.span, method_from_spec("tfp:21", window=7).name)
+        print(sorted(m for m in sys.modules if m.split(".")[0] == "pipelines"))
+    """, tmp_path)
+    assert out.splitlines() == ["2 3 21 TFP-21", "[]"]

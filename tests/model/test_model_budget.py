@@ -170,3 +170,23 @@ def test_log_uniform_darkening_fills_every_decade():
     assert [j.light_power_factor for j in plan_rllr(PRESETS["small"], seed=0, count=3)] == list(uniform[:3])
     with pytest.raises(ValueError, match="darkening"):
         plan_rllr(PRESETS["small"], darkening="gaussian")
+
+
+@pytest.mark.parametrize("name", ["../../evil", "/tmp/abs", "a/b", "a\\b", "..", ".hidden", ""])
+def test_a_config_name_is_a_name_not_a_path(name):
+    with pytest.raises(ValueError, match="plain name"):
+        ExperimentConfig.from_dict({"name": name})
+    with pytest.raises(ValueError, match="plain name"):
+        ExperimentConfig(name)
+
+
+def test_a_trained_model_is_never_replaced_without_being_asked(scenes, tmp_path):
+    """A folder holding a run (best.pt alone counts) is refused unless --resume or --overwrite."""
+    run_training(budget_experiment(max_steps=1), scenes, [], tmp_path, device="cpu", progress=False)
+    (tmp_path / "last.pt").unlink()
+    (tmp_path / "best.pt").write_bytes(b"a model someone kept")
+    with pytest.raises(FileExistsError, match="best.pt"):
+        run_training(budget_experiment(max_steps=1), scenes, [], tmp_path, device="cpu", progress=False)
+    assert (tmp_path / "best.pt").read_bytes() == b"a model someone kept"
+    run_training(budget_experiment(max_steps=1), scenes, [], tmp_path, device="cpu", progress=False, overwrite=True)
+    assert not (tmp_path / "best.pt").exists() and (tmp_path / "last.pt").exists()

@@ -1,0 +1,135 @@
+"""`spikesim panel`: several methods side by side on one frame of a recording that has no ground
+truth (a real camera's), with no-reference measures beside each (model/noref.py).
+
+    spikesim panel recording.dat --height 250 --width 250 --methods tfp tfp:205 lrrep -o panel.png
+
+Every method sees the same windows (all the whole windows of the stream, or --num-windows from
+--start); the frame shown is the middle one (--frame to choose). Each image is stretched to its
+own 99.5th percentile, since methods differ in gain. Flat regions and edges are chosen on TFP over
+all the windows read, so every method is measured on the same pixels: right for a still or slow
+scene, where that long average is sharp; say so where it is not.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from pipelines.argtypes import nonnegative_int, output_file, positive_int
+from pipelines.inspect_cmd import header_columns_arg, open_stream
+
+
+def panel_frames(path: Path, specs: list[str], height: int | None = None, width: int | None = None,
+                 header_columns: int | str | None = "auto", flip: bool | None = None, start: int = 0,
+                 num_windows: int | None = None, frame: int | None = None, window: int = 41,
+                 device: str = "cpu") -> tuple[dict[str, np.ndarray], np.ndarray, dict]:
+    """({method name: frame (H, W) y}, reference (H, W): TFP over every window read, what was read)."""
+    from model.methods import method_from_spec
+    from model.streaming import StepWindows
+
+    reader, header = open_stream(Path(path), height, width, flip, header_columns)
+    available = (reader.num_steps - start) // window
+    if available < 1:
+        raise ValueError(f"{path}: {reader.num_steps} steps leave no full {window}-step window after --start {start}")
+    n = available if num_windows is None else min(num_windows, available)
+    index = n // 2 if frame is None else frame
+    if not 0 <= index < n:
+        raise ValueError(f"--frame {frame}: the {n} windows read are numbered 0..{n - 1}")
+    source = StepWindows(lambda a, b: reader.read(a, b).unpack(), start, window, n)
+    frames = {}
+    for spec in specs:
+        method = method_from_spec(spec, window, device=device)
+        frames[method.name] = np.asarray(next(f for i, f in method.frames(source) if i == index), dtype=np.float64)
+    reference = np.mean([source.windows(i, i + 1)[0].numpy().mean(0) for i in range(n)], axis=0)
+    read = {"input": str(path), "height": reader.height, "width": reader.width, "flip": reader.flip,
+            "header_columns": header, "start": start, "windows": n, "window": window, "frame": index,
+            "frame_centre_step": start + index * window + window // 2,
+            "mean_rate": float(reference.mean())}
+    return frames, reference, read
+
+
+def compose_panel(frames: dict[str, np.ndarray], captions: dict[str, str], percentile: float = 99.5):  # -> PIL.Image
+    """The frames left to right, each stretched to its own percentile (gamma 2.2), captioned below."""
+    from PIL import Image, ImageDraw
+
+    from spikesim.imageio import to_display
+
+    tiles = [Image.fromarray(to_display(f, percentile=percentile)) for f in frames.values()]
+    h, w = tiles[0].height, tiles[0].width
+    pad, text_h = 6, 30
+    canvas = Image.new("L", (len(tiles) * (w + pad) + pad, h + 2 * pad + text_h), 255)
+    draw = ImageDraw.Draw(canvas)
+    for i, (name, tile) in enumerate(zip(frames, tiles)):
+        x = pad + i * (w + pad)
+        canvas.paste(tile, (x, pad))
+        draw.text((x, h + pad + 2), name, fill=0)
+        draw.text((x, h + pad + 15), captions.get(name, ""), fill=0)
+    return canvas
+
+
+def run(args: argparse.Namespace) -> int:
+    import torch
+
+    from model.noref import no_reference_scores
+    from model.training import resolve_device
+
+    device = str(resolve_device(args.device))
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    header = None if args.header_columns == "auto" else args.header_columns
+    frames, reference, read = panel_frames(args.input, args.methods, args.height, args.width, header, args.flip,
+                                           args.start, args.num_windows, args.frame, args.window, device)
+    scores = {name: no_reference_scores(f, reference) for name, f in frames.items()}
+    captions = {n: f"noise {s['flat_noise']:.3f}  edge {s['edge_sharpness']:.3f}" for n, s in scores.items()}
+    image = compose_panel(frames, captions)
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(f".{out.name}.part")
+    image.save(tmp, format="PNG")
+    os.replace(tmp, out)
+    doc = {"read": read, "scores": scores, "out": str(out),
+           "measures": {"flat_noise": "std / mean in the flattest 10 % of 16 x 16 blocks of the reference (lower: "
+                                      "less noise)",
+                        "edge_sharpness": "mean |gradient| / mean level on the reference's strongest 5 % of "
+                                          "gradients (higher: sharper)",
+                        "edge_to_noise": "edge_sharpness / flat_noise",
+                        "reference": f"TFP over all {read['windows']} windows read"}}
+    if args.json:
+        print(json.dumps(doc, indent=2))
+    else:
+        print(f"{read['input']}: {read['height']} x {read['width']}, frame {read['frame']} of {read['windows']} windows "
+              f"(centre step {read['frame_centre_step']}), mean rate {read['mean_rate']:.4f} spikes/step")
+        print("| method | flat noise (lower) | edge sharpness (higher) | edge / noise |\n|---|---|---|---|")
+        for name, s in scores.items():
+            print(f"| {name} | {s['flat_noise']:.4f} | {s['edge_sharpness']:.4f} | {s['edge_to_noise']:.2f} |")
+        print(f"[panel] wrote {out}", file=sys.stderr)
+    return 0
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("panel", help="methods side by side on a recording without ground truth, with no-reference measures",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("input", help=".dat spike stream")
+    p.add_argument("-o", "--out", type=output_file, required=True, help="the panel PNG to write")
+    p.add_argument("--methods", nargs="+", default=["tfp", "tfp:205", "lrrep"],
+                   help="methods as evaluate takes them (tfp, tfi, tfp:N, lrrep, checkpoint paths; label=spec)")
+    p.add_argument("--frame", type=nonnegative_int, help="which window to show (default: the middle one)")
+    p.add_argument("--start", type=nonnegative_int, default=0, help="first step of the first window")
+    p.add_argument("--num-windows", type=positive_int, help="windows read (default: every whole window)")
+    p.add_argument("--window", type=positive_int, default=41, help="readout steps per window")
+    p.add_argument("--height", type=positive_int, help="rows (default: as recorded, else 250)")
+    p.add_argument("--width", type=positive_int, help="columns without header (default: as recorded, else 400)")
+    p.add_argument("--header-columns", type=header_columns_arg, default="auto",
+                   help="columns to drop at the end of each row (auto: as recorded, else detected)")
+    flip = p.add_mutually_exclusive_group()
+    flip.add_argument("--flip", dest="flip", action="store_true", default=None,
+                      help="rows stored bottom-up (a real PKU camera's files; the default where nothing is recorded)")
+    flip.add_argument("--no-flip", dest="flip", action="store_false", help="rows stored top-down (SPCS/SCSim)")
+    p.add_argument("--device", default="auto", help="auto (CUDA when present), cpu, cuda, cuda:N or mps")
+    p.add_argument("--threads", type=nonnegative_int, default=0, help="torch CPU threads (0: torch's default)")
+    p.add_argument("--json", action="store_true", help="print the measures as JSON")
+    p.set_defaults(func=run)

@@ -1,0 +1,50 @@
+"""No-reference measures (model/noref.py) against images whose noise and sharpness are known."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.ndimage import gaussian_filter
+
+from model.noref import edge_mask, edge_sharpness, flat_blocks, flat_noise, no_reference_scores
+
+
+def _scene(h: int = 96, w: int = 128) -> np.ndarray:
+    """A flat bright left half, a flat darker right half: one vertical edge."""
+    img = np.full((h, w), 0.2)
+    img[:, w // 2:] = 0.05
+    return img
+
+
+def test_flat_noise_is_the_coefficient_of_variation_of_added_noise():
+    ref = _scene()
+    rng = np.random.default_rng(0)
+    noisy = ref * (1 + 0.1 * rng.standard_normal(ref.shape))
+    blocks = flat_blocks(ref, block=16, fraction=0.5)
+    assert flat_noise(noisy, blocks) == pytest.approx(0.1, rel=0.1)
+    assert flat_noise(ref, blocks) == pytest.approx(0.0, abs=1e-12)
+    # brightness scale does not matter
+    assert flat_noise(7 * noisy, blocks) == pytest.approx(flat_noise(noisy, blocks))
+
+
+def test_flat_blocks_avoid_the_edge_and_the_dark():
+    ref = _scene()
+    ref[:32, :32] = 0.0  # a black corner: flat, but nothing there to measure
+    for ys, xs in flat_blocks(ref, block=16, fraction=0.3):
+        assert not (xs.start < 64 <= xs.stop - 1) and ref[ys, xs].mean() > 0
+
+
+def test_sharpness_falls_with_blur_and_ignores_scale():
+    ref = _scene()
+    mask = edge_mask(ref, fraction=0.05)
+    sharp = [edge_sharpness(gaussian_filter(ref, s), mask) for s in (0.5, 1.5, 3.0)]
+    assert sharp[0] > sharp[1] > sharp[2] > 0
+    assert edge_sharpness(3 * ref, mask) == pytest.approx(edge_sharpness(ref, mask))
+    scores = no_reference_scores(gaussian_filter(ref, 1.0) * (1 + 0.05 * np.random.default_rng(1).standard_normal(ref.shape)), ref)
+    assert scores["edge_to_noise"] == pytest.approx(scores["edge_sharpness"] / scores["flat_noise"])
+
+
+def test_bad_reference_is_refused():
+    with pytest.raises(ValueError, match="2-D image"):
+        flat_blocks(np.zeros((8, 8)), block=16)
+    with pytest.raises(ValueError, match="fraction"):
+        flat_blocks(_scene(), fraction=0)
