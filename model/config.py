@@ -118,6 +118,9 @@ class TrainConfig:
     lr_schedule: "multistep" (the paper's: x lr_gamma at each epoch of lr_milestones) or "cosine"
       (per step, from lr down to lr * lr_final_ratio at the run's last step: max_steps, the steps a
       budget allows, or every epoch's batches).
+    channels_last: keep the weights (so the activations) in the channels-last memory format, which
+      oneDNN's CPU convolutions run faster (docs/model.md, "A model for two CPU cores"); the
+      arithmetic is the same.
     budget_minutes: a wall-clock budget for the training steps. The run measures its step rate over
       its first calibration_steps steps, plans the number of steps that fits the budget, records it
       in its checkpoints (a resumed run keeps the same plan, so the same schedule) and ends there;
@@ -150,6 +153,7 @@ class TrainConfig:
     seed: int = 0
     lr_schedule: str = "multistep"
     lr_final_ratio: float = 0.01
+    channels_last: bool = False
     budget_minutes: float | None = None
     calibration_steps: int = 10
 
@@ -188,6 +192,7 @@ class TrainConfig:
                                                  and 0 < self.budget_minutes <= 60 * 24 * 365),
                  f"train.budget_minutes must be a positive number of minutes (at most a year), got {self.budget_minutes!r}")
         pos_int("calibration_steps")
+        _require(isinstance(self.channels_last, bool), f"train.channels_last must be a boolean, got {self.channels_last!r}")
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)

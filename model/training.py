@@ -265,6 +265,8 @@ def _build_run(experiment: ExperimentConfig, dev: torch.device, dist: _Distribut
     tc, mc = experiment.train, experiment.model
     seed_everything(tc.seed)
     model = build_model(mc).to(dev)
+    if tc.channels_last:
+        model = model.to(memory_format=torch.channels_last)
     forward = model
     if dist.world > 1:
         from torch.nn.parallel import DistributedDataParallel
