@@ -1,0 +1,12 @@
+"""The reconstruction model: representations, the network, training, evaluation methods and the
+shipped weights. `model.load_pretrained("lrrep")` returns the shipped network and its config."""
+from __future__ import annotations
+
+from typing import Any
+
+
+def __getattr__(name: str) -> Any:  # lazy: `import model.config` must not load the weights' module
+    if name == "load_pretrained":
+        from .pretrained import load_pretrained
+        return load_pretrained
+    raise AttributeError(f"module 'model' has no attribute {name!r}")

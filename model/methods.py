@@ -150,5 +150,6 @@ def method_from_spec(spec: str, window: int = 41, chunk: int = 8, device: str = 
         return ModelMethod(label or "LR-Rep", None, chunk, device, pretrained=PRETRAINED_METHOD)
     path = Path(body.removeprefix("ckpt:"))
     if not path.is_file():
-        raise ValueError(f"method {spec!r}: expected one of {', '.join(MAP_METHODS)} or an existing checkpoint file")
+        raise ValueError(f"method {spec!r}: expected one of {', '.join(MAP_METHODS)}, tfp:N, {PRETRAINED_METHOD} or an "
+                         "existing checkpoint file")
     return ModelMethod(label or path.parent.name or path.stem, path, chunk, device)

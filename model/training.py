@@ -247,6 +247,15 @@ class _Distributed:
     def shard(self, batch: list[int]) -> list[int]:
         return batch[self.rank::self.world]
 
+    def slowest(self, seconds: float) -> float:
+        """The largest of every rank's value (the value itself in one process)."""
+        if self.world == 1:
+            return seconds
+        import torch.distributed as tdist
+        t = torch.tensor([float(seconds)], dtype=torch.float64)
+        tdist.all_reduce(t, op=tdist.ReduceOp.MAX)
+        return float(t.item())
+
 
 @dataclasses.dataclass
 class _Run:
@@ -433,6 +442,9 @@ def run_training(experiment: ExperimentConfig, train_scenes: Sequence[Scene], va
     logs = _Logs(out, enabled=dist.is_main, resumed_at=step if resume else None)
     batches_per_epoch = sum(1 for i in range(0, len(train_ds), tc.batch_size)
                             if min(tc.batch_size, len(train_ds) - i) >= dist.world)
+    if batches_per_epoch == 0:
+        raise ValueError(f"{len(train_ds)} training sample(s) per epoch give no batch that {dist.world} processes can "
+                         "share: more scenes or steps, or fewer processes")
     if dist.is_main:
         print(f"[train] {experiment.name}: {count_parameters(run.model):,} parameters, device {dev}"
               f"{f' x {dist.world} processes' if dist.world > 1 else ''}, {run.precision}, {len(train_ds)} "
@@ -484,13 +496,13 @@ def run_training(experiment: ExperimentConfig, train_scenes: Sequence[Scene], va
                 bar.set_postfix(loss=f"{last_loss:.4f}", refresh=False)
                 if budget is not None and budget.planned_steps is None and step - first_step >= budget.calibration_steps:
                     spent = time.perf_counter() - started
-                    # the first step is slower (allocations): the rate comes from the steps after it
-                    budget.plan(step, budget.elapsed_s + spent, tc.max_steps,
-                                _budget_seconds_per_step(timer, step - first_step, spent))
+                    # the first step is slower (allocations): the rate comes from the steps after it;
+                    # under torchrun every rank plans with the slowest rank's time, so all stop together
+                    per_step = dist.slowest(_budget_seconds_per_step(timer, step - first_step, spent))
+                    budget.plan(step, budget.elapsed_s + dist.slowest(spent), tc.max_steps, per_step)
                     bar.total = last_step()
                     bar.write(f"[train] budget {tc.budget_minutes:g} min: {budget.planned_steps} steps planned "
-                              f"({_budget_seconds_per_step(timer, step - first_step, spent):.3f} s per step measured)",
-                              file=sys.stderr)
+                              f"({per_step:.3f} s per step measured)", file=sys.stderr)
                 if tc.ckpt_every_steps is not None and step % tc.ckpt_every_steps == 0:
                     checkpoint(out / "last.pt")
                 if step >= last_step() or _signalled(stop, dist):
@@ -526,8 +538,9 @@ def run_training(experiment: ExperimentConfig, train_scenes: Sequence[Scene], va
             raise RuntimeError(f"DDP ranks ended with different weights (fingerprints {seen}): a bug")
     wall = time.perf_counter() - started + (budget.elapsed_s if budget is not None else 0.0)
     return {"steps": step, "weights_sha256": fingerprint, "stopped_by": stop.signal, "epoch": epoch,
-            "last_loss": last_loss, "best_val_psnr_aligned": best, "precision": run.precision,
-            "processes": dist.world, **timer.summary(), "train_seconds": wall,
+            "last_loss": last_loss, "best_val_psnr_aligned": best if math.isfinite(best) else None,
+            "precision": run.precision,
+            "processes": dist.world, "rank": dist.rank, **timer.summary(), "train_seconds": wall,
             "budget_minutes": tc.budget_minutes, "planned_steps": None if budget is None else budget.planned_steps,
             "out": str(out)}
 

@@ -54,7 +54,8 @@ def cmd_train(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else Path("runs") / exp.name
     summary = run_training(exp, train_scenes, val_scenes, out, args.device, args.resume, progress=not args.quiet,
                            overwrite=args.overwrite)
-    print(json.dumps(summary, indent=2))
+    if summary.get("rank", 0) == 0:  # under torchrun one summary, rank 0's (the others hold no validation)
+        print(json.dumps({k: v for k, v in summary.items() if k != "rank"}, indent=2, default=str))
     # stopped by a signal: last.pt is written; the status says which (128 + its number), as a shell does
     return {"SIGINT": 130, "SIGTERM": 143}.get(summary["stopped_by"], 0)
 

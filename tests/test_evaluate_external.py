@@ -80,7 +80,8 @@ def test_spk2imgnet_sample_against_its_ground_truth(shared_data, capsys) -> None
     (["--center", 30, "--methods", "tfp"], "needs --gt IMAGE and --center"),
     (["--gt", "GT", "--center", 59], "needs steps 39..79"),
     (["--gt", "SMALL", "--center", 30], "--gt is 20 x 40 but the stream is read as 30 x 40"),
-    (["--gt", "GT", "--center", 30, "--methods", "lrrep"], "no trained weights ship"),
+    (["--gt", "GT", "--center", 30, "--methods", "tfp:82"], "odd number of 41-step windows"),
+    (["--gt", "GT", "--center", 30, "--methods", "nothing.pt"], "expected one of"),
 ])
 def test_bad_pairs_get_one_line(tmp_path, capsys, argv, match) -> None:
     dat, gt = _pair(tmp_path, 0.3)
