@@ -7,7 +7,9 @@
     <root>/<scene>/meta.json             camera, seed, geometry, num_steps, flip, gt_steps, windows,
                                          light and every other parameter needed to reproduce it;
                                          gt_saturation: the share of ground-truth pixels above
-                                         SATURATION_Y (y = 1), counted when written
+                                         SATURATION_Y (y = 1), counted when written;
+                                         inputs: what it was made from (XML, meshes, textures,
+                                         motion and light files, a generator), with sha256
     <root>/<scene>/gt/step_{n:06d}.exr   ground truth y at step n (linear float32)
     <root>/<scene>/checksums.json        bytes + sha256 of each file above, recorded when written
 

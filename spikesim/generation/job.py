@@ -144,6 +144,17 @@ class _ScaledRenderer:
         return y * self._scale if self._scale != 1 else y
 
 
+def _inputs_as_planned(job: SceneJob) -> list[Any]:
+    """The job's inputs with their sha256 (spikesim.generation.inputs), which must still be the
+    ones it was planned with: a file edited while the run was going would otherwise be written
+    under the identity of its earlier content."""
+    from spikesim.generation.inputs import changes, identities, job_inputs
+    inputs = job_inputs(job.source)
+    if (found := changes(job.inputs, identities(inputs))):
+        raise ValueError(f"{job.name}: {', '.join(found)} since this run was planned; run generate again")
+    return inputs
+
+
 def run_job(job: SceneJob, root: str | Path, progress: Callable[[str, int, int], None] | None = None,
             backend: str = "auto", threads: int | None = None, device: str = "auto") -> dict[str, Any]:
     """Render, simulate and write one scene folder; returns timing and size.
@@ -168,6 +179,7 @@ def run_job(job: SceneJob, root: str | Path, progress: Callable[[str, int, int],
     t0 = time.perf_counter()
     try:
         source = _FrameSource(job, work, device)
+        inputs = _inputs_as_planned(job)  # hashed once the renderer has read its files
         cam = SpikeCamera.from_dict(job.camera)
         quality_record = None
         if job.quality is not None and source.renderer is not None:
@@ -208,7 +220,8 @@ def run_job(job: SceneJob, root: str | Path, progress: Callable[[str, int, int],
                 yield step, source.ground_truth(step)
 
         described = _without_prefix(source.describe(), str(work), "<built from the job's seed>")
-        meta = {"job": job.to_dict(), "job_digest": job.digest, "camera": job.camera, "seed": job.seed,
+        meta = {"job": job.to_dict(), "job_digest": job.digest, "inputs": [i.to_dict() for i in inputs],
+                "camera": job.camera, "seed": job.seed,
                 "height": cam.height, "width": cam.width,
                 "windows": [list(w) for w in job.windows], "light_power_factor": job.light_power_factor,
                 "source": described, "subject_illuminance_lux": subject_illuminance_lux(described),

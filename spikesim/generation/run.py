@@ -2,8 +2,9 @@
 
 A job is run by one process from start to end and its folder appears only when complete, with the
 checksums of its files, so generation is resumable: a complete folder whose recorded job equals
-the planned one and whose files match its own checksums is skipped; a damaged one is rebuilt; one
-from other parameters needs `overwrite_stale`. One run at a time writes an output folder (a lock
+the planned one (its parameters and the content of its inputs, spikesim.generation.inputs) and
+whose files match its own checksums is skipped; a damaged one, or one whose inputs have changed
+since, is rebuilt, with a line saying why; one from other parameters needs `overwrite_stale`. One run at a time writes an output folder (a lock
 inside it), and nothing is written, deleted or read outside it. Jobs run in a local process pool
 by default (spikesim.generation.pool), or as Ray tasks writing to a shared path;
 spikesim.generation.job runs one job.
@@ -25,6 +26,7 @@ from spikesim._drjit import resolve_device
 from spikesim.dataset import (MANIFEST, META, SATURATION_WARN_FRACTION, SATURATION_Y, check_scene,
                               holds_only_scene_files, inside_root, read_manifest, remove_inside, scene_folders,
                               scene_saturation, write_manifest)
+from spikesim.generation.inputs import changes, job_inputs, legacy_changes
 from spikesim.generation.lock import output_lock
 from spikesim.generation.plan import SceneJob, power_label
 
@@ -33,12 +35,15 @@ log = logging.getLogger("spikesim.generate")
 
 # ---- resumable generation --------------------------------------------------------------------------
 def scene_state(job: SceneJob, root: Path, full: bool = False) -> tuple[str, list[str]]:
-    """What the output holds for `job`, and why if it is damaged:
+    """What the output holds for `job`, and why if it is to be rebuilt or refused:
 
     'todo'    no folder yet
-    'done'    complete, the same job, every file matching the checksums recorded when it was
-              written (sizes only unless `full`: then every sha256)
-    'stale'   complete, from other parameters (rebuilt only with --overwrite)
+    'done'    complete, the same job (the same parameters and inputs), every file matching the
+              checksums recorded when it was written (sizes only unless `full`: then every sha256)
+    'changed' complete, the same parameters, but a file it was made from (XML, mesh, texture,
+              motion or light file, a generator's or the code's version) has other content now:
+              rebuilt by a plain rerun; the reasons name what changed
+    'stale'   complete, from other parameters (rebuilt only with --overwrite); the reasons name them
     'damaged' a file missing, truncated, altered (with `full`), meta.json or the record lost
     'foreign' something the generator did not write (never deleted)
     """
@@ -49,28 +54,73 @@ def scene_state(job: SceneJob, root: Path, full: bool = False) -> tuple[str, lis
     if given.is_symlink() or not folder.is_dir() or not holds_only_scene_files(folder):
         return "foreign", []
     try:
-        digest = json.loads((folder / META).read_text()).get("job_digest")
+        meta = json.loads((folder / META).read_text())
+        digest = meta.get("job_digest")
     except (OSError, ValueError, AttributeError):
-        digest = None  # missing or unreadable: the checksum record says which
+        meta, digest = {}, None  # missing or unreadable: the checksum record says which
     if digest is not None and digest != job.digest:
-        return "stale", []
+        state, reasons = _compare_with_record(job, meta, digest)
+        if state != "done":
+            return state, reasons
     problems = check_scene(root, job.name, checksums=full)
     if not problems and digest is None:
         problems = [f"{job.name}/{META}: records no job"]
     return ("damaged", problems) if problems else ("done", [])
 
 
+def _compare_with_record(job: SceneJob, meta: dict[str, Any], digest: str) -> tuple[str, list[str]]:
+    """Why a finished scene's recorded digest differs from the planned job's: 'stale' (other
+    parameters, named), 'changed' (the same parameters, other inputs, named), or 'done' for a
+    scene written before inputs were part of the identity whose recorded file hashes still match
+    (spikesim.generation.inputs.legacy_changes)."""
+    recorded = meta.get("job")
+    if not isinstance(recorded, dict):
+        return "stale", ["its meta.json records no job"]
+    if "inputs" not in recorded:  # written before the inputs were part of the identity
+        if digest != job.legacy_digest:
+            return "stale", parameter_changes(recorded, job.parameters())
+        source = meta.get("source") if isinstance(meta.get("source"), dict) else {}
+        found = legacy_changes(job.source, source.get("sha256"), job_inputs(job.source))
+        if found is None:
+            return "changed", ["its record does not say which files it was made from"]
+        return ("changed", found) if found else ("done", [])
+    params = {k: v for k, v in recorded.items() if k != "inputs"}
+    if params != job.parameters():
+        return "stale", parameter_changes(params, job.parameters()) or ["its recorded job differs"]
+    found = changes(recorded["inputs"] if isinstance(recorded["inputs"], dict) else {}, job.inputs)
+    return ("changed", found) if found else ("stale", ["its recorded digest does not match its recorded job"])
+
+
+def _flat(d: Any, prefix: str = "") -> dict[str, Any]:
+    if isinstance(d, dict):
+        out: dict[str, Any] = {}
+        for k, v in d.items():
+            out.update(_flat(v, f"{prefix}{k}."))
+        return out
+    return {prefix[:-1]: d}
+
+
+def parameter_changes(recorded: dict[str, Any], planned: dict[str, Any], limit: int = 4) -> list[str]:
+    """The parameters that differ, as "render.spp 2 -> 4" (at most `limit`, then a count)."""
+    old, new = _flat(recorded), _flat(planned)
+    keys = [k for k in sorted(set(old) | set(new)) if old.get(k) != new.get(k)]
+    out = [f"{k} {json.dumps(old.get(k))} -> {json.dumps(new.get(k))}" for k in keys[:limit]]
+    return out + ([f"{len(keys) - limit} more"] if len(keys) > limit else [])
+
+
 def job_status(job: SceneJob, root: Path, full: bool = False) -> str:
-    """'todo', 'done', 'stale', 'damaged' or 'foreign' (see `scene_state`)."""
+    """'todo', 'done', 'changed', 'stale', 'damaged' or 'foreign' (see `scene_state`)."""
     return scene_state(job, Path(root), full)[0]
 
 
-def _jobs_to_run(jobs: list[SceneJob], root: Path, overwrite_stale: bool, full: bool) -> list[SceneJob]:
-    """The jobs whose scene is missing or damaged (and, with `overwrite_stale`, from other
-    parameters); their old folders are removed, but only once every folder has been looked at, so
-    a refusal (a folder it did not write, other parameters) leaves everything as it was."""
+def _jobs_to_run(jobs: list[SceneJob], root: Path, overwrite_stale: bool,
+                 full: bool) -> tuple[list[SceneJob], dict[str, str]]:
+    """The jobs whose scene is missing, damaged or made from inputs that changed since (and, with
+    `overwrite_stale`, from other parameters), and why each existing one is rebuilt; their old
+    folders are removed, but only once every folder has been looked at, so a refusal (a folder it
+    did not write, other parameters) leaves everything as it was."""
     states = {job.name: scene_state(job, root, full) for job in jobs}
-    for name, (state, _) in states.items():
+    for name, (state, reasons) in states.items():
         if state == "foreign":
             raise FileExistsError(f"{root / name} exists but is not a scene folder this generator wrote "
                                   "(it holds other files or is a link); move it away or choose another output folder")
@@ -81,14 +131,20 @@ def _jobs_to_run(jobs: list[SceneJob], root: Path, overwrite_stale: bool, full: 
                 raise FileExistsError(f"{root / name} holds another scene, {_scene_label(recorded)}, under the name "
                                       f"this run gives {_scene_label(_scene_identity(planned.to_dict()))}; give one "
                                       "of them another name (--name), or use --overwrite to replace it")
-            raise FileExistsError(f"{root / name} was generated with other parameters; "
+            raise FileExistsError(f"{root / name} was generated with other parameters ({'; '.join(reasons)}); "
                                   "use --overwrite to rebuild it, or another output folder")
-    for name, (state, problems) in states.items():
+    rebuilt = {}
+    for name, (state, reasons) in states.items():
         if state == "damaged":
-            log.warning("%s is damaged (%s); rebuilding it", name, "; ".join(problems[:3]))
-        if state in ("stale", "damaged"):
+            rebuilt[name] = f"damaged ({'; '.join(reasons[:3])})"
+        elif state == "changed":
+            rebuilt[name] = ", ".join(reasons)
+        elif state == "stale":
+            rebuilt[name] = f"other parameters ({'; '.join(reasons)}), --overwrite"
+        if name in rebuilt:
+            log.warning("%s: %s, rebuilding", name, rebuilt[name])
             remove_inside(root, name)
-    return [job for job in jobs if states[job.name][0] != "done"]
+    return [job for job in jobs if states[job.name][0] != "done"], rebuilt
 
 
 def _scene_identity(job: dict[str, Any]) -> tuple[dict[str, Any], float] | None:
@@ -155,7 +211,7 @@ def generate(jobs: list[SceneJob], root: str | Path, workers: int | None = None,
     with output_lock(root, command or shlex.join(sys.argv)):
         if (root / MANIFEST).exists() or (root / MANIFEST).is_symlink():
             read_manifest(root)
-        todo = _jobs_to_run(jobs, root, overwrite_stale, check)
+        todo, rebuilt = _jobs_to_run(jobs, root, overwrite_stale, check)
         log.info("%d scene(s) planned, %d already complete, %d to generate in %s",
                  len(jobs), len(jobs) - len(todo), len(todo), root)
         results: list[dict[str, Any]] = []
@@ -172,7 +228,10 @@ def generate(jobs: list[SceneJob], root: str | Path, workers: int | None = None,
                                   scenes=_passing_scenes(root, names, check))
     saturation = {name: scene_saturation(root, name) for name in names}
     _warn_saturated(saturation)
-    return {"root": str(root), "generated": results, "skipped": len(jobs) - len(todo),
+    for r in results:
+        if r["name"] in rebuilt:
+            r["rebuilt"] = rebuilt[r["name"]]
+    return {"root": str(root), "generated": results, "skipped": len(jobs) - len(todo), "rebuilt": rebuilt,
             "seconds": time.perf_counter() - t0, "manifest": str(manifest), "saturation": saturation}
 
 
