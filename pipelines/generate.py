@@ -105,6 +105,10 @@ def run(args: argparse.Namespace) -> int:
               + (f" (rebuilt: {r['rebuilt']})" if r.get("rebuilt") else ""))
     print(f"{args.out}: {len(report['generated'])} scene(s) generated, {report['skipped']} already complete, "
           f"{report['seconds']:.1f} s; manifest {report['manifest']}")
+    if report["checked"] == "sizes" and report["skipped"]:
+        print(f"{report['skipped']} finished scene(s) were checked by file size only (quick: catches deleted and "
+              f"truncated files); --check also compares every file's sha256 and rebuilds what differs, "
+              f"and spikesim verify {args.out} reports it")
     print(saturation_summary(saturation))
     return 0
 

@@ -24,8 +24,8 @@ import numpy as np
 
 from spikesim._drjit import resolve_device
 from spikesim.dataset import (MANIFEST, META, SATURATION_WARN_FRACTION, SATURATION_Y, check_scene,
-                              holds_only_scene_files, inside_root, read_manifest, remove_inside, scene_folders,
-                              scene_saturation, write_manifest)
+                              drop_from_manifest, holds_only_scene_files, inside_root, manifest_disagreement,
+                              read_manifest, remove_inside, scene_folders, scene_saturation, write_manifest)
 from spikesim.generation.inputs import changes, job_inputs, legacy_changes
 from spikesim.generation.lock import output_lock
 from spikesim.generation.plan import SceneJob, power_label
@@ -34,7 +34,8 @@ log = logging.getLogger("spikesim.generate")
 
 
 # ---- resumable generation --------------------------------------------------------------------------
-def scene_state(job: SceneJob, root: Path, full: bool = False) -> tuple[str, list[str]]:
+def scene_state(job: SceneJob, root: Path, full: bool = False,
+                recorded: dict[str, Any] | None = None) -> tuple[str, list[str]]:
     """What the output holds for `job`, and why if it is to be rebuilt or refused:
 
     'todo'    no folder yet
@@ -44,7 +45,8 @@ def scene_state(job: SceneJob, root: Path, full: bool = False) -> tuple[str, lis
               motion or light file, a generator's or the code's version) has other content now:
               rebuilt by a plain rerun; the reasons name what changed
     'stale'   complete, from other parameters (rebuilt only with --overwrite); the reasons name them
-    'damaged' a file missing, truncated, altered (with `full`), meta.json or the record lost
+    'damaged' a file missing, truncated, altered (with `full`), meta.json or the record lost, or
+              its checksum record differing from `recorded`, its entries in the manifest
     'foreign' something the generator did not write (never deleted)
     """
     folder = inside_root(root, job.name)  # a symlink leading out of the root is refused here
@@ -65,6 +67,8 @@ def scene_state(job: SceneJob, root: Path, full: bool = False) -> tuple[str, lis
     problems = check_scene(root, job.name, checksums=full)
     if not problems and digest is None:
         problems = [f"{job.name}/{META}: records no job"]
+    if not problems and recorded is not None:
+        problems = manifest_disagreement(root, job.name, recorded)
     return ("damaged", problems) if problems else ("done", [])
 
 
@@ -113,13 +117,14 @@ def job_status(job: SceneJob, root: Path, full: bool = False) -> str:
     return scene_state(job, Path(root), full)[0]
 
 
-def _jobs_to_run(jobs: list[SceneJob], root: Path, overwrite_stale: bool,
-                 full: bool) -> tuple[list[SceneJob], dict[str, str]]:
+def _jobs_to_run(jobs: list[SceneJob], root: Path, overwrite_stale: bool, full: bool,
+                 listed: dict[str, dict[str, Any]]) -> tuple[list[SceneJob], dict[str, str]]:
     """The jobs whose scene is missing, damaged or made from inputs that changed since (and, with
     `overwrite_stale`, from other parameters), and why each existing one is rebuilt; their old
     folders are removed, but only once every folder has been looked at, so a refusal (a folder it
-    did not write, other parameters) leaves everything as it was."""
-    states = {job.name: scene_state(job, root, full) for job in jobs}
+    did not write, other parameters) leaves everything as it was. `listed`: the manifest's scenes,
+    each checked against its entries there; a rebuilt scene is first dropped from the manifest."""
+    states = {job.name: scene_state(job, root, full, listed.get(job.name)) for job in jobs}
     for name, (state, reasons) in states.items():
         if state == "foreign":
             raise FileExistsError(f"{root / name} exists but is not a scene folder this generator wrote "
@@ -143,7 +148,9 @@ def _jobs_to_run(jobs: list[SceneJob], root: Path, overwrite_stale: bool,
             rebuilt[name] = f"other parameters ({'; '.join(reasons)}), --overwrite"
         if name in rebuilt:
             log.warning("%s: %s, rebuilding", name, rebuilt[name])
-            remove_inside(root, name)
+    drop_from_manifest(root, [name for name, (state, _) in states.items() if state != "done"])
+    for name in rebuilt:
+        remove_inside(root, name)
     return [job for job in jobs if states[job.name][0] != "done"], rebuilt
 
 
@@ -175,9 +182,11 @@ def _scene_label(scene: tuple[dict[str, Any], float]) -> str:
     return f"{source['scene']} ({', '.join([*extras, power])})"
 
 
-def _passing_scenes(root: Path, planned: list[str], full: bool) -> list[str]:
+def _passing_scenes(root: Path, planned: list[str], full: bool, listed: dict[str, dict[str, Any]]) -> list[str]:
     """The scenes the manifest may list: every planned one (each must pass), and any other scene
-    folder under the root that passes its own check (others are left out, with a warning)."""
+    folder the manifest already lists (`listed`) that passes its own check and agrees with its
+    entries there. A folder neither planned nor listed, such as a copy of a scene, is left out
+    (with a warning): nothing vouches for it but its own record."""
     for name in planned:
         if problems := check_scene(root, name):
             raise RuntimeError(f"{name} failed its check right after it was generated: {'; '.join(problems[:3])}")
@@ -185,12 +194,24 @@ def _passing_scenes(root: Path, planned: list[str], full: bool) -> list[str]:
     for name in scene_folders(root):
         if name in planned:
             continue
-        if problems := check_scene(root, name, checksums=full):
+        if name not in listed:
+            log.warning("%s is a scene folder that this run did not plan and %s does not list%s: left out of the "
+                        "manifest (run the command that made it to add it)", name, MANIFEST, _copy_hint(root, name))
+        elif problems := (check_scene(root, name, checksums=full) or manifest_disagreement(root, name, listed[name])):
             log.warning("%s is not planned here and fails its check (%s): left out of the manifest",
                         name, "; ".join(problems[:3]))
         else:
             others.append(name)
     return planned + others
+
+
+def _copy_hint(root: Path, name: str) -> str:
+    """" (a copy of X?)" when the folder's meta.json names another scene."""
+    try:
+        recorded = json.loads(inside_root(root, name, META).read_text()).get("name")
+    except (OSError, ValueError, AttributeError):
+        return ""
+    return f" (its {META} names {recorded}: a copy?)" if isinstance(recorded, str) and recorded != name else ""
 
 
 def generate(jobs: list[SceneJob], root: str | Path, workers: int | None = None, ray_address: str | None = None,
@@ -209,9 +230,10 @@ def generate(jobs: list[SceneJob], root: str | Path, workers: int | None = None,
         raise ValueError(f"workers={workers}: needs at least 1 (None: one per core)")
     root.mkdir(parents=True, exist_ok=True)
     with output_lock(root, command or shlex.join(sys.argv)):
+        listed: dict[str, dict[str, Any]] = {}
         if (root / MANIFEST).exists() or (root / MANIFEST).is_symlink():
-            read_manifest(root)
-        todo, rebuilt = _jobs_to_run(jobs, root, overwrite_stale, check)
+            listed = read_manifest(root)["scenes"]
+        todo, rebuilt = _jobs_to_run(jobs, root, overwrite_stale, check, listed)
         log.info("%d scene(s) planned, %d already complete, %d to generate in %s",
                  len(jobs), len(jobs) - len(todo), len(todo), root)
         results: list[dict[str, Any]] = []
@@ -224,14 +246,17 @@ def generate(jobs: list[SceneJob], root: str | Path, workers: int | None = None,
                 if workers is None:  # one process per core; one process feeds a GPU best
                     workers = 1 if resolve_device(device) == "cuda" else min(len(todo), os.cpu_count() or 1)
                 results = generate_local(todo, root, workers, show_progress, device)
+        fresh = {j.name for j in todo}
+        kept = {name: entries for name, entries in listed.items() if name not in fresh}
         manifest = write_manifest(root, {**(info or {}), "jobs": {j.name: j.digest for j in jobs}},
-                                  scenes=_passing_scenes(root, names, check))
+                                  scenes=_passing_scenes(root, names, check, kept), recorded=kept)
     saturation = {name: scene_saturation(root, name) for name in names}
     _warn_saturated(saturation)
     for r in results:
         if r["name"] in rebuilt:
             r["rebuilt"] = rebuilt[r["name"]]
     return {"root": str(root), "generated": results, "skipped": len(jobs) - len(todo), "rebuilt": rebuilt,
+            "checked": "sha256" if check else "sizes",
             "seconds": time.perf_counter() - t0, "manifest": str(manifest), "saturation": saturation}
 
 
