@@ -2,7 +2,8 @@
 
     <root>/manifest.json                 name, preset, and per scene: files with bytes + sha256, and
                                          the share of ground-truth pixels above saturation
-    <root>/.spikesim.lock                held by the `generate` run writing here (pid, command)
+    <root>/.spikesim.lock                held by the `generate` run writing here (pid, command);
+                                         removed when that run ends
     <root>/<scene>/spikes.dat            the stream, PKU .dat (flipped: the real-camera convention)
     <root>/<scene>/meta.json             camera, seed, geometry, num_steps, flip, gt_steps, windows,
                                          light and every other parameter needed to reproduce it;

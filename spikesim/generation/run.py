@@ -15,10 +15,13 @@ import json
 import logging
 import os
 import shlex
+import signal
 import sys
+import threading
 import time
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import numpy as np
 
@@ -214,6 +217,62 @@ def _copy_hint(root: Path, name: str) -> str:
     return f" (its {META} names {recorded}: a copy?)" if isinstance(recorded, str) and recorded != name else ""
 
 
+class Terminated(KeyboardInterrupt):
+    """The run was asked to stop by SIGTERM. A KeyboardInterrupt, like Ctrl-C, so that the same
+    clean-up runs (work folders removed, workers stopped) and no `except Exception` swallows it."""
+
+
+@contextmanager
+def _sigterm_raises() -> Iterator[None]:
+    """Turn SIGTERM into `Terminated` in this (main) thread while the block runs; by default it
+    would end the process at once, leaving the scenes in progress as `.work` debris and saying
+    nothing. A second SIGTERM during the clean-up is ignored (SIGKILL still ends it)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum: int, frame: Any) -> None:
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        raise Terminated(f"terminated ({signal.Signals(signum).name})")
+
+    previous = signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _make_root(root: Path) -> list[Path]:
+    """Create the output root and its missing parents; returns the folders created, deepest
+    first, so that a run that fails can remove them again if it left them empty."""
+    created = []
+    p = root.absolute()
+    while not p.exists() and not p.is_symlink() and p != p.parent:
+        created.append(p)
+        p = p.parent
+    root.mkdir(parents=True, exist_ok=True)
+    return created
+
+
+def _remove_if_empty(folders: list[Path]) -> None:
+    for folder in folders:  # deepest first
+        try:
+            folder.rmdir()
+        except OSError:
+            return  # not empty (finished scenes are kept), or not ours to remove
+
+
+def _remove_debris(root: Path, jobs: list[SceneJob]) -> None:
+    """The work and part folders of `jobs` (their workers have ended): what a stopped worker
+    could not clean up itself."""
+    for job in jobs:
+        for name in (f".{job.name}.work", f".{job.name}.part"):
+            try:
+                remove_inside(root, name)
+            except (OSError, ValueError) as exc:
+                log.warning("could not remove %s: %s", root / name, exc)
+
+
 def generate(jobs: list[SceneJob], root: str | Path, workers: int | None = None, ray_address: str | None = None,
              info: dict[str, Any] | None = None, overwrite_stale: bool = False, show_progress: bool = True,
              check: bool = False, command: str | None = None, device: str = "auto") -> dict[str, Any]:
@@ -221,35 +280,33 @@ def generate(jobs: list[SceneJob], root: str | Path, workers: int | None = None,
     checks. `check` hashes every file of the finished scenes (default: sizes only). Returns a report.
 
     The output root is locked for the run (`command` is recorded for a second run's error); an
-    existing manifest.json that this package did not write is refused, not overwritten."""
+    existing manifest.json that this package did not write is refused, not overwritten. A run that
+    fails removes the output folder again if it created it and left nothing in it; SIGTERM stops
+    it like Ctrl-C (`Terminated`): the scenes in progress are removed, finished ones kept."""
     root = Path(root)
     names = [j.name for j in jobs]
     if len(set(names)) != len(names):
         raise ValueError("two jobs share a scene name")
     if workers is not None and workers < 1:
         raise ValueError(f"workers={workers}: needs at least 1 (None: one per core)")
-    root.mkdir(parents=True, exist_ok=True)
-    with output_lock(root, command or shlex.join(sys.argv)):
-        listed: dict[str, dict[str, Any]] = {}
-        if (root / MANIFEST).exists() or (root / MANIFEST).is_symlink():
-            listed = read_manifest(root)["scenes"]
-        todo, rebuilt = _jobs_to_run(jobs, root, overwrite_stale, check, listed)
-        log.info("%d scene(s) planned, %d already complete, %d to generate in %s",
-                 len(jobs), len(jobs) - len(todo), len(todo), root)
-        results: list[dict[str, Any]] = []
-        t0 = time.perf_counter()
-        if todo:
-            from spikesim.generation.pool import generate_local, generate_ray
-            if ray_address is not None:
-                results = generate_ray(todo, root, ray_address, show_progress, device)
-            else:
-                if workers is None:  # one process per core; one process feeds a GPU best
-                    workers = 1 if resolve_device(device) == "cuda" else min(len(todo), os.cpu_count() or 1)
-                results = generate_local(todo, root, workers, show_progress, device)
-        fresh = {j.name for j in todo}
-        kept = {name: entries for name, entries in listed.items() if name not in fresh}
-        manifest = write_manifest(root, {**(info or {}), "jobs": {j.name: j.digest for j in jobs}},
-                                  scenes=_passing_scenes(root, names, check, kept), recorded=kept)
+    created = _make_root(root)
+    try:
+        with _sigterm_raises(), output_lock(root, command or shlex.join(sys.argv)):
+            listed: dict[str, dict[str, Any]] = {}
+            if (root / MANIFEST).exists() or (root / MANIFEST).is_symlink():
+                listed = read_manifest(root)["scenes"]
+            todo, rebuilt = _jobs_to_run(jobs, root, overwrite_stale, check, listed)
+            log.info("%d scene(s) planned, %d already complete, %d to generate in %s",
+                     len(jobs), len(jobs) - len(todo), len(todo), root)
+            t0 = time.perf_counter()
+            results = _run_jobs(todo, root, workers, ray_address, show_progress, device)
+            fresh = {j.name for j in todo}
+            kept = {name: entries for name, entries in listed.items() if name not in fresh}
+            manifest = write_manifest(root, {**(info or {}), "jobs": {j.name: j.digest for j in jobs}},
+                                      scenes=_passing_scenes(root, names, check, kept), recorded=kept)
+    except BaseException:
+        _remove_if_empty(created)
+        raise
     saturation = {name: scene_saturation(root, name) for name in names}
     _warn_saturated(saturation)
     for r in results:
@@ -258,6 +315,24 @@ def generate(jobs: list[SceneJob], root: str | Path, workers: int | None = None,
     return {"root": str(root), "generated": results, "skipped": len(jobs) - len(todo), "rebuilt": rebuilt,
             "checked": "sha256" if check else "sizes",
             "seconds": time.perf_counter() - t0, "manifest": str(manifest), "saturation": saturation}
+
+
+def _run_jobs(todo: list[SceneJob], root: Path, workers: int | None, ray_address: str | None, show_progress: bool,
+              device: str) -> list[dict[str, Any]]:
+    """Run `todo` locally or on Ray; on any failure, once the local workers have ended, what the
+    unfinished jobs left behind is removed."""
+    if not todo:
+        return []
+    from spikesim.generation.pool import generate_local, generate_ray
+    if ray_address is not None:  # tasks on other machines cannot be stopped from here: each cleans up itself
+        return generate_ray(todo, root, ray_address, show_progress, device)
+    if workers is None:  # one process per core; one process feeds a GPU best
+        workers = 1 if resolve_device(device) == "cuda" else min(len(todo), os.cpu_count() or 1)
+    try:
+        return generate_local(todo, root, workers, show_progress, device)
+    except BaseException:
+        _remove_debris(root, [j for j in todo if not (root / j.name).exists()])
+        raise
 
 
 def _warn_saturated(saturation: dict[str, float | None]) -> None:
