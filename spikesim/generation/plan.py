@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from spikesim.dataset import check_scene_name
-from spikesim.render_settings import HoldsRenderSettings, RenderSettings
+from spikesim.render_settings import HoldsRenderSettings, RenderSettings, check_samples
 
 WINDOW = 41  # the reconstruction window (paper, section "Implementation Details")
 
@@ -117,7 +117,10 @@ class SceneJob:
             from spikesim.quality import QualitySettings
             QualitySettings.from_name(self.quality)  # validates the name
         try:  # the checks every render setting gets, before any folder is locked or worker started
-            RenderSettings.from_dict({**self.render, "keyframe_every": self.keyframe_every})
+            settings = RenderSettings.from_dict({**self.render, "keyframe_every": self.keyframe_every})
+            if self.source.get("type") != "pattern":
+                for what in ("spp", "gt_spp"):
+                    check_samples(getattr(settings, what), self.camera["height"], self.camera["width"], what)
         except (TypeError, ValueError) as exc:
             raise ValueError(f"job {self.name}: {exc}") from None
         if self.num_steps < 1:

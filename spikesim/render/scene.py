@@ -31,6 +31,7 @@ from .errors import LightError, SceneError
 from .exposure import PixelResponse
 from .lights import LightingCondition, load_lights
 from .mono import to_sensor_reflectance
+from .scene_checks import check_integrator, check_sensor_xml
 from .scene_emitters import XmlEmitter, read_emitters
 from .scene_files import SceneFiles, check_reference, file_references
 
@@ -146,6 +147,8 @@ def prepare_xml(xml_path: Path, variant: str, lighting: LightingCondition, pixel
     sensor = sensors[0]
     if sensor.get("type") != "perspective":
         raise SceneError(xml_path, f"sensor type {sensor.get('type')!r}: only 'perspective' is supported")
+    check_sensor_xml(xml_path, root, sensor)
+    check_integrator(xml_path, root)
     sensor_id = sensor.get("id") or "camera"
     sensor.set("id", sensor_id)
     films = [el for el in sensor if el.tag == "film"]
@@ -153,8 +156,9 @@ def prepare_xml(xml_path: Path, variant: str, lighting: LightingCondition, pixel
     height = _int_param(films[0], "height") if films else None
     if resolution is not None:
         height, width = resolution
-    if not width or not height:
-        raise SceneError(xml_path, "the film needs integer width and height (400 x 250 for the spike camera)")
+    if not width or not height or width < 1 or height < 1:
+        raise SceneError(xml_path, f"the film needs positive integer width and height (400 x 250 for the spike "
+                                   f"camera), got width {width} and height {height}")
     for f in films:
         sensor.remove(f)
     sensor.append(_film(variant, width, height, pixel))
