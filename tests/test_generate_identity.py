@@ -130,3 +130,22 @@ def test_a_random_scene_is_its_seed_and_its_generator_version(monkeypatch):
     monkeypatch.setattr(rs, "GENERATOR_VERSION", rs.GENERATOR_VERSION + 1)
     bumped = plan_rllr(PRESETS["small"], count=1)[0]
     assert bumped.digest != job.digest and bumped.parameters() == job.parameters()
+
+
+def test_references_through_parameters_and_filename_attributes_are_inputs(tmp_path):
+    """`$name` values come from the XML's <default>s; `<spectrum filename=...>` is a reference too,
+    resolved relative to the XML (not the working directory); a missing one is named at planning."""
+    xml = make_user_scene(tmp_path / "sc")
+    (xml.parent / "data").mkdir()
+    (xml.parent / "data" / "r.spd").write_text("400 0.5\n700 0.5\n")
+    text = xml.read_text().replace('<scene version="3.0.0">', '<scene version="3.0.0">\n  <default name="tex" '
+                                   'value="textures/floor.png"/>').replace('value="textures/floor.png"/></texture>',
+                                                                           'value="$tex"/></texture>')
+    text = text.replace("</scene>", '  <shape type="sphere" id="s"><bsdf type="diffuse"><spectrum name="reflectance" '
+                                    'filename="data/r.spd"/></bsdf></shape>\n</scene>')
+    xml.write_text(text)
+    job = plan_user(str(xml), "normal", tiny_preset())[0]
+    assert {"textures/floor.png", "data/r.spd"} <= set(job.inputs)
+    (xml.parent / "data" / "r.spd").unlink()
+    with pytest.raises(ValueError, match=r"scene.xml: references file 'data/r.spd'"):
+        plan_user(str(xml), "normal", tiny_preset())
