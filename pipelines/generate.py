@@ -17,7 +17,10 @@ from spikesim.dataset import check_scene_name
 from spikesim.generation.plan import DARKENINGS, LOG_DARKENING_MIN
 from spikesim.generation import (PRESETS, bundled_scene, generate, percent, plan_llr, plan_rllr, plan_user,
                                  saturation_summary)
+from spikesim.generation.run import Terminated
 from spikesim.generation.settings import ResolvedSettings, resolve_settings
+
+TERMINATED = 128 + 15  # the shell's status of a process ended by SIGTERM
 
 
 # ---- command line ---------------------------------------------------------------------------------
@@ -89,10 +92,15 @@ def run(args: argparse.Namespace) -> int:
     if not args.json:
         print(resolved.summary())
     jobs = [dataclasses.replace(job, settings=resolved.table()) for job in jobs]
-    report = generate(jobs, args.out, workers=args.workers, ray_address=args.ray,
-                      info={"kind": args.kind, "preset": preset.to_dict(), "seed": args.seed},
-                      overwrite_stale=args.overwrite, show_progress=not args.quiet, check=args.check,
-                      command="spikesim " + shlex.join(sys.argv[1:]), device=device)
+    try:
+        report = generate(jobs, args.out, workers=args.workers, ray_address=args.ray,
+                          info={"kind": args.kind, "preset": preset.to_dict(), "seed": args.seed},
+                          overwrite_stale=args.overwrite, show_progress=not args.quiet, check=args.check,
+                          command="spikesim " + shlex.join(sys.argv[1:]), device=device)
+    except Terminated as exc:
+        print(f"spikesim generate: {exc}: the scenes in progress were removed and finished ones kept; "
+              "rerun the same command to continue", file=sys.stderr)
+        return TERMINATED
     saturation = report["saturation"]
     if args.json:
         print(json.dumps({"settings": resolved.table(), **report}, indent=2, default=str))
@@ -101,9 +109,14 @@ def run(args: argparse.Namespace) -> int:
         lux = r.get("subject_illuminance_lux")
         print(f"  {r['name']}: {r['seconds']:.1f} s, {r['bytes'] / 1e6:.2f} MB, "
               f"{percent(saturation.get(r['name']))} of ground-truth pixels saturated"
-              + (f", {lux:.4g} lx at the subject" if lux is not None else ""))
+              + (f", {lux:.4g} lx at the subject" if lux is not None else "")
+              + (f" (rebuilt: {r['rebuilt']})" if r.get("rebuilt") else ""))
     print(f"{args.out}: {len(report['generated'])} scene(s) generated, {report['skipped']} already complete, "
           f"{report['seconds']:.1f} s; manifest {report['manifest']}")
+    if report["checked"] == "sizes" and report["skipped"]:
+        print(f"{report['skipped']} finished scene(s) were checked by file size only (quick: catches deleted and "
+              f"truncated files); --check also compares every file's sha256 and rebuilds what differs, "
+              f"and spikesim verify {args.out} reports it")
     print(saturation_summary(saturation))
     return 0
 

@@ -4,14 +4,16 @@
     spikesim render fan --variant spectral --spp 4 --steps 0:41 --height 125 --width 200
 
 Writes <out>/<frames|gt>/step_NNNNNN.exr (linear y, float32) and a tone-mapped .png beside each,
-plus <out>/render.json (SceneRenderer.describe() and timings). With --variant rgb it writes PNG
-previews only (RGB renders carry no y).
+plus <out>/render.json (SceneRenderer.describe(), timings and the files written). With --variant
+rgb it writes PNG previews only (RGB renders carry no y). A folder holds one run: a rerun replaces
+the files its render.json lists, and refuses files no record lists.
 """
 from __future__ import annotations
 
 import argparse
 import json
 import os
+import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -104,9 +106,11 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
+    from pipelines.render_folder import check_output_folder, remove_stage, replace_outputs
     from spikesim.imageio import write_exr, write_png
     from spikesim.render import Exposure, RenderSettings, SceneRenderer, write_ground_truth
 
+    previous = check_output_folder(args.out)  # files no record lists: refused before any rendering
     # A bad scene, light or config file raises SceneError/ValueError: one line from pipelines.cli.
     settings = RenderSettings.from_file(args.render_settings) if args.render_settings is not None else None
     exposure = Exposure.from_file(args.exposure) if args.exposure is not None else None
@@ -115,37 +119,39 @@ def run(args: argparse.Namespace) -> int:
                              resolution=_resolution(args), seed=args.seed, motion=args.motion,
                              lights=args.lights, settings=settings, exposure=exposure, device=args.device, **kw)
     kind = "gt" if args.ground_truth else ("preview" if renderer.variant == "rgb" else "frames")
-    folder = args.out / kind
-    folder.mkdir(parents=True, exist_ok=True)
-    timings = []
-    for step in args.steps:
-        t0 = time.perf_counter()
-        name = folder / f"step_{step:06d}"
-        if kind == "preview":
-            rgb = renderer.preview_rgb(step)
-            _write_rgb_png(name.with_suffix(".png"), rgb, args.png_scale, args.png_percentile)
-        elif kind == "gt":
-            write_ground_truth(renderer, [step], folder, png_scale=args.png_scale, png_percentile=args.png_percentile)
-        else:
-            y = renderer.render_step(step)
-            write_exr(name.with_suffix(".exr"), y)
-            write_png(name.with_suffix(".png"), y, scale=args.png_scale, percentile=args.png_percentile)
-        timings.append(time.perf_counter() - t0)
-        if not args.json:
-            print(f"{name}  ({timings[-1]:.2f} s)")
-    meta = {**renderer.describe(), "kind": kind, "steps": args.steps, "seconds_per_step": timings,
-            "stats": renderer.stats}
-    _write_json(args.out / "render.json", meta)
+    args.out.mkdir(parents=True, exist_ok=True)
+    # The run is written aside and moved in whole, so the folder always holds one run: a failed
+    # rerun leaves the previous one as it was.
+    stage = Path(tempfile.mkdtemp(prefix=".render.", suffix=".part", dir=args.out))
+    try:
+        folder = stage / kind
+        folder.mkdir()
+        timings = []
+        for step in args.steps:
+            t0 = time.perf_counter()
+            name = folder / f"step_{step:06d}"
+            if kind == "preview":
+                rgb = renderer.preview_rgb(step)
+                _write_rgb_png(name.with_suffix(".png"), rgb, args.png_scale, args.png_percentile)
+            elif kind == "gt":
+                write_ground_truth(renderer, [step], folder, png_scale=args.png_scale,
+                                   png_percentile=args.png_percentile)
+            else:
+                y = renderer.render_step(step)
+                write_exr(name.with_suffix(".exr"), y)
+                write_png(name.with_suffix(".png"), y, scale=args.png_scale, percentile=args.png_percentile)
+            timings.append(time.perf_counter() - t0)
+            if not args.json:
+                print(f"{args.out / kind / name.name}  ({timings[-1]:.2f} s)")
+        meta = {**renderer.describe(), "kind": kind, "steps": args.steps, "seconds_per_step": timings,
+                "stats": renderer.stats}
+        written = [p.relative_to(stage).as_posix() for p in sorted(stage.rglob("*")) if p.is_file()]
+        replace_outputs(stage, args.out, written, previous, meta)
+    finally:
+        remove_stage(stage)
     if args.json:
-        print(json.dumps(meta, indent=2, default=str))
+        print(json.dumps({**meta, "files": written}, indent=2, default=str))
     return 0
-
-
-def _write_json(path: Path, obj: Any) -> None:
-    """Replace `path` whole: a temporary file in the same folder, then a rename."""
-    tmp = path.with_name(f".{path.name}.part")
-    tmp.write_text(json.dumps(obj, indent=2) + "\n")
-    os.replace(tmp, path)
 
 
 def _write_rgb_png(path: Path, rgb, scale: float | None, percentile: float | None) -> None:

@@ -60,7 +60,9 @@ def frames_from_source(args: argparse.Namespace, cam: SpikeCamera,
     if args.frames is not None:
         src = Path(args.frames)
         if src.is_dir():
-            files = exr_files(src)
+            from pipelines.render_folder import listed_frames
+            listed = listed_frames(src, k)  # a render folder: only the frames its record lists
+            files = exr_files(src) if listed is None else listed
             steps = frames_steps(args.steps, len(files), k, src)
             files = files[: keyframe_count(steps, k)]
             return _checked_exr_frames(files, cam), {"source": str(src), "frames": len(files)}, steps
@@ -196,7 +198,9 @@ def _progress(frames: Iterator[np.ndarray], args: argparse.Namespace, steps: int
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("simulate", help="irradiance frames -> spike stream (.dat + JSON sidecar)")
     src = p.add_argument_group("irradiance source (default: the built-in moving pattern)")
-    src.add_argument("--frames", type=frames_path, help="an (N, H, W) .npy array of y, or a folder of EXR frames")
+    src.add_argument("--frames", type=frames_path,
+                     help="an (N, H, W) .npy array of y, or a folder of EXR frames (a render -o folder: the frames "
+                          "its render.json lists)")
     src.add_argument("--scene", help="a bundled scene (ball, car, cook, fan, rotate) or a scene XML to render")
     src.add_argument("--light", default="normal",
                      help="lighting condition of the scene (normal, low; a scene XML without a lights.json: normal, its own emitters)")

@@ -40,6 +40,11 @@ LAMPS_LUX_BEFORE_STUDY = (100.0, 1000.0)
 """The range before the saturation study: jobs planned without a range still build with it, so
 a scene folder stays reproducible from its recorded job."""
 _TEXTURE_SIZE = 256
+GENERATOR_VERSION = 1
+"""The version of this generator, part of every random scene's identity (spikesim.generation.inputs):
+a scene is its seed, its lamps' range and this. Raise it with any change that builds another scene
+from the same seed (a new object kind, another draw order), so that datasets built before are
+rebuilt rather than mixed with the new scenes."""
 
 
 def _texture(rng: np.random.Generator, path: Path) -> None:
@@ -213,4 +218,4 @@ def build_random_scene(seed: int, folder: str | Path, resolution: tuple[int, int
     return folder / "scene.xml", folder / "motion.json", folder / "lights.json", "normal"
 
 
-__all__ = ["build_random_scene", "SPECTRA", "LAMPS_LUX", "LAMPS_LUX_BEFORE_STUDY"]
+__all__ = ["build_random_scene", "SPECTRA", "LAMPS_LUX", "LAMPS_LUX_BEFORE_STUDY", "GENERATOR_VERSION"]

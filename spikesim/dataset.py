@@ -2,12 +2,15 @@
 
     <root>/manifest.json                 name, preset, and per scene: files with bytes + sha256, and
                                          the share of ground-truth pixels above saturation
-    <root>/.spikesim.lock                held by the `generate` run writing here (pid, command)
+    <root>/.spikesim.lock                held by the `generate` run writing here (pid, command);
+                                         removed when that run ends
     <root>/<scene>/spikes.dat            the stream, PKU .dat (flipped: the real-camera convention)
     <root>/<scene>/meta.json             camera, seed, geometry, num_steps, flip, gt_steps, windows,
                                          light and every other parameter needed to reproduce it;
                                          gt_saturation: the share of ground-truth pixels above
-                                         SATURATION_Y (y = 1), counted when written
+                                         SATURATION_Y (y = 1), counted when written;
+                                         inputs: what it was made from (XML, meshes, textures,
+                                         motion and light files, a generator), with sha256
     <root>/<scene>/gt/step_{n:06d}.exr   ground truth y at step n (linear float32)
     <root>/<scene>/checksums.json        bytes + sha256 of each file above, recorded when written
 
@@ -378,14 +381,20 @@ def scene_folders(root: str | Path) -> list[str]:
             and ((d / META).exists() or (d / CHECKSUMS).exists())]
 
 
-def write_manifest(root: str | Path, info: dict[str, Any] | None = None, scenes: Iterable[str] | None = None) -> Path:
-    """(Re)write the dataset manifest from the checksum records of `scenes`, which the caller has
-    checked (default: every scene folder under `root` that passes the size check). The manifest
-    never takes its checksums from the files as they are now, so it cannot absorb damage."""
+def write_manifest(root: str | Path, info: dict[str, Any] | None = None, scenes: Iterable[str] | None = None,
+                   recorded: dict[str, dict[str, Any]] | None = None) -> Path:
+    """(Re)write the dataset manifest listing `scenes`, which the caller has checked (default:
+    every scene folder under `root` that passes the size check). A scene that `recorded` (the
+    previous manifest's scenes) lists keeps the entries recorded there: the manifest keeps its own
+    hashes and never takes them from the scene it checks, so a scene whose files and checksum
+    record were both altered cannot make it say "intact". Other scenes (new ones) are listed from
+    the checksum record written with them, never from the files as they are now."""
     root = Path(root)
+    recorded = recorded or {}
     if scenes is None:
         scenes = [name for name in scene_folders(root) if not check_scene(root, name)]
-    listed = {name: {f"{name}/{rel}": want for rel, want in read_scene_checksums(root, name).items()}
+    listed = {name: recorded[name] if name in recorded else
+              {f"{name}/{rel}": want for rel, want in read_scene_checksums(root, name).items()}
               for name in sorted(scenes)}
     data = {**(info or {}), "layout_version": LAYOUT_VERSION, "scenes": listed,
             "total_bytes": sum(f["bytes"] for files in listed.values() for f in files.values()),
@@ -393,6 +402,41 @@ def write_manifest(root: str | Path, info: dict[str, Any] | None = None, scenes:
     path = inside_root(root, MANIFEST, follow=False)
     _write_json(path, data)
     return root / MANIFEST
+
+
+def drop_from_manifest(root: str | Path, names: Iterable[str]) -> None:
+    """Remove scenes from an existing manifest (before their folders are rebuilt), leaving every
+    other entry as it is, so that a run stopped midway never leaves a manifest whose entries
+    disagree with a scene it rebuilt."""
+    root = Path(root)
+    if not (root / MANIFEST).is_file():
+        return
+    data = read_manifest(root)
+    gone = [n for n in names if n in data["scenes"]]
+    if not gone:
+        return
+    for n in gone:
+        del data["scenes"][n]
+        if isinstance(data.get("gt_saturated_fraction"), dict):
+            data["gt_saturated_fraction"].pop(n, None)
+    data["total_bytes"] = sum(f["bytes"] for files in data["scenes"].values() for f in files.values())
+    _write_json(inside_root(root, MANIFEST, follow=False), data)
+
+
+def manifest_disagreement(root: str | Path, name: str, entries: dict[str, Any]) -> list[str]:
+    """Where scene `name`'s own checksum record differs from its `entries` in the manifest (empty:
+    they agree). A difference means one of the records was rewritten after the scene was written:
+    the manifest's is the one kept."""
+    try:
+        own = {f"{name}/{rel}": want for rel, want in read_scene_checksums(root, name).items()}
+    except (OSError, ValueError) as exc:
+        return [str(exc)]
+    out = [f"{rel}: {CHECKSUMS} records another {'size' if own[rel]['bytes'] != want.get('bytes') else 'sha256'} "
+           f"than {MANIFEST} (a record rewritten after the scene was written)"
+           for rel, want in entries.items() if rel in own and own[rel] != want]
+    out += [f"{rel}: listed in {MANIFEST} but not in {name}/{CHECKSUMS}" for rel in entries if rel not in own]
+    out += [f"{rel}: in {name}/{CHECKSUMS} but not listed in {MANIFEST}" for rel in own if rel not in entries]
+    return out
 
 
 def read_manifest(root: str | Path) -> dict[str, Any]:
@@ -499,4 +543,4 @@ __all__ = ["SceneRecord", "DatasetCheck", "write_scene", "write_manifest", "read
            "check_scene", "check_dataset", "verify", "open_dataset", "inside_root", "check_scene_name",
            "holds_only_scene_files", "scene_folders", "remove_inside", "gt_name", "MANIFEST", "SPIKES", "META", "GT_DIR",
            "CHECKSUMS", "LOCK_FILE", "SATURATION_Y", "SATURATION_WARN_FRACTION", "saturated_fraction",
-           "scene_saturation"]
+           "scene_saturation", "drop_from_manifest", "manifest_disagreement"]

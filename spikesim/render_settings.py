@@ -26,6 +26,20 @@ def _positive_int(name: str, v: Any) -> None:
         raise ValueError(f"{name}={v!r} must be a positive integer")
 
 
+MAX_SAMPLES_PER_RENDER = (1 << 32) - 1
+"""Mitsuba renders a whole image in one wavefront of pixels x spp samples, and Dr.Jit indexes
+arrays with 32-bit integers: more samples in one render fail deep inside Mitsuba."""
+
+
+def check_samples(spp: int, height: int, width: int, what: str = "spp") -> None:
+    """A ValueError naming `what` when spp samples for each of height x width pixels do not fit
+    in one render (MAX_SAMPLES_PER_RENDER)."""
+    total = int(spp) * int(height) * int(width)
+    if total > MAX_SAMPLES_PER_RENDER:
+        raise ValueError(f"{what}={spp} at {height}x{width} pixels is {total:.3g} samples in one render, more than "
+                         f"the {MAX_SAMPLES_PER_RENDER + 1:.3g} Mitsuba can take; lower it")
+
+
 @dataclass(frozen=True)
 class RenderSettings:
     """The renderer's knobs (everything that changes the output besides the scene files)."""

@@ -31,6 +31,7 @@ class _FrameSource:
     def __init__(self, job: SceneJob, workdir: Path, device: str = "auto"):
         src = job.source
         self.scale = job.light_power_factor
+        self.gt_images, self.gt_max = 0, 0.0
         h, w = job.camera["height"], job.camera["width"]
         if src["type"] == "pattern":
             from spikesim.patterns import MovingPattern
@@ -77,7 +78,25 @@ class _FrameSource:
 
     def ground_truth(self, step: int) -> np.ndarray:
         img = self._renderer.ground_truth(step) if self._renderer is not None else self._pattern.frame(step)
+        self.gt_images += 1
+        self.gt_max = max(self.gt_max, float(np.max(img))) if img.size else self.gt_max
         return img * np.float32(self.scale) if self.scale != 1.0 else img
+
+    def check_lit(self) -> None:
+        """A rendered scene's ground truth (before the light power factor) must not be black: its
+        lights are on, so a black image means a camera, integrator or emitter that cannot light
+        the sensor (spikesim.render.scene_checks)."""
+        if self._renderer is not None:
+            from spikesim.render.scene_checks import check_lit
+            check_lit(self._renderer.files.xml, self.gt_max, self.gt_images, self._renderer.lighting)
+
+    def rendered_frames_error(self, exc: ValueError) -> ValueError:
+        """A frame the sensor refused (not finite: spikesim.simulate.check_frame and the device
+        kernel name the frame), named with the scene's XML."""
+        if self._renderer is None or not str(exc).startswith("frame ") or str(self._renderer.files.xml) in str(exc):
+            return exc
+        from spikesim.render import SceneError
+        return SceneError(self._renderer.files.xml, f"a rendered frame cannot be simulated: {exc}")
 
     def describe(self) -> dict[str, Any]:
         """The source's record, its light as the job renders it: photometric amounts (lux, lumens,
@@ -144,6 +163,17 @@ class _ScaledRenderer:
         return y * self._scale if self._scale != 1 else y
 
 
+def _inputs_as_planned(job: SceneJob) -> list[Any]:
+    """The job's inputs with their sha256 (spikesim.generation.inputs), which must still be the
+    ones it was planned with: a file edited while the run was going would otherwise be written
+    under the identity of its earlier content."""
+    from spikesim.generation.inputs import changes, identities, job_inputs
+    inputs = job_inputs(job.source)
+    if (found := changes(job.inputs, identities(inputs))):
+        raise ValueError(f"{job.name}: {', '.join(found)} since this run was planned; run generate again")
+    return inputs
+
+
 def run_job(job: SceneJob, root: str | Path, progress: Callable[[str, int, int], None] | None = None,
             backend: str = "auto", threads: int | None = None, device: str = "auto") -> dict[str, Any]:
     """Render, simulate and write one scene folder; returns timing and size.
@@ -168,6 +198,7 @@ def run_job(job: SceneJob, root: str | Path, progress: Callable[[str, int, int],
     t0 = time.perf_counter()
     try:
         source = _FrameSource(job, work, device)
+        inputs = _inputs_as_planned(job)  # hashed once the renderer has read its files
         cam = SpikeCamera.from_dict(job.camera)
         quality_record = None
         if job.quality is not None and source.renderer is not None:
@@ -193,22 +224,27 @@ def run_job(job: SceneJob, root: str | Path, progress: Callable[[str, int, int],
             else:
                 frames = source.frames(0, job.num_steps, job.keyframe_every, device=on_device)
                 parts = sim.stream(frames, keyframe_every=job.keyframe_every, final=True)
-            for part in parts:
-                take = min(part.num_steps, job.num_steps - written)
-                if take <= 0:
-                    break
-                writer.write(part.slice(0, take))
-                written += take
-                if progress:
-                    progress(job.name, written, job.num_steps)
+            try:
+                for part in parts:
+                    take = min(part.num_steps, job.num_steps - written)
+                    if take <= 0:
+                        break
+                    writer.write(part.slice(0, take))
+                    written += take
+                    if progress:
+                        progress(job.name, written, job.num_steps)
+            except ValueError as exc:
+                raise source.rendered_frames_error(exc) from exc
         t_frames = time.perf_counter() - t0
 
         def ground_truth() -> Iterator[tuple[int, np.ndarray]]:
             for step in job.gt_steps:
                 yield step, source.ground_truth(step)
+            source.check_lit()  # before the scene folder appears: write_scene removes what it wrote
 
         described = _without_prefix(source.describe(), str(work), "<built from the job's seed>")
-        meta = {"job": job.to_dict(), "job_digest": job.digest, "camera": job.camera, "seed": job.seed,
+        meta = {"job": job.to_dict(), "job_digest": job.digest, "inputs": [i.to_dict() for i in inputs],
+                "camera": job.camera, "seed": job.seed,
                 "height": cam.height, "width": cam.width,
                 "windows": [list(w) for w in job.windows], "light_power_factor": job.light_power_factor,
                 "source": described, "subject_illuminance_lux": subject_illuminance_lux(described),

@@ -4,7 +4,10 @@ Two runs writing the same folder would rebuild the same scenes and rename over e
 The first run holds an exclusive `flock` on a file inside the output root and records its pid and
 command there; a second run fails at once naming that holder. The kernel releases a flock when its
 holder dies, however it dies, so a lock file left by a killed run never blocks the next one (the
-stale record in it is simply overwritten). On NFS, Linux maps flock to the server's POSIX locks.
+stale record in it is simply overwritten). A run that ends removes the file (while still holding
+it), so the file exists only while a run writes, and always names that run; a run that locked the
+file just as it was removed finds it gone (or another file in its place) and locks the new one. On
+NFS, Linux maps flock to the server's POSIX locks.
 """
 from __future__ import annotations
 
@@ -33,21 +36,36 @@ def output_lock(root: str | Path, command: str) -> Iterator[Path]:
     (one line: the folder and the holder's pid and command) if another process holds it."""
     root = Path(root)
     path = inside_root(root, LOCK_FILE, follow=False)
-    fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC, 0o666)  # the umask applies
+    fd = _lock(root, path)
     try:
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            raise OutputLockedError(f"{root}: another generate run is writing here ({_holder(fd)}); "
-                                    "wait for it to finish or stop it") from None
         os.ftruncate(fd, 0)
         os.pwrite(fd, f"pid {os.getpid()}: {' '.join(command.split())}\n".encode(), 0)
         try:
             yield path
         finally:
-            os.ftruncate(fd, 0)  # released: no holder to name
+            path.unlink(missing_ok=True)  # removed while held: a run waiting on it locks a new one
     finally:
         os.close(fd)  # closing the descriptor releases the flock
+
+
+def _lock(root: Path, path: Path) -> int:
+    """A descriptor of the lock file at `path`, flocked, that is still the file at `path`."""
+    while True:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC, 0o666)  # the umask applies
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = _holder(fd)
+            os.close(fd)
+            raise OutputLockedError(f"{root}: another generate run is writing here ({holder}); "
+                                    "wait for it to finish or stop it") from None
+        try:
+            same = os.stat(path, follow_symlinks=False).st_ino == os.fstat(fd).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            return fd
+        os.close(fd)  # its holder removed it as we locked it: lock the file there now
 
 
 __all__ = ["output_lock", "OutputLockedError"]

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from spikesim.dataset import check_scene_name
-from spikesim.render_settings import HoldsRenderSettings, RenderSettings
+from spikesim.render_settings import HoldsRenderSettings, RenderSettings, check_samples
 
 WINDOW = 41  # the reconstruction window (paper, section "Implementation Details")
 
@@ -102,14 +102,25 @@ class SceneJob:
     """Each setting's value and where it came from (spikesim.generation.settings), recorded in
     meta.json; not part of the job's identity (`to_dict`, `digest`): the same values from another
     origin make the same scene."""
+    inputs: dict[str, str] | None = None
+    """What the scene is made from, each by its sha256 (or a version, for code): the XML, motion
+    and light files and the meshes and textures the XML references; a random scene's generator;
+    the code (spikesim.generation.inputs.job_inputs). Computed from `source` when not given, so
+    the identity of every job covers the content of its files, not only their names."""
 
     def __post_init__(self) -> None:
         check_scene_name(self.name)
+        if self.inputs is None:
+            from spikesim.generation.inputs import identities, job_inputs
+            object.__setattr__(self, "inputs", identities(job_inputs(self.source)))
         if self.quality is not None:
             from spikesim.quality import QualitySettings
             QualitySettings.from_name(self.quality)  # validates the name
         try:  # the checks every render setting gets, before any folder is locked or worker started
-            RenderSettings.from_dict({**self.render, "keyframe_every": self.keyframe_every})
+            settings = RenderSettings.from_dict({**self.render, "keyframe_every": self.keyframe_every})
+            if self.source.get("type") != "pattern":
+                for what in ("spp", "gt_spp"):
+                    check_samples(getattr(settings, what), self.camera["height"], self.camera["width"], what)
         except (TypeError, ValueError) as exc:
             raise ValueError(f"job {self.name}: {exc}") from None
         if self.num_steps < 1:
@@ -125,11 +136,31 @@ class SceneJob:
         del d["settings"]
         d["gt_steps"] = list(self.gt_steps)
         d["windows"] = [list(w) for w in self.windows]
+        d["inputs"] = dict(sorted(self.inputs.items()))
+        return d
+
+    def parameters(self) -> dict[str, Any]:
+        """The job without its inputs: what the user chose (`--overwrite` replaces a scene made
+        with other parameters; a scene whose inputs changed is rebuilt without it)."""
+        d = self.to_dict()
+        del d["inputs"]
         return d
 
     @property
     def digest(self) -> str:
-        return hashlib.sha256(json.dumps(self.to_dict(), sort_keys=True).encode()).hexdigest()[:16]
+        """The job's identity: its parameters and the content of everything it is made from."""
+        return _digest(self.to_dict())
+
+    @property
+    def legacy_digest(self) -> str:
+        """The digest a scene written before the inputs were part of the identity records: the
+        parameters alone (spikesim.generation.run accepts such a scene when the file hashes it
+        recorded still match)."""
+        return _digest(self.parameters())
+
+
+def _digest(d: dict[str, Any]) -> str:
+    return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:16]
 
 
 def llr_windows(num_windows: int, window: int = WINDOW) -> tuple[tuple[tuple[int, int], ...], tuple[int, ...]]:

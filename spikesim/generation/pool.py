@@ -101,13 +101,25 @@ def generate_local(todo: list[SceneJob], root: Path, workers: int, show_progress
                     if job.name in bars:
                         bars.pop(job.name).close()
                     overall.update(1)
-        except BaseException:
+        except BaseException as exc:
             for fut in pending:  # jobs not started yet are not started after a failure
                 fut.cancel()
+            if isinstance(exc, KeyboardInterrupt):  # Ctrl-C or SIGTERM: the scenes in progress stop too
+                _stop_workers(pool)
             raise
     overall.close()
     queue.close()
     return results
+
+
+def _stop_workers(pool: ProcessPoolExecutor) -> None:
+    """End the pool's worker processes now (SIGTERM), rather than waiting for their scenes: after
+    an interruption the caller removes what they leave."""
+    for process in list((getattr(pool, "_processes", None) or {}).values()):
+        try:
+            process.terminate()
+        except (OSError, ValueError, AttributeError):
+            pass
 
 
 def _generate_in_process(todo: list[SceneJob], root: Path, show_progress: bool, device: str) -> list[dict[str, Any]]:

@@ -2,8 +2,9 @@
 
 A job is run by one process from start to end and its folder appears only when complete, with the
 checksums of its files, so generation is resumable: a complete folder whose recorded job equals
-the planned one and whose files match its own checksums is skipped; a damaged one is rebuilt; one
-from other parameters needs `overwrite_stale`. One run at a time writes an output folder (a lock
+the planned one (its parameters and the content of its inputs, spikesim.generation.inputs) and
+whose files match its own checksums is skipped; a damaged one, or one whose inputs have changed
+since, is rebuilt, with a line saying why; one from other parameters needs `overwrite_stale`. One run at a time writes an output folder (a lock
 inside it), and nothing is written, deleted or read outside it. Jobs run in a local process pool
 by default (spikesim.generation.pool), or as Ray tasks writing to a shared path;
 spikesim.generation.job runs one job.
@@ -14,17 +15,21 @@ import json
 import logging
 import os
 import shlex
+import signal
 import sys
+import threading
 import time
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import numpy as np
 
 from spikesim._drjit import resolve_device
 from spikesim.dataset import (MANIFEST, META, SATURATION_WARN_FRACTION, SATURATION_Y, check_scene,
-                              holds_only_scene_files, inside_root, read_manifest, remove_inside, scene_folders,
-                              scene_saturation, write_manifest)
+                              drop_from_manifest, holds_only_scene_files, inside_root, manifest_disagreement,
+                              read_manifest, remove_inside, scene_folders, scene_saturation, write_manifest)
+from spikesim.generation.inputs import changes, job_inputs, legacy_changes
 from spikesim.generation.lock import output_lock
 from spikesim.generation.plan import SceneJob, power_label
 
@@ -32,14 +37,19 @@ log = logging.getLogger("spikesim.generate")
 
 
 # ---- resumable generation --------------------------------------------------------------------------
-def scene_state(job: SceneJob, root: Path, full: bool = False) -> tuple[str, list[str]]:
-    """What the output holds for `job`, and why if it is damaged:
+def scene_state(job: SceneJob, root: Path, full: bool = False,
+                recorded: dict[str, Any] | None = None) -> tuple[str, list[str]]:
+    """What the output holds for `job`, and why if it is to be rebuilt or refused:
 
     'todo'    no folder yet
-    'done'    complete, the same job, every file matching the checksums recorded when it was
-              written (sizes only unless `full`: then every sha256)
-    'stale'   complete, from other parameters (rebuilt only with --overwrite)
-    'damaged' a file missing, truncated, altered (with `full`), meta.json or the record lost
+    'done'    complete, the same job (the same parameters and inputs), every file matching the
+              checksums recorded when it was written (sizes only unless `full`: then every sha256)
+    'changed' complete, the same parameters, but a file it was made from (XML, mesh, texture,
+              motion or light file, a generator's or the code's version) has other content now:
+              rebuilt by a plain rerun; the reasons name what changed
+    'stale'   complete, from other parameters (rebuilt only with --overwrite); the reasons name them
+    'damaged' a file missing, truncated, altered (with `full`), meta.json or the record lost, or
+              its checksum record differing from `recorded`, its entries in the manifest
     'foreign' something the generator did not write (never deleted)
     """
     folder = inside_root(root, job.name)  # a symlink leading out of the root is refused here
@@ -49,28 +59,76 @@ def scene_state(job: SceneJob, root: Path, full: bool = False) -> tuple[str, lis
     if given.is_symlink() or not folder.is_dir() or not holds_only_scene_files(folder):
         return "foreign", []
     try:
-        digest = json.loads((folder / META).read_text()).get("job_digest")
+        meta = json.loads((folder / META).read_text())
+        digest = meta.get("job_digest")
     except (OSError, ValueError, AttributeError):
-        digest = None  # missing or unreadable: the checksum record says which
+        meta, digest = {}, None  # missing or unreadable: the checksum record says which
     if digest is not None and digest != job.digest:
-        return "stale", []
+        state, reasons = _compare_with_record(job, meta, digest)
+        if state != "done":
+            return state, reasons
     problems = check_scene(root, job.name, checksums=full)
     if not problems and digest is None:
         problems = [f"{job.name}/{META}: records no job"]
+    if not problems and recorded is not None:
+        problems = manifest_disagreement(root, job.name, recorded)
     return ("damaged", problems) if problems else ("done", [])
 
 
+def _compare_with_record(job: SceneJob, meta: dict[str, Any], digest: str) -> tuple[str, list[str]]:
+    """Why a finished scene's recorded digest differs from the planned job's: 'stale' (other
+    parameters, named), 'changed' (the same parameters, other inputs, named), or 'done' for a
+    scene written before inputs were part of the identity whose recorded file hashes still match
+    (spikesim.generation.inputs.legacy_changes)."""
+    recorded = meta.get("job")
+    if not isinstance(recorded, dict):
+        return "stale", ["its meta.json records no job"]
+    if "inputs" not in recorded:  # written before the inputs were part of the identity
+        if digest != job.legacy_digest:
+            return "stale", parameter_changes(recorded, job.parameters())
+        source = meta.get("source") if isinstance(meta.get("source"), dict) else {}
+        found = legacy_changes(job.source, source.get("sha256"), job_inputs(job.source))
+        if found is None:
+            return "changed", ["its record does not say which files it was made from"]
+        return ("changed", found) if found else ("done", [])
+    params = {k: v for k, v in recorded.items() if k != "inputs"}
+    if params != job.parameters():
+        return "stale", parameter_changes(params, job.parameters()) or ["its recorded job differs"]
+    found = changes(recorded["inputs"] if isinstance(recorded["inputs"], dict) else {}, job.inputs)
+    return ("changed", found) if found else ("stale", ["its recorded digest does not match its recorded job"])
+
+
+def _flat(d: Any, prefix: str = "") -> dict[str, Any]:
+    if isinstance(d, dict):
+        out: dict[str, Any] = {}
+        for k, v in d.items():
+            out.update(_flat(v, f"{prefix}{k}."))
+        return out
+    return {prefix[:-1]: d}
+
+
+def parameter_changes(recorded: dict[str, Any], planned: dict[str, Any], limit: int = 4) -> list[str]:
+    """The parameters that differ, as "render.spp 2 -> 4" (at most `limit`, then a count)."""
+    old, new = _flat(recorded), _flat(planned)
+    keys = [k for k in sorted(set(old) | set(new)) if old.get(k) != new.get(k)]
+    out = [f"{k} {json.dumps(old.get(k))} -> {json.dumps(new.get(k))}" for k in keys[:limit]]
+    return out + ([f"{len(keys) - limit} more"] if len(keys) > limit else [])
+
+
 def job_status(job: SceneJob, root: Path, full: bool = False) -> str:
-    """'todo', 'done', 'stale', 'damaged' or 'foreign' (see `scene_state`)."""
+    """'todo', 'done', 'changed', 'stale', 'damaged' or 'foreign' (see `scene_state`)."""
     return scene_state(job, Path(root), full)[0]
 
 
-def _jobs_to_run(jobs: list[SceneJob], root: Path, overwrite_stale: bool, full: bool) -> list[SceneJob]:
-    """The jobs whose scene is missing or damaged (and, with `overwrite_stale`, from other
-    parameters); their old folders are removed, but only once every folder has been looked at, so
-    a refusal (a folder it did not write, other parameters) leaves everything as it was."""
-    states = {job.name: scene_state(job, root, full) for job in jobs}
-    for name, (state, _) in states.items():
+def _jobs_to_run(jobs: list[SceneJob], root: Path, overwrite_stale: bool, full: bool,
+                 listed: dict[str, dict[str, Any]]) -> tuple[list[SceneJob], dict[str, str]]:
+    """The jobs whose scene is missing, damaged or made from inputs that changed since (and, with
+    `overwrite_stale`, from other parameters), and why each existing one is rebuilt; their old
+    folders are removed, but only once every folder has been looked at, so a refusal (a folder it
+    did not write, other parameters) leaves everything as it was. `listed`: the manifest's scenes,
+    each checked against its entries there; a rebuilt scene is first dropped from the manifest."""
+    states = {job.name: scene_state(job, root, full, listed.get(job.name)) for job in jobs}
+    for name, (state, reasons) in states.items():
         if state == "foreign":
             raise FileExistsError(f"{root / name} exists but is not a scene folder this generator wrote "
                                   "(it holds other files or is a link); move it away or choose another output folder")
@@ -81,14 +139,22 @@ def _jobs_to_run(jobs: list[SceneJob], root: Path, overwrite_stale: bool, full: 
                 raise FileExistsError(f"{root / name} holds another scene, {_scene_label(recorded)}, under the name "
                                       f"this run gives {_scene_label(_scene_identity(planned.to_dict()))}; give one "
                                       "of them another name (--name), or use --overwrite to replace it")
-            raise FileExistsError(f"{root / name} was generated with other parameters; "
+            raise FileExistsError(f"{root / name} was generated with other parameters ({'; '.join(reasons)}); "
                                   "use --overwrite to rebuild it, or another output folder")
-    for name, (state, problems) in states.items():
+    rebuilt = {}
+    for name, (state, reasons) in states.items():
         if state == "damaged":
-            log.warning("%s is damaged (%s); rebuilding it", name, "; ".join(problems[:3]))
-        if state in ("stale", "damaged"):
-            remove_inside(root, name)
-    return [job for job in jobs if states[job.name][0] != "done"]
+            rebuilt[name] = f"damaged ({'; '.join(reasons[:3])})"
+        elif state == "changed":
+            rebuilt[name] = ", ".join(reasons)
+        elif state == "stale":
+            rebuilt[name] = f"other parameters ({'; '.join(reasons)}), --overwrite"
+        if name in rebuilt:
+            log.warning("%s: %s, rebuilding", name, rebuilt[name])
+    drop_from_manifest(root, [name for name, (state, _) in states.items() if state != "done"])
+    for name in rebuilt:
+        remove_inside(root, name)
+    return [job for job in jobs if states[job.name][0] != "done"], rebuilt
 
 
 def _scene_identity(job: dict[str, Any]) -> tuple[dict[str, Any], float] | None:
@@ -119,9 +185,11 @@ def _scene_label(scene: tuple[dict[str, Any], float]) -> str:
     return f"{source['scene']} ({', '.join([*extras, power])})"
 
 
-def _passing_scenes(root: Path, planned: list[str], full: bool) -> list[str]:
+def _passing_scenes(root: Path, planned: list[str], full: bool, listed: dict[str, dict[str, Any]]) -> list[str]:
     """The scenes the manifest may list: every planned one (each must pass), and any other scene
-    folder under the root that passes its own check (others are left out, with a warning)."""
+    folder the manifest already lists (`listed`) that passes its own check and agrees with its
+    entries there. A folder neither planned nor listed, such as a copy of a scene, is left out
+    (with a warning): nothing vouches for it but its own record."""
     for name in planned:
         if problems := check_scene(root, name):
             raise RuntimeError(f"{name} failed its check right after it was generated: {'; '.join(problems[:3])}")
@@ -129,12 +197,80 @@ def _passing_scenes(root: Path, planned: list[str], full: bool) -> list[str]:
     for name in scene_folders(root):
         if name in planned:
             continue
-        if problems := check_scene(root, name, checksums=full):
+        if name not in listed:
+            log.warning("%s is a scene folder that this run did not plan and %s does not list%s: left out of the "
+                        "manifest (run the command that made it to add it)", name, MANIFEST, _copy_hint(root, name))
+        elif problems := (check_scene(root, name, checksums=full) or manifest_disagreement(root, name, listed[name])):
             log.warning("%s is not planned here and fails its check (%s): left out of the manifest",
                         name, "; ".join(problems[:3]))
         else:
             others.append(name)
     return planned + others
+
+
+def _copy_hint(root: Path, name: str) -> str:
+    """" (a copy of X?)" when the folder's meta.json names another scene."""
+    try:
+        recorded = json.loads(inside_root(root, name, META).read_text()).get("name")
+    except (OSError, ValueError, AttributeError):
+        return ""
+    return f" (its {META} names {recorded}: a copy?)" if isinstance(recorded, str) and recorded != name else ""
+
+
+class Terminated(KeyboardInterrupt):
+    """The run was asked to stop by SIGTERM. A KeyboardInterrupt, like Ctrl-C, so that the same
+    clean-up runs (work folders removed, workers stopped) and no `except Exception` swallows it."""
+
+
+@contextmanager
+def _sigterm_raises() -> Iterator[None]:
+    """Turn SIGTERM into `Terminated` in this (main) thread while the block runs; by default it
+    would end the process at once, leaving the scenes in progress as `.work` debris and saying
+    nothing. A second SIGTERM during the clean-up is ignored (SIGKILL still ends it)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum: int, frame: Any) -> None:
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        raise Terminated(f"terminated ({signal.Signals(signum).name})")
+
+    previous = signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _make_root(root: Path) -> list[Path]:
+    """Create the output root and its missing parents; returns the folders created, deepest
+    first, so that a run that fails can remove them again if it left them empty."""
+    created = []
+    p = root.absolute()
+    while not p.exists() and not p.is_symlink() and p != p.parent:
+        created.append(p)
+        p = p.parent
+    root.mkdir(parents=True, exist_ok=True)
+    return created
+
+
+def _remove_if_empty(folders: list[Path]) -> None:
+    for folder in folders:  # deepest first
+        try:
+            folder.rmdir()
+        except OSError:
+            return  # not empty (finished scenes are kept), or not ours to remove
+
+
+def _remove_debris(root: Path, jobs: list[SceneJob]) -> None:
+    """The work and part folders of `jobs` (their workers have ended): what a stopped worker
+    could not clean up itself."""
+    for job in jobs:
+        for name in (f".{job.name}.work", f".{job.name}.part"):
+            try:
+                remove_inside(root, name)
+            except (OSError, ValueError) as exc:
+                log.warning("could not remove %s: %s", root / name, exc)
 
 
 def generate(jobs: list[SceneJob], root: str | Path, workers: int | None = None, ray_address: str | None = None,
@@ -144,36 +280,59 @@ def generate(jobs: list[SceneJob], root: str | Path, workers: int | None = None,
     checks. `check` hashes every file of the finished scenes (default: sizes only). Returns a report.
 
     The output root is locked for the run (`command` is recorded for a second run's error); an
-    existing manifest.json that this package did not write is refused, not overwritten."""
+    existing manifest.json that this package did not write is refused, not overwritten. A run that
+    fails removes the output folder again if it created it and left nothing in it; SIGTERM stops
+    it like Ctrl-C (`Terminated`): the scenes in progress are removed, finished ones kept."""
     root = Path(root)
     names = [j.name for j in jobs]
     if len(set(names)) != len(names):
         raise ValueError("two jobs share a scene name")
     if workers is not None and workers < 1:
         raise ValueError(f"workers={workers}: needs at least 1 (None: one per core)")
-    root.mkdir(parents=True, exist_ok=True)
-    with output_lock(root, command or shlex.join(sys.argv)):
-        if (root / MANIFEST).exists() or (root / MANIFEST).is_symlink():
-            read_manifest(root)
-        todo = _jobs_to_run(jobs, root, overwrite_stale, check)
-        log.info("%d scene(s) planned, %d already complete, %d to generate in %s",
-                 len(jobs), len(jobs) - len(todo), len(todo), root)
-        results: list[dict[str, Any]] = []
-        t0 = time.perf_counter()
-        if todo:
-            from spikesim.generation.pool import generate_local, generate_ray
-            if ray_address is not None:
-                results = generate_ray(todo, root, ray_address, show_progress, device)
-            else:
-                if workers is None:  # one process per core; one process feeds a GPU best
-                    workers = 1 if resolve_device(device) == "cuda" else min(len(todo), os.cpu_count() or 1)
-                results = generate_local(todo, root, workers, show_progress, device)
-        manifest = write_manifest(root, {**(info or {}), "jobs": {j.name: j.digest for j in jobs}},
-                                  scenes=_passing_scenes(root, names, check))
+    created = _make_root(root)
+    try:
+        with _sigterm_raises(), output_lock(root, command or shlex.join(sys.argv)):
+            listed: dict[str, dict[str, Any]] = {}
+            if (root / MANIFEST).exists() or (root / MANIFEST).is_symlink():
+                listed = read_manifest(root)["scenes"]
+            todo, rebuilt = _jobs_to_run(jobs, root, overwrite_stale, check, listed)
+            log.info("%d scene(s) planned, %d already complete, %d to generate in %s",
+                     len(jobs), len(jobs) - len(todo), len(todo), root)
+            t0 = time.perf_counter()
+            results = _run_jobs(todo, root, workers, ray_address, show_progress, device)
+            fresh = {j.name for j in todo}
+            kept = {name: entries for name, entries in listed.items() if name not in fresh}
+            manifest = write_manifest(root, {**(info or {}), "jobs": {j.name: j.digest for j in jobs}},
+                                      scenes=_passing_scenes(root, names, check, kept), recorded=kept)
+    except BaseException:
+        _remove_if_empty(created)
+        raise
     saturation = {name: scene_saturation(root, name) for name in names}
     _warn_saturated(saturation)
-    return {"root": str(root), "generated": results, "skipped": len(jobs) - len(todo),
+    for r in results:
+        if r["name"] in rebuilt:
+            r["rebuilt"] = rebuilt[r["name"]]
+    return {"root": str(root), "generated": results, "skipped": len(jobs) - len(todo), "rebuilt": rebuilt,
+            "checked": "sha256" if check else "sizes",
             "seconds": time.perf_counter() - t0, "manifest": str(manifest), "saturation": saturation}
+
+
+def _run_jobs(todo: list[SceneJob], root: Path, workers: int | None, ray_address: str | None, show_progress: bool,
+              device: str) -> list[dict[str, Any]]:
+    """Run `todo` locally or on Ray; on any failure, once the local workers have ended, what the
+    unfinished jobs left behind is removed."""
+    if not todo:
+        return []
+    from spikesim.generation.pool import generate_local, generate_ray
+    if ray_address is not None:  # tasks on other machines cannot be stopped from here: each cleans up itself
+        return generate_ray(todo, root, ray_address, show_progress, device)
+    if workers is None:  # one process per core; one process feeds a GPU best
+        workers = 1 if resolve_device(device) == "cuda" else min(len(todo), os.cpu_count() or 1)
+    try:
+        return generate_local(todo, root, workers, show_progress, device)
+    except BaseException:
+        _remove_debris(root, [j for j in todo if not (root / j.name).exists()])
+        raise
 
 
 def _warn_saturated(saturation: dict[str, float | None]) -> None:

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from spikesim.generation.plan import PRESET_RENDER_KNOBS, PRESETS, Preset
+from spikesim.render.scene_files import substitute, xml_defaults
 from spikesim.render_settings import RenderSettings, merge_layers
 
 #: The settings each kind of dataset uses (the others would be ignored, so they are not reported).
@@ -46,37 +47,53 @@ class ResolvedSettings:
         return "settings: " + ", ".join(f"{k} {v['value']} ({v['from']})" for k, v in self.table().items())
 
 
-def _xml_int(el: ET.Element, name: str, defaults: Mapping[str, str]) -> int | None:
-    """An <integer name=...> child's value, with $parameters read from the XML's <default>s."""
+#: The most samples per pixel a scene file may ask for (the reference preset uses 64): more is a
+#: typo, and Mitsuba cannot render it in one pass (spikesim.render_settings.check_samples).
+MAX_SPP = 1 << 20
+
+
+def _xml_int(xml: str | Path, el: ET.Element, name: str, what: str, defaults: Mapping[str, str],
+             limit: int | None = None) -> int | None:
+    """An <integer name=...> child's value (None: not given, or a $parameter the XML's <default>s
+    do not give), with $parameters read from the <default>s; a ValueError naming the XML and the
+    value when it is not a positive integer (up to `limit`)."""
     for child in el:
         if child.tag == "integer" and child.get("name") == name:
-            text = child.get("value", "")
-            if text.startswith("$"):
-                text = defaults.get(text[1:], "")
-            try:
-                return int(text)
-            except ValueError:
+            given = child.get("value", "")
+            text = substitute(given, defaults)
+            if text is None:
                 return None
+            try:
+                value = int(text.strip())
+            except ValueError:
+                raise ValueError(f"{xml}: {what} {given!r} is not an integer") from None
+            if value < 1:
+                raise ValueError(f"{xml}: {what} {value} must be a positive integer")
+            if limit is not None and value > limit:
+                raise ValueError(f"{xml}: {what} {value} is more than {limit}")
+            return value
     return None
 
 
 def scene_file_settings(xml: str | Path) -> dict[str, int]:
     """The film size (height, width) and the sampler's sample_count (spp) a Mitsuba scene file
-    declares for its sensor; settings it does not declare are left out."""
+    declares for its sensor; settings it does not declare are left out. A declared value that is
+    not a positive integer (0, -5, "4e9") or an spp above MAX_SPP is refused with one line naming
+    the XML and the value, rather than replaced by the preset's without a word."""
     try:
         root = ET.parse(xml).getroot()
     except (ET.ParseError, OSError) as exc:
         raise ValueError(f"{xml}: cannot read the scene's film and sampler ({exc})") from None
-    defaults = {d.get("name", ""): d.get("value", "") for d in root if d.tag == "default"}
+    defaults = xml_defaults(root)
     out: dict[str, int] = {}
     for sensor in (el for el in root if el.tag == "sensor"):
         for child in sensor:
             if child.tag == "film":
                 for key in ("height", "width"):
-                    if (v := _xml_int(child, key, defaults)) is not None and v > 0:
+                    if (v := _xml_int(xml, child, key, f"film {key}", defaults)) is not None:
                         out[key] = v
             if child.tag == "sampler":
-                if (v := _xml_int(child, "sample_count", defaults)) is not None and v > 0:
+                if (v := _xml_int(xml, child, "sample_count", "sampler sample_count", defaults, MAX_SPP)) is not None:
                     out["spp"] = v
         break  # the first sensor, as the renderer
     return out

@@ -20,14 +20,16 @@ from typing import Any, Iterator
 import numpy as np
 
 from ..keyframes import keyframe_steps
-from ..render_settings import RenderSettings, merge_layers
+from ..render_settings import RenderSettings, check_samples, merge_layers
 from .animate import Animator
 from .backend import dr, mi, resolve_device, use_variant, variant_name
+from .errors import SceneError
 from .exposure import Exposure, Optics, PixelResponse
 from .motion import MotionSpec, load_motion
 from .projection import PinholeCamera
 from .mono import spectrum_mix
 from .scene import SceneFiles, load_scene, prepare_xml, scene_lighting, with_subject
+from .scene_checks import check_camera, check_frame
 
 #: Seed streams, so frames and ground truth at the same step use independent samples.
 _FRAMES, _GROUND_TRUTH, _PREVIEW = 0, 1, 2
@@ -73,11 +75,17 @@ class SceneRenderer:
         text, self.sensor_id, (h, w) = prepare_xml(self.files.xml, self.variant, self.lighting,
                                                    self.exposure.pixel, self.settings.resolution)
         self.height, self.width = h, w
+        try:
+            for what in ("spp", "gt_spp"):
+                check_samples(getattr(self.settings, what), h, w, what)
+        except ValueError as exc:
+            raise SceneError(self.files.xml, str(exc)) from None
         self.scene = load_scene(self.files.xml, text)
         self.lighting = with_subject(self.lighting, self.scene, self.sensor_id)  # view centre if none given
         self.params = mi.traverse(self.scene)
         self.animator = Animator(self.scene, self.params, self.motion)
         self.camera_model = PinholeCamera.from_params(self.params, self.sensor_id, w, h)
+        check_camera(self.files.xml, self.camera_model.to_world, self.camera_model.x_fov_deg)
         self._gain = self.exposure.gain_map(h, w, self.camera_model.x_fov_deg)
         self._gain_device: Any = None  # the gain map on the render device, made on first use
         self.stats = {"renders": 0, "render_seconds": 0.0, "frames": 0}
@@ -184,9 +192,7 @@ class SceneRenderer:
         if self.variant == "rgb":
             raise ValueError("the rgb variant renders previews only (preview_rgb); use 'mono' or 'spectral' for y")
         y = film[..., 0] * self._gain
-        if not np.all(np.isfinite(y)):
-            raise RuntimeError(f"{self.files.xml}: step {step} rendered {int((~np.isfinite(y)).sum())} "
-                               "non-finite pixels")
+        check_frame(self.files.xml, step, y)
         return np.maximum(y, 0.0).astype(np.float32, copy=False)
 
     @staticmethod

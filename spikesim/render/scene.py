@@ -21,9 +21,7 @@ either those emitters, or a condition of the scene's light file (lights.py), whi
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import xml.etree.ElementTree as ET
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -33,57 +31,12 @@ from .errors import LightError, SceneError
 from .exposure import PixelResponse
 from .lights import LightingCondition, load_lights
 from .mono import to_sensor_reflectance
+from .scene_checks import check_integrator, check_sensor_xml
 from .scene_emitters import XmlEmitter, read_emitters
+from .scene_files import SceneFiles, check_reference, file_references
 
 #: Film channel holding the electron-weighted radiance in the spectral variant.
 SPECTRAL_CHANNEL = "electrons"
-
-
-@dataclass(frozen=True)
-class SceneFiles:
-    """The files that make a scene: XML, motion (optional) and lights (optional when the XML
-    has emitters of its own)."""
-
-    name: str
-    xml: Path
-    motion: Path | None
-    lights: Path | None
-
-    @classmethod
-    def resolve(cls, scene: str | Path, motion: str | Path | None = None,
-                lights: str | Path | None = None) -> "SceneFiles":
-        """`scene` is a bundled scene's name (scenes.scene_path) or a path to an XML file; the
-        motion and light files default to `motion.json` and `lights.json` beside it, and each is
-        optional there (a static scene; a scene lit by its own emitters). Given explicitly, a
-        file must exist."""
-        p = Path(scene)
-        if p.suffix.lower() != ".xml" and not p.exists():
-            from scenes import SCENES, scene_path
-            if str(scene).lower() not in SCENES:
-                raise SceneError(p, f"neither a bundled scene ({', '.join(SCENES)}) nor an existing XML file")
-            p = scene_path(str(scene))
-        if p.is_dir():
-            p = p / "scene.xml"
-        if not p.is_file():
-            raise SceneError(p, "scene XML file does not exist")
-        m = Path(motion) if motion is not None else p.parent / "motion.json"
-        if motion is not None and not m.is_file():
-            raise SceneError(m, "motion file does not exist")
-        lt = Path(lights) if lights is not None else p.parent / "lights.json"
-        if lights is not None and not lt.is_file():
-            raise SceneError(lt, "light file does not exist")
-        name = p.parent.name if p.name == "scene.xml" else p.stem
-        return cls(name=name, xml=p.resolve(), motion=m.resolve() if m.is_file() else None,
-                   lights=lt.resolve() if lt.is_file() else None)
-
-    def digests(self) -> dict[str, str]:
-        """sha256 of each file, so a description pins exactly what was rendered."""
-        out = {}
-        for key in ("xml", "motion", "lights"):
-            path = getattr(self, key)
-            if path is not None:
-                out[key] = hashlib.sha256(path.read_bytes()).hexdigest()
-        return out
 
 
 def _film(variant: str, width: int, height: int, pixel: PixelResponse) -> ET.Element:
@@ -132,19 +85,14 @@ def read_scene_xml(xml_path: Path) -> ET.Element:
     root = tree.getroot()
     if root.tag != "scene":
         raise SceneError(xml_path, f"root element is <{root.tag}>, expected <scene>")
-    base = xml_path.parent
     for el in root.iter():
-        if el.tag == "string" and el.get("name") == "filename":
-            value = el.get("value", "")
-            if "$" in value:
-                continue  # a substitution parameter; Mitsuba reports it if unresolved
-            f = Path(value) if Path(value).is_absolute() else base / value
-            if not f.is_file():
-                raise SceneError(xml_path, f"references file {value!r} (a texture, mesh or spectrum), which does "
-                                           f"not exist (looked for {f})")
-            el.set("value", str(f.resolve()))
         if el.tag == "include":
             raise SceneError(xml_path, "<include> is not supported: keep a scene in one XML file")
+    for ref in file_references(xml_path, root):
+        if ref.path is None:
+            continue  # a substitution parameter given at load time; Mitsuba reports it if unresolved
+        check_reference(xml_path, ref)
+        ref.element.set(ref.attribute, str(ref.path.resolve()))
     return root
 
 
@@ -199,6 +147,8 @@ def prepare_xml(xml_path: Path, variant: str, lighting: LightingCondition, pixel
     sensor = sensors[0]
     if sensor.get("type") != "perspective":
         raise SceneError(xml_path, f"sensor type {sensor.get('type')!r}: only 'perspective' is supported")
+    check_sensor_xml(xml_path, root, sensor)
+    check_integrator(xml_path, root)
     sensor_id = sensor.get("id") or "camera"
     sensor.set("id", sensor_id)
     films = [el for el in sensor if el.tag == "film"]
@@ -206,8 +156,9 @@ def prepare_xml(xml_path: Path, variant: str, lighting: LightingCondition, pixel
     height = _int_param(films[0], "height") if films else None
     if resolution is not None:
         height, width = resolution
-    if not width or not height:
-        raise SceneError(xml_path, "the film needs integer width and height (400 x 250 for the spike camera)")
+    if not width or not height or width < 1 or height < 1:
+        raise SceneError(xml_path, f"the film needs positive integer width and height (400 x 250 for the spike "
+                                   f"camera), got width {width} and height {height}")
     for f in films:
         sensor.remove(f)
     sensor.append(_film(variant, width, height, pixel))

@@ -1,0 +1,145 @@
+"""A `render -o D` folder holds one run: its record, D/render.json, lists every file the run
+wrote (`files`), and a rerun replaces exactly those. A file in the output subfolders that no record
+lists (frames of an earlier version's run, or the user's own) makes a rerun refuse, naming it,
+rather than leave it beside the new frames; `simulate --frames D` reads only the frames the
+record lists.
+
+Records written before `files` existed list their `kind` and `steps`, from which the files they
+wrote follow (`recorded_files`).
+"""
+from __future__ import annotations
+
+import json
+import logging
+import os
+import shutil
+from pathlib import Path
+from typing import Any
+
+log = logging.getLogger("spikesim.render")
+
+RECORD = "render.json"
+KINDS = ("frames", "gt", "preview")
+"""The subfolders a render writes, one per kind of output."""
+
+
+def read_record(folder: Path) -> dict[str, Any] | None:
+    """The render record in `folder`, or None when there is none; a ValueError naming it when it
+    cannot be read."""
+    path = Path(folder) / RECORD
+    if not path.is_file():
+        return None
+    try:
+        data = json.loads(path.read_text())
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{path}: not a render record (invalid JSON: {exc}); remove it, with the frames beside it, "
+                         "or choose another folder") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: not a render record (a JSON {type(data).__name__})")
+    return data
+
+
+def recorded_files(record: dict[str, Any] | None) -> list[str]:
+    """The files (relative to the folder) a record lists: its `files`, or for a record written
+    before it listed them, the files its kind and steps imply."""
+    if record is None:
+        return []
+    files = record.get("files")
+    if isinstance(files, list):
+        return [f for f in files if isinstance(f, str)]
+    kind, steps = record.get("kind"), record.get("steps")
+    if kind not in KINDS or not isinstance(steps, list):
+        return []
+    suffixes = (".png",) if kind == "preview" else (".exr", ".png")
+    return [f"{kind}/step_{int(n):06d}{s}" for n in steps for s in suffixes if isinstance(n, int)]
+
+
+def _output_files(folder: Path) -> list[str]:
+    """Every entry in the folder's output subfolders, relative to the folder."""
+    out = []
+    for kind in KINDS:
+        sub = folder / kind
+        if sub.is_dir() and not sub.is_symlink():
+            out += [f"{kind}/{p.name}" for p in sorted(sub.iterdir())]
+        elif sub.exists() or sub.is_symlink():
+            out.append(kind)
+    return out
+
+
+def check_output_folder(folder: Path) -> list[str]:
+    """Before a render writes into `folder`: the files of the previous run there (which the new
+    run replaces), or a ValueError naming the files its record does not list (they would end up
+    beside the new ones, and `simulate --frames` would mix them in)."""
+    folder = Path(folder)
+    listed = recorded_files(read_record(folder))
+    unlisted = [f for f in _output_files(folder) if f not in set(listed)]
+    if unlisted:
+        shown = ", ".join(unlisted[:3]) + (f" and {len(unlisted) - 3} more" if len(unlisted) > 3 else "")
+        whose = f"its {RECORD} does not list" if (folder / RECORD).exists() else f"no {RECORD} lists"
+        raise ValueError(f"{folder}: holds {len(unlisted)} file(s) that {whose} ({shown}): frames of another run "
+                         "or your own files; a render folder holds one run, so remove them or choose another -o")
+    return listed
+
+
+def replace_outputs(stage: Path, folder: Path, new: list[str], old: list[str], record: dict[str, Any]) -> None:
+    """Move a finished run's files from `stage` into `folder`, write its record, then remove what
+    the previous run wrote that this one did not (so the folder and its record describe this run)."""
+    for rel in new:
+        (folder / rel).parent.mkdir(parents=True, exist_ok=True)
+        os.replace(stage / rel, folder / rel)
+    tmp = folder / f".{RECORD}.part"
+    tmp.write_text(json.dumps({**record, "files": sorted(new)}, indent=2, default=str) + "\n")
+    os.replace(tmp, folder / RECORD)
+    stale = sorted(set(old) - set(new))
+    for rel in stale:
+        (folder / rel).unlink(missing_ok=True)
+    for kind in KINDS:
+        try:
+            (folder / kind).rmdir()  # a kind this run did not write
+        except OSError:
+            pass
+    if stale:
+        log.info("%s: removed %d file(s) of the previous render (its %s listed them)", folder, len(stale), RECORD)
+
+
+def remove_stage(stage: Path) -> None:
+    shutil.rmtree(stage, ignore_errors=True)
+
+
+def listed_frames(folder: Path, keyframe_every: int) -> list[Path] | None:
+    """The EXR frames `simulate --frames folder` reads when `folder` is a render folder (holding
+    render.json) or a kind subfolder of one: only those its record lists, in step order, checked
+    to be steps `keyframe_every` apart. None when no render record covers the folder (a folder of
+    the user's own EXR frames)."""
+    folder = Path(folder)
+    if (folder / RECORD).is_file():
+        base, record = folder, read_record(folder)
+    elif folder.name in KINDS and (folder.parent / RECORD).is_file():
+        base, record = folder.parent, read_record(folder.parent)
+    else:
+        return None
+    kind = record.get("kind")
+    if kind == "preview":
+        raise ValueError(f"{base}: its render wrote RGB previews (PNG), not y frames; render with --variant mono or "
+                         "spectral")
+    wanted = folder.name if base != folder else kind
+    files = [f for f in recorded_files(record) if f.endswith(".exr") and f.startswith(f"{wanted}/")]
+    if not files:
+        raise ValueError(f"{folder}: its {RECORD} lists no EXR frames here (its render wrote {kind})")
+    on_disk = {f"{wanted}/{p.name}" for p in (base / wanted).glob("*.exr")}
+    if ignored := sorted(on_disk - set(files)):
+        log.warning("%s: %d EXR file(s) its %s does not list are ignored (%s)", base / wanted, len(ignored), RECORD,
+                    ", ".join(ignored[:3]))
+    steps = record.get("steps")
+    if isinstance(steps, list) and len(steps) > 1 and all(isinstance(n, int) for n in steps):
+        gaps = {b - a for a, b in zip(sorted(steps), sorted(steps)[1:])}
+        if len(gaps) != 1:
+            raise ValueError(f"{base}: its frames are steps {sorted(steps)[:5]}..., not evenly spaced; simulate needs "
+                             "frames one step (or --keyframe-every steps) apart")
+        if (gap := gaps.pop()) != keyframe_every:
+            raise ValueError(f"{base}: its frames are steps {gap} apart ({RECORD}); give --keyframe-every {gap}")
+    return [base / f for f in sorted(files)]
+
+
+__all__ = ["RECORD", "KINDS", "read_record", "recorded_files", "check_output_folder", "replace_outputs",
+           "listed_frames", "remove_stage"]

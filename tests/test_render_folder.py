@@ -1,0 +1,108 @@
+"""`render -o D` holds one run: its render.json lists the files it wrote, a rerun replaces them and
+refuses files no record lists, and `simulate --frames D` reads only the listed frames (a rerun
+with another light used to leave the first run's frames beside the new ones, and simulate mixed
+both into one stream)."""
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from identity_testing import make_user_scene
+from pipelines.cli import main
+from spikesim.stream import DatReader
+
+SIZE = ["--height", "8", "--width", "12", "--spp", "1"]
+
+
+@pytest.fixture
+def xml(tmp_path):
+    xml = make_user_scene(tmp_path / "sc")
+    lights = json.loads((xml.parent / "lights.json").read_text())
+    low = json.loads(json.dumps(lights["normal"]))
+    low["emitters"][0]["power"]["illuminance_lux"] = 10
+    (xml.parent / "lights.json").write_text(json.dumps({**lights, "low": low}))
+    return xml
+
+
+def _render(xml, out, *args):
+    return main(["render", str(xml), *SIZE, *args, "-o", str(out)])
+
+
+def _simulate(frames, out, *args):
+    return main(["simulate", "--frames", str(frames), "--height", "8", "--width", "12", "--quiet", *args,
+                 "-o", str(out)])
+
+
+def test_a_rerun_replaces_the_previous_run_and_simulate_reads_only_it(tmp_path, xml, capsys):
+    d = tmp_path / "d"
+    assert _render(xml, d, "--light", "normal", "--steps", "0:3") == 0
+    assert _render(xml, d, "--light", "low", "--steps", "0:2") == 0
+    assert sorted(p.name for p in (d / "frames").iterdir()) == [
+        "step_000000.exr", "step_000000.png", "step_000001.exr", "step_000001.png"]
+    record = json.loads((d / "render.json").read_text())
+    assert record["files"] == ["frames/step_000000.exr", "frames/step_000000.png", "frames/step_000001.exr",
+                               "frames/step_000001.png"]
+    assert record["light"]["name"] == "low"
+    for frames in (d, d / "frames"):
+        assert _simulate(frames, tmp_path / "s.dat") == 0
+        assert DatReader(tmp_path / "s.dat", 8, 12).num_steps == 2
+    assert not list(d.glob(".render.*"))
+
+
+def test_another_kind_of_output_replaces_the_previous_one(tmp_path, xml):
+    d = tmp_path / "d"
+    assert _render(xml, d, "--steps", "0:2") == 0
+    assert _render(xml, d, "--steps", "1", "--ground-truth", "--gt-spp", "1") == 0
+    assert not (d / "frames").exists() and sorted(p.name for p in (d / "gt").iterdir()) == [
+        "step_000001.exr", "step_000001.png"]
+
+
+@pytest.mark.parametrize("record", ["none", "old"])
+def test_files_no_record_lists_are_refused_and_kept(tmp_path, xml, capsys, record):
+    d = tmp_path / "d"
+    assert _render(xml, d, "--steps", "0:2") == 0
+    if record == "none":
+        (d / "render.json").unlink()
+    else:  # a record from before it listed its files: its kind and steps say which
+        meta = json.loads((d / "render.json").read_text())
+        del meta["files"]
+        meta["steps"] = [0]
+        (d / "render.json").write_text(json.dumps(meta))
+    capsys.readouterr()
+    assert _render(xml, d, "--steps", "0:2") == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and f"{d}: holds " in err and "frames/step_000001.exr" in err
+    assert ("its render.json does not list" if record == "old" else "no render.json lists") in err
+    assert (d / "frames" / "step_000001.exr").exists()
+    if record == "old":  # simulate reads what the record lists, and says what it ignores
+        assert _simulate(d, tmp_path / "s.dat") == 0
+        assert DatReader(tmp_path / "s.dat", 8, 12).num_steps == 1
+
+
+def test_a_failed_rerun_leaves_the_previous_run_as_it_was(tmp_path, xml, monkeypatch):
+    d = tmp_path / "d"
+    assert _render(xml, d, "--steps", "0:2") == 0
+    before = {p.relative_to(d).as_posix(): p.read_bytes() for p in d.rglob("*") if p.is_file()}
+    from spikesim.render import SceneRenderer
+    real = SceneRenderer.render_step
+
+    def failing(self, step, spp=None):
+        if step == 1:
+            raise ValueError("a failure midway")
+        return real(self, step, spp)
+
+    monkeypatch.setattr(SceneRenderer, "render_step", failing)
+    assert _render(xml, d, "--steps", "0:3", "--light", "low") == 2
+    after = {p.relative_to(d).as_posix(): p.read_bytes() for p in d.rglob("*") if p.is_file()}
+    assert after == before
+
+
+def test_simulate_needs_the_recorded_keyframe_spacing(tmp_path, xml, capsys):
+    d = tmp_path / "d"
+    assert _render(xml, d, "--steps", "0:17:8") == 0
+    capsys.readouterr()
+    assert _simulate(d, tmp_path / "s.dat") == 2
+    assert "its frames are steps 8 apart (render.json); give --keyframe-every 8" in capsys.readouterr().err
+    assert _simulate(d, tmp_path / "s.dat", "--keyframe-every", "8") == 0
+    assert DatReader(tmp_path / "s.dat", 8, 12).num_steps == 17
