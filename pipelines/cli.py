@@ -23,6 +23,7 @@ _SUBCOMMANDS = (
     "pipelines.compare",
     "pipelines.reconstruct",
     "pipelines.tradeoff",
+    "pipelines.gpu_campaign_cmd",
 )
 
 
@@ -33,6 +34,7 @@ _COMMAND_MODULE = {
     "bench": "pipelines.bench", "golden": "pipelines.golden_stats", "generate": "pipelines.generate",
     "verify": "pipelines.generate", "render": "pipelines.render_cmd", "train": "pipelines.train",
     "evaluate": "pipelines.evaluate", "compare": "pipelines.compare", "reconstruct": "pipelines.reconstruct", "tradeoff": "pipelines.tradeoff",
+    "gpu-campaign": "pipelines.gpu_campaign_cmd",
 }
 
 
