@@ -350,32 +350,42 @@ def _check(result: CommandResult, what: str, figures: dict[str, Any] | None = No
 
 
 # ---- the stages ---------------------------------------------------------------------------------
-_PROBE = r"""
-import importlib, json, platform, sys
-out = {"python": platform.python_version(), "versions": {}, "errors": {}}
-for mod, dist in %s:
+def probe_environment() -> dict[str, Any]:
+    """What a stage run in this interpreter finds: each carried package's version (None where it
+    does not import, the error beside), torch and its GPU, Mitsuba's variants, Dr.Jit's backends.
+    Run in a child with the campaign's PYTHONPATH (stage install), never in the campaign itself."""
+    import importlib
+
+    out: dict[str, Any] = {"python": platform.python_version(), "versions": {}, "errors": {}}
+    for mod, dist in CARRIED:
+        try:
+            out["versions"][dist] = str(getattr(importlib.import_module(mod), "__version__", "?"))
+        except Exception as exc:  # any failure to import is what this reports
+            out["versions"][dist] = None
+            out["errors"][dist] = f"{type(exc).__name__}: {exc}"
     try:
-        m = importlib.import_module(mod)
-        out["versions"][dist] = str(getattr(m, "__version__", "?"))
-    except Exception as e:
-        out["versions"][dist] = None
-        out["errors"][dist] = f"{type(e).__name__}: {e}"
-try:
-    import torch, numpy
-    out["versions"]["torch"], out["versions"]["numpy"] = torch.__version__, numpy.__version__
-    out["torch_cuda"] = torch.cuda.is_available()
-    if out["torch_cuda"]:
-        out["gpu"] = torch.cuda.get_device_name(0)
-        out["bf16"] = torch.cuda.is_bf16_supported()
-except Exception as e:
-    out["errors"]["torch"] = f"{type(e).__name__}: {e}"
-try:
-    from spikesim._drjit import has_cuda, has_llvm
-    out["drjit_cuda"], out["drjit_llvm"] = has_cuda(), has_llvm()
-except Exception as e:
-    out["errors"]["spikesim._drjit"] = f"{type(e).__name__}: {e}"
-print(json.dumps(out))
-""" % (repr(CARRIED),)
+        import numpy
+        import torch
+        out["versions"]["torch"], out["versions"]["numpy"] = torch.__version__, numpy.__version__
+        out["torch_cuda"] = torch.cuda.is_available()
+        if out["torch_cuda"]:
+            out["gpu"], out["bf16"] = torch.cuda.get_device_name(0), torch.cuda.is_bf16_supported()
+    except Exception as exc:
+        out["errors"]["torch"] = f"{type(exc).__name__}: {exc}"
+    try:
+        import mitsuba
+        out["mitsuba_variants"] = list(mitsuba.variants())
+    except Exception:
+        pass
+    try:
+        from spikesim._drjit import has_cuda, has_llvm
+        out["drjit_cuda"], out["drjit_llvm"] = has_cuda(), has_llvm()
+    except Exception as exc:
+        out["errors"]["spikesim._drjit"] = f"{type(exc).__name__}: {exc}"
+    return out
+
+
+_PROBE = "import json; from pipelines.gpu_campaign import probe_environment; print(json.dumps(probe_environment()))"
 
 
 def _sha256(path: Path) -> str:
@@ -439,7 +449,7 @@ def stage_install(c: Campaign) -> dict[str, Any]:
     if any(found["versions"].get(dist) is None for _, dist in CARRIED):
         if not c.o.wheels.is_dir():
             raise StageFailed(f"{', '.join(d for _, d in CARRIED if found['versions'].get(d) is None)} do not import "
-                              f"and there is no wheel folder {c.o.wheels} (run scripts/gpu_wheels.sh, carry .whl)")
+                              f"and there is no wheel folder {c.o.wheels} (run scripts/gpu_wheels.sh, carry .whl)", found)
 
         def run(argv: list[str]) -> None:
             _check(c.command(argv, box_s=max(c.left() - 30, 10)), "pip install")
@@ -448,11 +458,12 @@ def stage_install(c: Campaign) -> dict[str, Any]:
         found = probe()
     figures.update(found)
     missing = [d for _, d in CARRIED if found["versions"].get(d) is None]
-    if missing or "torch" in found["errors"]:
-        raise StageFailed(f"still not importable: {', '.join(missing + (['torch'] if 'torch' in found['errors'] else []))}")
+    missing += [m for m in ("torch", "spikesim._drjit") if m in found["errors"]]
+    if missing:
+        raise StageFailed(f"not importable: {', '.join(missing)} (figures.errors says why)", figures)
     if c.p.needs_gpu and not (found.get("torch_cuda") and found.get("drjit_cuda")):
         raise StageFailed(f"no CUDA device: torch sees {'one' if found.get('torch_cuda') else 'none'}, Dr.Jit "
-                          f"{'one' if found.get('drjit_cuda') else 'none'}")
+                          f"{'one' if found.get('drjit_cuda') else 'none'}", figures)
     return figures
 
 
@@ -861,4 +872,4 @@ def run_campaign(options: Options, progress: Callable[[str], None] | None = None
 
 
 __all__ = ["Options", "Profile", "PROFILES", "PARTS", "STAGE_NAMES", "STATUSES", "StageRecord", "run_campaign",
-           "install_wheels", "summary_of", "SCHEMA_VERSION"]
+           "install_wheels", "probe_environment", "summary_of", "SCHEMA_VERSION"]

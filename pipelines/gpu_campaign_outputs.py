@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import hashlib
 import math
+import shutil
 import re
 from pathlib import Path
 from typing import Any, Iterable, Sequence
@@ -114,7 +115,7 @@ def write_weights(checkpoint: Path, out: Path, work: Path, max_bytes: int = MAX_
     and the fp32 weights in parts `weights_fp32.partIofN.pt` for `join_weight_parts`. Returns a
     record per file: name, bytes, sha256, dtype, fingerprint."""
     import torch
-    from model.checkpoint import FORMAT_VERSION, atomic_torch_save, state_fingerprint
+    from model.checkpoint import FORMAT_VERSION, state_fingerprint
     from model.pretrained import export_weights
 
     work.mkdir(parents=True, exist_ok=True)
@@ -134,11 +135,7 @@ def write_weights(checkpoint: Path, out: Path, work: Path, max_bytes: int = MAX_
     bf16_doc = {**doc, "model_state": low, "weights_sha256": state_fingerprint(low),
                 "extra": {**doc.get("extra", {}), "cast": {"dtype": "bfloat16", "from": "float32",
                                                            "float32_weights_sha256": exported["weights_sha256"]}}}
-    bf16_path = out / "weights_bf16.pt"
-    atomic_torch_save(bf16_doc, bf16_path)
-    if bf16_path.stat().st_size > max_bytes:
-        raise ValueError(f"{bf16_path}: {bf16_path.stat().st_size / 2**20:.1f} MiB even in bf16, over the "
-                         f"{max_bytes / 2**20:.0f} MiB a returned file may have")
+    bf16_path = _save_within(bf16_doc, out / "weights_bf16.pt", work, max_bytes, "even in bf16")
     records.append({**file_record(bf16_path), "dtype": "bfloat16", "weights_sha256": bf16_doc["weights_sha256"]})
 
     sizes = {k: v.numel() * v.element_size() for k, v in state.items()}
@@ -152,14 +149,30 @@ def write_weights(checkpoint: Path, out: Path, work: Path, max_bytes: int = MAX_
         used += sizes[k]
     header = {k: v for k, v in doc.items() if k != "model_state"}
     for i, keys in enumerate(groups, 1):
-        path = out / f"weights_fp32.part{i}of{len(groups)}.pt"
-        atomic_torch_save({"format_version": FORMAT_VERSION, "kind": "spikesim weights part", "part": i,
-                           "parts": len(groups), "header": header, "model_state": {k: state[k] for k in keys}}, path)
-        if path.stat().st_size > max_bytes:
-            raise ValueError(f"{path}: one tensor alone is over the {max_bytes / 2**20:.0f} MiB a returned file may have")
+        part = {"format_version": FORMAT_VERSION, "kind": "spikesim weights part", "part": i, "parts": len(groups),
+                "header": header, "model_state": {k: state[k] for k in keys}}
+        path = _save_within(part, out / f"weights_fp32.part{i}of{len(groups)}.pt", work, max_bytes,
+                            "with one tensor alone")
         records.append({**file_record(path), "dtype": "float32", "part": i, "parts": len(groups),
                         "weights_sha256": exported["weights_sha256"]})
     return records
+
+
+def _save_within(doc: dict[str, Any], path: Path, work: Path, max_bytes: int, what: str) -> Path:
+    """Save `doc` in the work folder, then move it to `path` if it is at most `max_bytes`: a file
+    too large never reaches the output folder (where it would not come back, and would fail the
+    check of everything else)."""
+    from model.checkpoint import atomic_torch_save
+
+    staged = work / path.name
+    atomic_torch_save(doc, staged)
+    size = staged.stat().st_size
+    if size > max_bytes:
+        staged.unlink()
+        raise ValueError(f"{path.name}: {size / 2**20:.1f} MiB {what}, over the {max_bytes / 2**20:.1f} MiB a "
+                         "returned file may have")
+    shutil.move(staged, path)  # the output folder may be on another filesystem
+    return path
 
 
 def join_weight_parts(parts: Iterable[str | Path], out: str | Path) -> str:

@@ -35,15 +35,27 @@ def _campaign(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
 
 
 @pytest.fixture(scope="module")
-def dry_run(tmp_path_factory):
-    """One dry run of every stage (about 40 s on the 2-core VM)."""
+def dry_runs(tmp_path_factory):
+    """The dry run as a lent GPU runs it: two calls sharing a work folder, part 1 then part 2
+    (about 30 s in all on the 2-core VM). Returns {part: (output folder, summary)} and the work folder."""
     if not HAS_LLVM:
         pytest.skip("the dry run renders and simulates with Dr.Jit's LLVM backend")
     base = tmp_path_factory.mktemp("campaign")
-    out, work = base / "out", base / "work"
-    proc = _campaign("--dry-run", "-o", str(out), "--work", str(work), "--json", "--quiet")
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    return out, work, json.loads(proc.stdout)
+    work, runs = base / "work", {}
+    for part in ("1", "2"):
+        out = base / f"out{part}"
+        proc = _campaign("--dry-run", "--part", part, "-o", str(out), "--work", str(work), "--json", "--quiet")
+        assert proc.returncode == 0, proc.stderr[-3000:]
+        runs[part] = (out, json.loads(proc.stdout))
+    return runs, work
+
+
+@pytest.fixture(scope="module")
+def dry_run(dry_runs):
+    """The second call's output folder, the work folder and the summary of every stage."""
+    runs, work = dry_runs
+    out, summary = runs["2"]
+    return out, work, summary
 
 
 def _files(out: Path) -> list[Path]:
@@ -54,7 +66,7 @@ def _files(out: Path) -> list[Path]:
 def test_the_dry_run_runs_every_stage_and_writes_the_summary_schema(dry_run):
     out, _, summary = dry_run
     assert json.loads((out / "summary.json").read_text()) == summary
-    assert summary["schema"] == 1 and summary["mode"] == "dry-run" and summary["part"] == "all"
+    assert summary["schema"] == 1 and summary["mode"] == "dry-run" and summary["part"] == "2"
     assert [s["name"] for s in summary["stages"]] == list(STAGE_NAMES)
     for s in summary["stages"]:
         assert set(s) == STAGE_KEYS, s["name"]
@@ -71,6 +83,19 @@ def test_the_dry_run_runs_every_stage_and_writes_the_summary_schema(dry_run):
     assert fig["train"]["steps"] >= 1 and fig["train"]["precision"] == "bf16"
     assert {"TFP", "TFI", "TFP-123", "black", "mean", "tiny"} <= set(fig["evaluate"]["methods"])
     assert [f["name"] for f in fig["export"]["files"]] == ["weights.pt"]
+
+
+@needs_llvm
+def test_the_second_call_keeps_the_first_calls_datasets_and_records(dry_runs):
+    runs, _ = dry_runs
+    first = {s["name"]: s for s in runs["1"][1]["stages"]}
+    second = {s["name"]: s for s in runs["2"][1]["stages"]}
+    assert all(first[n]["status"] == "ok" and first[n]["part"] == "1" for n in PARTS["1"])
+    assert all(first[n]["status"] == "skipped" and "not run" in first[n]["note"] for n in ("train", "evaluate", "export"))
+    assert not any(p.name.startswith("weights") for p in runs["1"][0].iterdir())
+    for n in ("gpu_tests", "bench_sensor", "bench_render", "llr", "rllr"):  # measured once, by the first call
+        assert second[n] == first[n], n
+    assert all(second[n]["part"] == "2" for n in ("install", "train", "evaluate", "export"))
 
 
 @needs_llvm
