@@ -85,9 +85,10 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                         "(remaking a dataset the machine lost); all: every stage")
     p.add_argument("--stages", nargs="+", choices=STAGE_NAMES, metavar="STAGE",
                    help=f"only these of the part's stages ({', '.join(STAGE_NAMES)})")
-    p.add_argument("--deadline-minutes", type=positive_float, default=9.5,
+    p.add_argument("--deadline-minutes", type=positive_float, default=9.25,
                    help="wall-clock minutes this call may take in all; each stage's box is cut to leave the later "
-                        "stages their least (a device call is killed at 10)")
+                        "stages their least (a device call is killed at 10: 9.25 leaves a stage's 20 s of grace "
+                        "and the last writes)")
     p.add_argument("--wheels", type=Path, help="the folder scripts/gpu_wheels.sh filled (default: .whl)")
     p.add_argument("--rllr-count", type=positive_int,
                    help="RLLR scenes to make (default: 10 on a GPU, 2 with --dry-run; fewer if the box ends first)")
