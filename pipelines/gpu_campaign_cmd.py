@@ -1,6 +1,6 @@
 """`spikesim gpu-campaign`: every GPU measurement and a training run in one or two device calls
-(the stages are pipelines/gpu_campaign.py; docs/gpu_campaign.md says how to run it). This module
-only parses and prints. `scripts/gpu_campaign.sh` runs it as `python -m pipelines.gpu_campaign_cmd`,
+(the run is pipelines/gpu_campaign.py, the stages pipelines/gpu_campaign_stages.py;
+docs/gpu_campaign.md says how to run it). This module only parses and prints. `scripts/gpu_campaign.sh` runs it as `python -m pipelines.gpu_campaign_cmd`,
 which needs nothing beyond the standard library to start: the packages a lent machine lacks are
 installed by the campaign's first stage.
 """

@@ -16,9 +16,10 @@ from pathlib import Path
 
 import pytest
 
-from pipelines.gpu_campaign import PARTS, STAGE_NAMES, STATUSES, install_wheels
+from pipelines.gpu_campaign import PARTS, STAGE_NAMES, STATUSES
 from pipelines.gpu_campaign_outputs import (MAX_FILES, combined_logs, join_weight_parts, out_problems,
                                             write_weights)
+from pipelines.gpu_campaign_stages import install_wheels
 from sensor_testing import HAS_LLVM
 
 ROOT = Path(__file__).resolve().parents[1]
