@@ -24,6 +24,7 @@ _SUBCOMMANDS = (
     "pipelines.reconstruct",
     "pipelines.panel",
     "pipelines.tradeoff",
+    "pipelines.gpu_campaign_cmd",
 )
 
 
@@ -34,7 +35,7 @@ _COMMAND_MODULE = {
     "bench": "pipelines.bench", "golden": "pipelines.golden_stats", "generate": "pipelines.generate",
     "verify": "pipelines.generate", "render": "pipelines.render_cmd", "train": "pipelines.train",
     "evaluate": "pipelines.evaluate", "compare": "pipelines.compare", "reconstruct": "pipelines.reconstruct", "tradeoff": "pipelines.tradeoff",
-    "panel": "pipelines.panel",
+    "panel": "pipelines.panel", "gpu-campaign": "pipelines.gpu_campaign_cmd",
 }
 
 

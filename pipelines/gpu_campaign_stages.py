@@ -1,0 +1,517 @@
+"""The stages of a GPU campaign (pipelines/gpu_campaign.py) and what runs them: each stage is a
+function of the running `Campaign` that returns its figures, or raises StageFailed, TimeoutError
+(both with the figures measured so far) or SkipStage. Every stage but export runs `spikesim`
+commands (or pytest) as children through `Campaign.command`, which holds them to the stage's box,
+so what is measured is what users run and a stage that hangs is stopped.
+"""
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+import os
+import platform
+import re
+import shlex
+import shutil
+import signal
+import subprocess
+import sys
+import tarfile
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Callable, Sequence
+
+from pipelines.gpu_campaign_outputs import write_weights
+
+if TYPE_CHECKING:
+    from pipelines.gpu_campaign import Options, StageRecord
+
+#: The packages a lent machine lacks (scripts/gpu_wheels.sh), by import name and distribution.
+CARRIED = (("drjit", "drjit"), ("mitsuba", "mitsuba"), ("OpenEXR", "OpenEXR"), ("colour", "colour-science"),
+           ("trimesh", "trimesh"))
+ROOT = Path(__file__).resolve().parents[1]
+WINDOW = 41
+
+
+class StageFailed(Exception):
+    """A stage failed: args are (why, figures measured before it failed); the record keeps both.
+    TimeoutError takes the same args for a stage whose box ended."""
+
+
+class SkipStage(Exception):
+    """The stage cannot run here (its input is missing); the reason is the record's note."""
+
+
+@dataclasses.dataclass
+class CommandResult:
+    returncode: int | None
+    timed_out: bool
+    seconds: float
+    stdout: str
+
+
+# ---- running commands under a time box -------------------------------------------------------------
+class Campaign:
+    """The state of one invocation: where things go, the child environment, the clock."""
+
+    def __init__(self, options: "Options") -> None:
+        self.o = options
+        self.p = options.profile
+        self.t0 = time.monotonic()
+        self.logs = options.work / "logs"
+        self.site = options.work / "site"
+        self.python = sys.executable
+        self.records: dict[str, "StageRecord"] = {}
+        self.current: "StageRecord | None" = None
+        self.box_end = math.inf
+
+    # the clock
+    def elapsed(self) -> float:
+        return time.monotonic() - self.t0
+
+    def left(self) -> float:
+        """Seconds left of the current stage's box."""
+        return self.box_end - time.monotonic()
+
+    # the children's environment: the carried packages, then this checkout, before anything installed
+    def env(self) -> dict[str, str]:
+        env = dict(os.environ)
+        paths = [str(self.site)] if self.site.is_dir() else []
+        paths.append(str(ROOT))
+        if env.get("PYTHONPATH"):
+            paths.append(env["PYTHONPATH"])
+        env["PYTHONPATH"] = os.pathsep.join(paths)
+        env["PYTHONUNBUFFERED"] = "1"
+        return env
+
+    def log_path(self, stage: str) -> Path:
+        return self.logs / f"{stage}.log"
+
+    def note_log(self, text: str, stage: str | None = None) -> None:
+        """Append a line to a stage's log (default: the running stage's)."""
+        name = stage or (self.current.name if self.current is not None else "campaign")
+        with self.log_path(name).open("a") as f:
+            f.write(text.rstrip("\n") + "\n")
+
+    def command(self, argv: Sequence[str], box_s: float | None = None) -> CommandResult:
+        """Run `argv` from the repository root, stderr (and then stdout) into the stage's log, at most
+        `box_s` seconds (default: what is left of the stage's box): then SIGTERM to its process
+        group, SIGKILL after the profile's grace."""
+        assert self.current is not None
+        box = self.left() if box_s is None else min(box_s, self.left())
+        argv = [str(a) for a in argv]
+        self.current.commands.append(shlex.join(argv))
+        self.note_log(f"$ {shlex.join(argv)}   (time box {box:.0f} s)")
+        out_path = self.logs / f"{self.current.name}.stdout"
+        t = time.monotonic()
+        with self.log_path(self.current.name).open("ab") as err, out_path.open("wb") as out:
+            proc = subprocess.Popen(argv, cwd=ROOT, env=self.env(), stdin=subprocess.DEVNULL, stdout=out,
+                                    stderr=err, start_new_session=True)
+            timed_out = False
+            try:
+                rc: int | None = proc.wait(timeout=max(box, 0.1))
+            except subprocess.TimeoutExpired:
+                timed_out = True
+                _signal_group(proc.pid, signal.SIGTERM)
+                try:
+                    rc = proc.wait(timeout=self.p.grace_s)
+                except subprocess.TimeoutExpired:
+                    _signal_group(proc.pid, signal.SIGKILL)
+                    rc = proc.wait()
+            finally:
+                if proc.poll() is None:  # interrupted ourselves: take the child with us
+                    _signal_group(proc.pid, signal.SIGKILL)
+                    proc.wait()
+        stdout = out_path.read_text(errors="replace")
+        out_path.unlink()
+        seconds = time.monotonic() - t
+        self.note_log(f"[stdout]\n{stdout}" if stdout.strip() else "[no stdout]")
+        self.note_log(f"[exit status {rc}{', killed at the end of its time box' if timed_out else ''}, {seconds:.1f} s]")
+        self.current.returncode = rc
+        return CommandResult(rc, timed_out, seconds, stdout)
+
+    def spikesim(self, *args: str, box_s: float | None = None) -> CommandResult:
+        return self.command([self.python, "-m", "pipelines.cli", *args], box_s)
+
+
+def _signal_group(pid: int, sig: int) -> None:
+    try:
+        os.killpg(pid, sig)
+    except (ProcessLookupError, PermissionError):
+        pass
+
+
+def _json_of(stdout: str) -> Any:
+    """The JSON document a command printed (its last top-level one, if anything precedes it)."""
+    text = stdout.strip()
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError:
+        pass
+    starts = [m.start() for m in re.finditer(r"^[\[{]", text, re.M)]
+    for s in reversed(starts):
+        try:
+            return json.loads(text[s:])
+        except json.JSONDecodeError:
+            continue
+    raise StageFailed("no JSON in the command's output")
+
+
+def check_command(result: CommandResult, what: str, figures: dict[str, Any] | None = None) -> None:
+    """Raise TimeoutError or StageFailed (with the figures so far) unless the command succeeded."""
+    if result.timed_out:
+        raise TimeoutError(f"{what} did not end within its time box ({result.seconds:.0f} s)", figures or {})
+    if result.returncode != 0:
+        raise StageFailed(f"{what} exited with status {result.returncode} (logs.txt has its output)", figures or {})
+
+
+# ---- the stages ---------------------------------------------------------------------------------
+def probe_environment() -> dict[str, Any]:
+    """What a stage run in this interpreter finds: each carried package's version (None where it
+    does not import, the error beside), torch and its GPU, Mitsuba's variants, Dr.Jit's backends.
+    Run in a child with the campaign's PYTHONPATH (stage install), never in the campaign itself."""
+    import importlib
+
+    out: dict[str, Any] = {"python": platform.python_version(), "versions": {}, "errors": {}}
+    for mod, dist in CARRIED:
+        try:
+            out["versions"][dist] = str(getattr(importlib.import_module(mod), "__version__", "?"))
+        except Exception as exc:  # any failure to import is what this reports
+            out["versions"][dist] = None
+            out["errors"][dist] = f"{type(exc).__name__}: {exc}"
+    try:
+        import numpy
+        import torch
+        out["versions"]["torch"], out["versions"]["numpy"] = torch.__version__, numpy.__version__
+        out["torch_cuda"] = torch.cuda.is_available()
+        if out["torch_cuda"]:
+            out["gpu"], out["bf16"] = torch.cuda.get_device_name(0), torch.cuda.is_bf16_supported()
+    except Exception as exc:
+        out["errors"]["torch"] = f"{type(exc).__name__}: {exc}"
+    try:
+        import mitsuba
+        out["mitsuba_variants"] = list(mitsuba.variants())
+    except Exception:
+        pass
+    try:
+        from spikesim._drjit import has_cuda, has_llvm
+        out["drjit_cuda"], out["drjit_llvm"] = has_cuda(), has_llvm()
+    except Exception as exc:
+        out["errors"]["spikesim._drjit"] = f"{type(exc).__name__}: {exc}"
+    return out
+
+
+_PROBE = ("import json; from pipelines.gpu_campaign_stages import probe_environment; "
+          "print(json.dumps(probe_environment()))")
+
+
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with path.open("rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def install_wheels(wheels: Path, site: Path, python: str = sys.executable,
+                   run: Callable[[list[str]], None] | None = None) -> list[str]:
+    """Install the carried wheels into `site` (a folder the campaign puts on PYTHONPATH): check
+    every file against the folder's SHA256SUMS, `pip install --no-index --no-deps --target` the
+    .whl files, unpack the .tar.xz ones (mitsuba, repacked to fit the carry limit) over them.
+    Returns the files installed. A missing, unlisted or damaged file is a ValueError naming it."""
+    sums_path = wheels / "SHA256SUMS"
+    if not sums_path.is_file():
+        raise ValueError(f"{sums_path} is missing: run scripts/gpu_wheels.sh beforehand and carry {wheels.name}")
+    sums = {}
+    for line in sums_path.read_text().splitlines():
+        if line.strip():
+            digest, name = line.split(None, 1)
+            sums[name.strip().lstrip("*")] = digest
+    files = sorted(p for p in wheels.iterdir() if p.name != "SHA256SUMS")
+    unlisted = [p.name for p in files if p.name not in sums]
+    missing = [n for n in sums if not (wheels / n).is_file()]
+    if unlisted or missing:
+        raise ValueError(f"{wheels}: {'unlisted files ' + ', '.join(unlisted) if unlisted else ''}"
+                         f"{'; ' if unlisted and missing else ''}{'missing ' + ', '.join(missing) if missing else ''}"
+                         " (rerun scripts/gpu_wheels.sh)")
+    for p in files:
+        if _sha256(p) != sums[p.name]:
+            raise ValueError(f"{p}: sha256 differs from SHA256SUMS: damaged in transfer (rerun scripts/gpu_wheels.sh)")
+    site.mkdir(parents=True, exist_ok=True)
+    whls = [str(p) for p in files if p.name.endswith(".whl")]
+    if whls:
+        argv = [python, "-m", "pip", "install", "-q", "--no-index", "--no-deps", "--no-compile", "--no-cache-dir",
+                "--disable-pip-version-check", "--upgrade", "--target", str(site), *whls]
+        if run is not None:
+            run(argv)
+        else:
+            subprocess.run(argv, check=True)
+    for p in files:
+        if p.name.endswith(".tar.xz"):
+            with tarfile.open(p, "r:xz") as tar:
+                tar.extractall(site, filter="data")  # no links or paths out of `site`
+    return [p.name for p in files]
+
+
+def stage_install(c: Campaign) -> dict[str, Any]:
+    """Make the carried packages importable (installing them when they are not), then report the
+    versions, the GPU and the Dr.Jit backends the later stages will find."""
+    def probe() -> dict[str, Any]:
+        result = c.command([c.python, "-c", _PROBE], box_s=120)
+        check_command(result, "the import probe")
+        return _json_of(result.stdout)
+
+    found = probe()
+    figures: dict[str, Any] = {"installed": []}
+    if any(found["versions"].get(dist) is None for _, dist in CARRIED):
+        if not c.o.wheels.is_dir():
+            raise StageFailed(f"{', '.join(d for _, d in CARRIED if found['versions'].get(d) is None)} do not import "
+                              f"and there is no wheel folder {c.o.wheels} (run scripts/gpu_wheels.sh, carry .whl)", found)
+
+        def run(argv: list[str]) -> None:
+            check_command(c.command(argv, box_s=max(c.left() - 30, 10)), "pip install")
+        figures["installed"] = install_wheels(c.o.wheels, c.site, c.python, run)
+        figures["site"] = str(c.site)
+        found = probe()
+    figures.update(found)
+    missing = [d for _, d in CARRIED if found["versions"].get(d) is None]
+    missing += [m for m in ("torch", "spikesim._drjit") if m in found["errors"]]
+    if missing:
+        raise StageFailed(f"not importable: {', '.join(missing)} (figures.errors says why)", figures)
+    if c.p.needs_gpu and not (found.get("torch_cuda") and found.get("drjit_cuda")):
+        raise StageFailed(f"no CUDA device: torch sees {'one' if found.get('torch_cuda') else 'none'}, Dr.Jit "
+                          f"{'one' if found.get('drjit_cuda') else 'none'}", figures)
+    return figures
+
+
+def _gpu_test_files() -> list[str]:
+    """The test files that hold `gpu`-marked tests: pytest collects only those, so that a module
+    needing a package the GPU machine lacks (an extra) cannot stop the run at collection."""
+    found = [p for p in sorted((ROOT / "tests").rglob("test_*.py")) if "mark.gpu" in p.read_text(errors="replace")]
+    return [str(p.relative_to(ROOT)) for p in found]
+
+
+_PYTEST_COUNTS = re.compile(r"(\d+) (passed|failed|skipped|deselected|errors?|xfailed|xpassed|warnings?)")
+
+
+def stage_gpu_tests(c: Campaign) -> dict[str, Any]:
+    files = _gpu_test_files()
+    if not files:
+        raise StageFailed("no test file holds a gpu-marked test")
+    result = c.command([c.python, "-m", "pytest", "-m", "gpu", "-p", "no:cacheprovider", "-q", "-rfEs",
+                        "--continue-on-collection-errors", *files])
+    lines = [ln for ln in result.stdout.splitlines() if _PYTEST_COUNTS.search(ln)]
+    figures: dict[str, Any] = {"files": files}
+    if lines:
+        for n, what in _PYTEST_COUNTS.findall(lines[-1]):
+            figures[{"error": "errors", "warning": "warnings"}.get(what, what)] = int(n)
+    figures["failed_tests"] = re.findall(r"^(?:FAILED|ERROR) (\S+)", result.stdout, re.M)
+    if result.timed_out:
+        raise TimeoutError(f"pytest did not end within its time box; figures: {figures}")
+    if result.returncode not in (0, 5):  # 5: nothing collected (no gpu-marked test left)
+        raise StageFailed(f"{figures.get('failed', 0)} failed, {figures.get('errors', 0)} errors: "
+                          f"{', '.join(figures['failed_tests'][:5])}")
+    return figures
+
+
+def _bench(c: Campaign, args: Sequence[str]) -> dict[str, Any]:
+    result = c.spikesim("bench", *args, "--json")
+    check_command(result, "spikesim bench")
+    doc = _json_of(result.stdout)
+    keep = ("stage", "what", "device", "pixel_steps_per_s", "vs_reference", "vs_real_time", "render_share",
+            "seconds_per_render")
+    return {"machine": doc["machine"], "height": doc["height"], "width": doc["width"],
+            "results": [{k: r[k] for k in keep if k in r} for r in doc["results"]]}
+
+
+def stage_bench_sensor(c: Campaign) -> dict[str, Any]:
+    return _bench(c, c.p.bench_sensor)
+
+
+def stage_bench_render(c: Campaign) -> dict[str, Any]:
+    return _bench(c, c.p.bench_render)
+
+
+def _generated(doc: dict[str, Any]) -> dict[str, Any]:
+    gen = doc.get("generated", [])
+    secs = [g["seconds"] for g in gen]
+    return {"scenes_generated": len(gen), "scenes_skipped": doc.get("skipped", 0),
+            "per_scene_seconds": {g["name"]: round(g["seconds"], 3) for g in gen},
+            "bytes": sum(g.get("bytes", 0) for g in gen),
+            "scene_seconds_min": min(secs) if secs else None, "scene_seconds_max": max(secs) if secs else None,
+            "scene_seconds_mean": sum(secs) / len(secs) if secs else None}
+
+
+def complete_scenes(root: Path) -> list[str]:
+    """Scene folders a reader takes (spikesim.dataset.open_dataset: meta.json, not hidden)."""
+    if not root.is_dir():
+        return []
+    return sorted(d.name for d in root.iterdir() if d.is_dir() and not d.name.startswith(".")
+                  and (d / "meta.json").exists())
+
+
+def _generate_args(c: Campaign) -> tuple[str, ...]:
+    return ("--device", c.p.drjit_device, "--seed", str(c.o.seed), "--json", "--quiet")
+
+
+def stage_llr(c: Campaign) -> dict[str, Any]:
+    """The LLR test set (the five scenes under both lights at the paper's size, `balanced`)."""
+    out = c.o.work / "llr"
+    result = c.spikesim("generate", "llr", *c.p.llr, *_generate_args(c), "-o", str(out))
+    check_command(result, "spikesim generate llr")
+    doc = _json_of(result.stdout)
+    return {"root": str(out), "scenes": len(complete_scenes(out)), "seconds": doc["seconds"],
+            **_generated(doc)}
+
+
+def stage_rllr(c: Campaign) -> dict[str, Any]:
+    """A slice of RLLR (the paper's random scenes at its size), grown in steps that fit the box:
+    one scene first (its time sets the pace), then as many of the rest as the box allows
+    (generation resumes, so the second run makes only the new scenes). The time for the paper's
+    100 scenes is extrapolated from the seconds per scene."""
+    out = c.o.work / "rllr"
+    target = c.o.rllr_count or c.p.rllr_count
+    runs: list[dict[str, Any]] = []
+    count = min(len(complete_scenes(out)) + 1, target)  # one new scene first: its time sets the pace
+    while True:
+        result = c.spikesim("generate", "rllr", *c.p.rllr, "--count", str(count), *_generate_args(c), "-o", str(out))
+        done = complete_scenes(out)
+        if result.timed_out or result.returncode != 0:  # what is complete stays usable (train reads it)
+            check_command(result, f"spikesim generate rllr --count {count} ({len(done)} scene(s) complete)",
+                   _rllr_figures(out, runs, target, done))
+        runs.append(_json_of(result.stdout))
+        figures = _rllr_figures(out, runs, target, done)
+        if count >= target:
+            return figures
+        pace = figures["scene_seconds_max"] or 1.0
+        fit = int(max(c.left() - 30.0, 0.0) / (1.25 * pace))  # 25 % and 30 s to spare: scenes vary
+        if fit < 1:
+            figures["stopped_early"] = f"{len(done)} of {target}: the box had no room for another scene"
+            return figures
+        count = min(target, len(done) + fit)
+
+
+def _rllr_figures(out: Path, runs: list[dict[str, Any]], target: int, done: list[str]) -> dict[str, Any]:
+    merged = {"generated": [g for r in runs for g in r.get("generated", [])], "skipped": 0}
+    fig = {"root": str(out), "target": target, "scenes": len(done), "runs": len(runs),
+           "seconds": sum(r.get("seconds", 0.0) for r in runs), **_generated(merged)}
+    mean = fig["scene_seconds_mean"]
+    fig["extrapolated_100_minutes"] = None if mean is None else 100 * mean / 60
+    return fig
+
+
+def _steady_rate(log: Path) -> dict[str, Any]:
+    """Median samples/s and seconds per step of the logged steps after the first (whose
+    allocations, kernel selection and compilation make it several times slower): the rate a
+    longer run keeps, which the summary's mean over all steps understates in a short one."""
+    import csv
+    import statistics
+
+    try:
+        with log.open(newline="") as f:
+            rows = list(csv.DictReader(f))[1:]
+        rates = [float(r["samples_per_s"]) for r in rows if float(r["samples_per_s"]) > 0]
+        times = [b - a for a, b in zip((float(r["time"]) for r in rows), (float(r["time"]) for r in rows[1:]))]
+    except (OSError, KeyError, ValueError):
+        return {}
+    out: dict[str, Any] = {}
+    if rates:
+        out["samples_per_s_steady"] = statistics.median(rates)
+    if times:
+        out["seconds_per_step_steady"] = statistics.median(times)
+    return out
+
+
+def _checkpoint(c: Campaign) -> Path | None:
+    run = c.o.work / "run"
+    for name in ("best.pt", "last.pt"):  # best.pt needs a validation scene; last.pt is always written
+        if (run / name).is_file():
+            return run / name
+    return None
+
+
+def stage_train(c: Campaign) -> dict[str, Any]:
+    """The profile's config on the RLLR slice, bf16, its step count planned from the measured step
+    rate to fill what is left of the box (`--budget-minutes`), cosine schedule to that step."""
+    data = c.o.work / "rllr"
+    scenes = complete_scenes(data)
+    if not scenes:
+        raise SkipStage(f"no RLLR scene in {data} (stage rllr made none)")
+    run = c.o.work / "run"
+    if run.exists():  # a rerun trains afresh; the folder is this campaign's scratch
+        shutil.rmtree(run)
+    minutes = max(c.left() - c.p.train_overhead_s, 6.0) * 0.85 / 60
+    if c.p.train_max_minutes is not None:
+        minutes = min(minutes, c.p.train_max_minutes)
+    result = c.spikesim("train", *c.p.train, "--data", str(data), "--precision", "bf16", "--lr-schedule", "cosine",
+                        "--budget-minutes", f"{minutes:.3f}", "--seed", str(c.o.seed), "--device", c.p.torch_device,
+                        "--quiet", "-o", str(run))
+    figures: dict[str, Any] = {"config": c.p.train_config, "data_scenes": len(scenes), "budget_minutes": minutes}
+    if result.returncode == 0 or (result.timed_out and _checkpoint(c)):
+        try:
+            doc = _json_of(result.stdout)
+        except StageFailed:
+            doc = {}
+        keep = ("steps", "epoch", "precision", "samples_per_s", "data_wait_share", "train_seconds", "planned_steps",
+                "best_val_psnr_aligned", "last_loss", "weights_sha256", "stopped_by")
+        figures.update({k: doc[k] for k in keep if k in doc})
+        if doc.get("steps") and doc.get("train_seconds"):
+            figures["seconds_per_step"] = doc["train_seconds"] / doc["steps"]
+        figures.update(_steady_rate(run / "train_log.csv"))
+    ckpt = _checkpoint(c)
+    figures["checkpoint"] = None if ckpt is None else str(ckpt)
+    check_command(result, "spikesim train", figures)
+    return figures
+
+
+def stage_evaluate(c: Campaign) -> dict[str, Any]:
+    """Every baseline, the shipped network where this version has one, and the network just
+    trained, on the LLR of stage llr."""
+    data = c.o.work / "llr"
+    if not complete_scenes(data):
+        raise SkipStage(f"no LLR scene in {data} (stage llr made none)")
+    methods = ["tfp", "tfi", f"tfp:{c.p.llr_windows * WINDOW}", "black", "mean"]
+    notes = []
+    try:
+        from model.pretrained import PRETRAINED
+        shipped = "lrrep" in PRETRAINED
+    except ImportError as exc:
+        shipped, notes = False, [f"model.pretrained did not import ({exc})"]
+    if shipped:
+        methods.append("lrrep")
+    else:
+        notes.append("lrrep left out: this version ships no trained weights (model.pretrained.PRETRAINED has no 'lrrep')")
+    ckpt = _checkpoint(c)
+    if ckpt is not None:
+        methods.append(f"{c.p.train_config}={ckpt}")
+    else:
+        notes.append("no network trained by this campaign (stage train made no checkpoint): baselines only")
+    result = c.spikesim("evaluate", *c.p.evaluate, "--data", str(data), "--methods", *methods, "--json", "--quiet",
+                        "--device", c.p.torch_device, "-o", str(c.o.work / "evaluate"))
+    check_command(result, "spikesim evaluate")
+    doc = _json_of(result.stdout)
+    return {"methods": doc["methods"], "groups": doc.get("groups", {}), "method_specs": methods,
+            "checkpoint": None if ckpt is None else str(ckpt), "notes": notes}
+
+
+def stage_export(c: Campaign) -> dict[str, Any]:
+    ckpt = _checkpoint(c)
+    if ckpt is None:
+        raise SkipStage("no checkpoint to export (stage train made none)")
+    provenance = {"campaign": c.p.name, "config": c.p.train_config, "data": "RLLR slice of stage rllr",
+                  "seed": c.o.seed, "source": ckpt.name}
+    files = write_weights(ckpt, c.o.out, c.o.work / "export", provenance=provenance)
+    return {"checkpoint": str(ckpt), "files": files}
+
+
+STAGES: dict[str, Callable[[Campaign], dict[str, Any]]] = {
+    "install": stage_install, "gpu_tests": stage_gpu_tests, "bench_sensor": stage_bench_sensor,
+    "bench_render": stage_bench_render, "llr": stage_llr, "rllr": stage_rllr, "train": stage_train,
+    "evaluate": stage_evaluate, "export": stage_export,
+}
+
+
+__all__ = ["Campaign", "CommandResult", "StageFailed", "SkipStage", "STAGES", "CARRIED", "ROOT", "install_wheels",
+           "probe_environment", "check_command", "complete_scenes"]

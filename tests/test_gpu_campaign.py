@@ -1,0 +1,249 @@
+"""The GPU campaign (pipelines/gpu_campaign.py) rehearsed on the CPU: a lent GPU comes rarely and
+for minutes, so everything it will run has to have run here first. `--dry-run` runs every stage
+(the same `spikesim` commands, tiny sizes, Dr.Jit LLVM and torch on the CPU) into the same files
+with the same schema; these tests check that schema, the limits on what a lent machine returns,
+and that a stage that fails or hangs is recorded while the stages after it still run."""
+from __future__ import annotations
+
+import io
+import json
+import os
+import subprocess
+import sys
+import tarfile
+import zipfile
+from pathlib import Path
+
+import pytest
+
+from pipelines.gpu_campaign import PARTS, STAGE_NAMES, STATUSES
+from pipelines.gpu_campaign_outputs import (MAX_FILES, combined_logs, join_weight_parts, out_problems,
+                                            write_weights)
+from pipelines.gpu_campaign_stages import install_wheels
+from sensor_testing import HAS_LLVM
+
+ROOT = Path(__file__).resolve().parents[1]
+needs_llvm = pytest.mark.skipif(not HAS_LLVM, reason="the dry run renders and simulates with Dr.Jit's LLVM backend")
+STAGE_KEYS = {"name", "status", "seconds", "figures", "log", "note", "commands", "returncode", "time_box_s",
+              "started", "part"}
+
+
+def _campaign(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
+    env = {**os.environ, "PYTHON": sys.executable}
+    env.pop("OUT", None)
+    return subprocess.run(["bash", str(ROOT / "scripts" / "gpu_campaign.sh"), *args], cwd=ROOT, env=env,
+                          capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.fixture(scope="module")
+def dry_runs(tmp_path_factory):
+    """The dry run as a lent GPU runs it: two calls sharing a work folder, part 1 then part 2
+    (about 30 s in all on the 2-core VM). Returns {part: (output folder, summary)} and the work folder."""
+    if not HAS_LLVM:
+        pytest.skip("the dry run renders and simulates with Dr.Jit's LLVM backend")
+    base = tmp_path_factory.mktemp("campaign")
+    work, runs = base / "work", {}
+    for part in ("1", "2"):
+        out = base / f"out{part}"
+        proc = _campaign("--dry-run", "--part", part, "-o", str(out), "--work", str(work), "--json", "--quiet")
+        assert proc.returncode == 0, proc.stderr[-3000:]
+        runs[part] = (out, json.loads(proc.stdout))
+    return runs, work
+
+
+@pytest.fixture(scope="module")
+def dry_run(dry_runs):
+    """The second call's output folder, the work folder and the summary of every stage."""
+    runs, work = dry_runs
+    out, summary = runs["2"]
+    return out, work, summary
+
+
+def _files(out: Path) -> list[Path]:
+    return sorted(p for p in out.rglob("*") if p.is_file())
+
+
+@needs_llvm
+def test_the_dry_run_runs_every_stage_and_writes_the_summary_schema(dry_run):
+    out, _, summary = dry_run
+    assert json.loads((out / "summary.json").read_text()) == summary
+    assert summary["schema"] == 1 and summary["mode"] == "dry-run" and summary["part"] == "2"
+    assert [s["name"] for s in summary["stages"]] == list(STAGE_NAMES)
+    for s in summary["stages"]:
+        assert set(s) == STAGE_KEYS, s["name"]
+        assert s["status"] == "ok", (s["name"], s["note"])
+        assert s["seconds"] > 0 and s["log"] == "logs.txt" and s["commands"] or s["name"] == "export"
+        assert isinstance(s["figures"], dict) and s["figures"], s["name"]
+    assert summary["counts"] == {"ok": len(STAGE_NAMES), "failed": 0, "skipped": 0, "timeout": 0}
+    fig = {s["name"]: s["figures"] for s in summary["stages"]}
+    assert fig["install"]["versions"]["mitsuba"] and fig["install"]["drjit_llvm"] is True
+    assert {r["stage"] for r in fig["bench_sensor"]["results"]} == {"sensor"}
+    assert any("2 streams per launch" in r["what"] for r in fig["bench_sensor"]["results"])
+    assert {r["stage"] for r in fig["bench_render"]["results"]} == {"render", "pipeline"}
+    assert fig["llr"]["scenes"] == 2 and fig["rllr"]["scenes"] == 2 and fig["rllr"]["extrapolated_100_minutes"] > 0
+    assert fig["train"]["steps"] >= 1 and fig["train"]["precision"] == "bf16"
+    assert {"TFP", "TFI", "TFP-123", "black", "mean", "tiny"} <= set(fig["evaluate"]["methods"])
+    assert [f["name"] for f in fig["export"]["files"]] == ["weights.pt"]
+
+
+@needs_llvm
+def test_the_second_call_keeps_the_first_calls_datasets_and_records(dry_runs):
+    runs, _ = dry_runs
+    first = {s["name"]: s for s in runs["1"][1]["stages"]}
+    second = {s["name"]: s for s in runs["2"][1]["stages"]}
+    assert all(first[n]["status"] == "ok" and first[n]["part"] == "1" for n in PARTS["1"])
+    assert all(first[n]["status"] == "skipped" and "not run" in first[n]["note"] for n in ("train", "evaluate", "export"))
+    assert not any(p.name.startswith("weights") for p in runs["1"][0].iterdir())
+    for n in ("gpu_tests", "bench_sensor", "bench_render", "llr", "rllr"):  # measured once, by the first call
+        assert second[n] == first[n], n
+    assert all(second[n]["part"] == "2" for n in ("install", "train", "evaluate", "export"))
+
+
+@needs_llvm
+def test_the_dry_run_returns_what_a_lent_machine_gives_back(dry_run):
+    out, _, summary = dry_run
+    files = _files(out)
+    assert len(files) <= MAX_FILES and all(len(f.relative_to(out).parts) <= 3 for f in files)
+    assert out_problems(out) == []
+    assert {f.name for f in files} == {"summary.json", "logs.txt", "report.md", "weights.pt"}
+    assert {f["name"] for f in summary["files"]} == {"logs.txt", "report.md", "weights.pt"}
+    logs = (out / "logs.txt").read_text()
+    assert all(f"===== {name} (ok" in logs for name in STAGE_NAMES)
+    report = (out / "report.md").read_text()
+    assert "| tiny, bf16 |" in report and "**All scenes**" in report
+
+
+@needs_llvm
+def test_the_exported_weights_load_and_match_the_trained_network(dry_run):
+    from model.checkpoint import model_from_checkpoint, state_fingerprint
+
+    out, _, summary = dry_run
+    model, experiment = model_from_checkpoint(out / "weights.pt")
+    train = next(s for s in summary["stages"] if s["name"] == "train")["figures"]
+    assert experiment.name == "tiny" and state_fingerprint(model.state_dict()) == train["weights_sha256"]
+
+
+@needs_llvm
+def test_weights_too_large_for_one_file_come_back_as_bf16_and_fp32_parts(dry_run, tmp_path):
+    from model.checkpoint import load_checkpoint, model_from_checkpoint
+
+    _, work, _ = dry_run
+    ckpt = work / "run" / "best.pt"
+    full = load_checkpoint(ckpt)
+    limit = 600_000  # the tiny network is 0.77 MB in fp32
+    records = write_weights(ckpt, tmp_path / "out", tmp_path / "scratch", max_bytes=limit)
+    names = [r["name"] for r in records]
+    assert names[0] == "weights_bf16.pt" and all(n.startswith("weights_fp32.part") for n in names[1:])
+    assert len(names) >= 3 and all(r["bytes"] <= limit for r in records)
+    model, _ = model_from_checkpoint(tmp_path / "out" / "weights_bf16.pt")  # loads as it is
+    assert model is not None
+    fingerprint = join_weight_parts([tmp_path / "out" / n for n in names[1:]], tmp_path / "joined.pt")
+    assert fingerprint == full["weights_sha256"]
+    joined = load_checkpoint(tmp_path / "joined.pt")
+    assert all((joined["model_state"][k] == v).all() for k, v in full["model_state"].items())
+    with pytest.raises(ValueError, match="expected 1 to"):
+        join_weight_parts([tmp_path / "out" / names[1]], tmp_path / "half.pt")
+
+
+@needs_llvm
+def test_a_failing_and_a_hanging_stage_are_recorded_and_later_stages_still_run(tmp_path):
+    out, work = tmp_path / "out", tmp_path / "work"
+    proc = _campaign("--dry-run", "-o", str(out), "--work", str(work), "--json", "--quiet",
+                     "--stages", "install", "gpu_tests", "bench_sensor",
+                     "--inject", "install=fail", "--inject", "gpu_tests=timeout", timeout=120)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    summary = json.loads((out / "summary.json").read_text())
+    by = {s["name"]: s for s in summary["stages"]}
+    assert by["install"]["status"] == "failed" and "status 3" in by["install"]["note"]
+    assert by["gpu_tests"]["status"] == "timeout" and by["gpu_tests"]["seconds"] < 30
+    assert by["bench_sensor"]["status"] == "ok" and by["bench_sensor"]["figures"]["results"]
+    assert all(by[n]["status"] == "skipped" and "not run" in by[n]["note"]
+               for n in STAGE_NAMES if n not in ("install", "gpu_tests", "bench_sensor"))
+    assert set(s["status"] for s in summary["stages"]) <= set(STATUSES)
+    logs = (out / "logs.txt").read_text()
+    assert "injected failure" in logs and "killed at the end of its time box" in logs
+    assert out_problems(out) == []
+
+
+def test_the_parts_cover_every_stage_once_in_order():
+    assert sorted(set(PARTS["1"]) | set(PARTS["2"])) == sorted(STAGE_NAMES)
+    for part in PARTS.values():
+        assert list(part) == sorted(part, key=STAGE_NAMES.index)
+
+
+def test_the_output_check_names_every_file_that_would_not_come_back(tmp_path):
+    for i in range(MAX_FILES):
+        (tmp_path / f"f{i}.txt").write_text("x")
+    assert out_problems(tmp_path) == []
+    deep = tmp_path / "a" / "b" / "c"
+    deep.mkdir(parents=True)
+    (deep / "deep.txt").write_text("x")
+    (tmp_path / "bad name.txt").write_text("x")
+    problems = " ".join(out_problems(tmp_path))
+    assert "10 files, more than 8" in problems and "3 folders deep" in problems and "'bad name.txt'" in problems
+
+
+def test_logs_too_long_keep_their_head_and_tail_and_short_ones_whole():
+    long = "START\n" + "x" * 50_000 + "\nEND\n"
+    text = combined_logs([("short", "all of it"), ("long", long)], limit=10_000)
+    assert len(text) < 12_000 and "all of it" in text and "START" in text and "END" in text
+    assert "characters left out" in text
+
+
+def _wheel(folder: Path) -> Path:
+    """A minimal pure wheel: one module and its dist-info."""
+    path = folder / "fakepkg-1.0-py3-none-any.whl"
+    with zipfile.ZipFile(path, "w") as z:
+        z.writestr("fakepkg.py", "VALUE = 42\n")
+        z.writestr("fakepkg-1.0.dist-info/METADATA", "Metadata-Version: 2.1\nName: fakepkg\nVersion: 1.0\n")
+        z.writestr("fakepkg-1.0.dist-info/WHEEL", "Wheel-Version: 1.0\nGenerator: test\nRoot-Is-Purelib: true\n"
+                                                  "Tag: py3-none-any\n")
+        z.writestr("fakepkg-1.0.dist-info/RECORD", "")
+    return path
+
+
+def test_the_carried_wheels_install_into_a_folder_and_damage_is_named(tmp_path):
+    import hashlib
+
+    wheels = tmp_path / "whl"
+    wheels.mkdir()
+    _wheel(wheels)
+    with tarfile.open(wheels / "fakemitsuba.tar.xz", "w:xz") as tar:  # as scripts/gpu_wheels.sh repacks mitsuba
+        data = b"VALUE = 7\n"
+        info = tarfile.TarInfo("./fakemitsuba/__init__.py")
+        info.size = len(data)
+        tar.addfile(info, io.BytesIO(data))
+    sums = "".join(f"{hashlib.sha256(p.read_bytes()).hexdigest()}  {p.name}\n" for p in sorted(wheels.iterdir()))
+    (wheels / "SHA256SUMS").write_text(sums)
+    site = tmp_path / "site"
+    assert install_wheels(wheels, site) == ["fakemitsuba.tar.xz", "fakepkg-1.0-py3-none-any.whl"]
+    check = subprocess.run([sys.executable, "-c", "import fakepkg, fakemitsuba; print(fakepkg.VALUE + fakemitsuba.VALUE)"],
+                           env={**os.environ, "PYTHONPATH": str(site)}, capture_output=True, text=True)
+    assert check.stdout.strip() == "49", check.stderr
+    with (wheels / "fakemitsuba.tar.xz").open("ab") as f:
+        f.write(b"!")
+    with pytest.raises(ValueError, match="fakemitsuba.tar.xz: sha256 differs"):
+        install_wheels(wheels, site)
+    (wheels / "SHA256SUMS").unlink()
+    with pytest.raises(ValueError, match="run scripts/gpu_wheels.sh"):
+        install_wheels(wheels, site)
+
+
+@pytest.mark.parametrize("args,message", [
+    (["--dry-run", "-o", "X", "--inject", "nosuch=fail"], "expected STAGE=fail or STAGE=timeout"),
+    (["--dry-run", "-o", "X", "--part", "1", "--stages", "train"], "not stages of part 1"),
+    (["--dry-run"], "needs -o/--out"),
+    (["--dry-run", "-o", "FULL"], "holds other files (notes.txt)"),
+])
+def test_bad_input_is_one_line(args, message, tmp_path, monkeypatch, capsys):
+    from pipelines.cli import main
+
+    monkeypatch.delenv("OUT", raising=False)
+    (tmp_path / "full").mkdir()
+    (tmp_path / "full" / "notes.txt").write_text("mine")
+    args = [{"X": str(tmp_path / "o"), "FULL": str(tmp_path / "full")}.get(a, a) for a in args]
+    assert main(["gpu-campaign", *args]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    # the error is one line (argparse's refusals follow its usage text)
+    assert err[-1].startswith("spikesim gpu-campaign: error:") and message in err[-1], err
+    assert len(err) == 1 or err[0].startswith("usage:")
