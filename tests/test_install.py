@@ -21,7 +21,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("spikesim", "model", "pipelines", "scenes")
 #: Suffixes of the package data pyproject.toml ships.
-DATA_SUFFIXES = {".json", ".xml", ".toml", ".png", ".jpg", ".ply"}
+DATA_SUFFIXES = {".json", ".xml", ".toml", ".png", ".jpg", ".ply", ".pt"}
 #: What a build needs from the checkout besides the packages.
 BUILD_FILES = ("pyproject.toml", "README.md", "LICENSE")
 
@@ -105,6 +105,10 @@ CHECK = textwrap.dedent("""
     out["data"] = sorted(p.name for p in data.glob("*.json")) if data.is_dir() else []
     from spikesim.golden import PACKAGED_REFERENCE, load_reference
     out["golden"] = {"path": str(Path(PACKAGED_REFERENCE).resolve()), "statistics": sorted(load_reference())}
+    from model.checkpoint import state_fingerprint
+    from model.pretrained import PRETRAINED, load_pretrained, pretrained_path
+    out["pretrained"] = {name: [str(pretrained_path(name).resolve()), state_fingerprint(load_pretrained(name)[0].state_dict())]
+                         for name in PRETRAINED}
     from spikesim.render import SceneRenderer
     for name in SCENES:  # loadable: Mitsuba reads the XML, meshes and textures, one tiny frame
         y = SceneRenderer(name, light="low", resolution=(8, 12), spp=1, gt_spp=1, device="llvm").render_step(0)
@@ -126,6 +130,13 @@ def test_the_project_is_imported_from_the_install_not_the_checkout(installed, ch
     for name, path in checked["modules"].items():
         assert Path(path).is_relative_to(site), (name, path)
     assert Path(checked["config_dir"]).is_relative_to(site)
+
+
+def test_the_shipped_weights_load_from_the_install(installed, checked):
+    from model.pretrained import PRETRAINED
+    assert sorted(checked["pretrained"]) == sorted(PRETRAINED) and "lrrep" in PRETRAINED
+    for name, (path, fingerprint) in checked["pretrained"].items():
+        assert Path(path).is_relative_to(installed[0].resolve()) and fingerprint == PRETRAINED[name].weights_sha256
 
 
 def test_each_model_config_loads_by_name(checked):
