@@ -2,12 +2,10 @@
 (`run_training`), its resume, validation, logs and the device it runs on. `spikesim train`
 (pipelines/train.py) only parses arguments and prints; a notebook calls `run_training` directly.
 
-The default config ("full") is the paper's recipe: 41-step windows, 64x64 random crops, batch 8,
-K = 21 consecutive windows, Adam (0.9, 0.99), lr 1e-4 x0.1 at epoch 70 of 100, L1 summed over the
-K windows. Writes <out>/last.pt (every ckpt_every epochs and on stopping; atomic), <out>/best.pt
-(best validation PSNR), <out>/train_log.csv, <out>/val_log.csv, <out>/tb/ (TensorBoard) and
-<out>/config.json; `--resume` continues from <out>/last.pt exactly where it stopped. Precision:
-bf16 autocast on GPUs that support it, fp32 on the CPU, `--precision` to choose (model/precision.py).
+A run folder holds last.pt (atomic; at epoch ends, every ckpt_every_steps, and when stopped),
+best.pt (best validation aligned PSNR), train_log.csv, val_log.csv, tb/ and config.json; a resumed
+run continues bit for bit, and a wall-clock budget is planned into steps once and kept
+(`_BudgetPlan`). What each file and option means for a user: `spikesim train --help`.
 """
 from __future__ import annotations
 
@@ -453,6 +451,7 @@ def run_training(experiment: ExperimentConfig, train_scenes: Sequence[Scene], va
                          "share: more scenes or steps, or fewer processes")
     if dist.is_main:
         print(f"[train] {experiment.name}: {count_parameters(run.model):,} parameters, device {dev}"
+              f"{f', {torch.get_num_threads()} thread(s)' if dev.type == 'cpu' else ''}"
               f"{f' x {dist.world} processes' if dist.world > 1 else ''}, {run.precision}, {len(train_ds)} "
               f"samples/epoch from {len(train_scenes)} scenes, {len(val_ds) if val_ds else 0} validation samples",
               file=sys.stderr)

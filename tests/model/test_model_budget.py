@@ -10,21 +10,17 @@ import pytest
 import torch
 
 from model.checkpoint import load_checkpoint, state_fingerprint
-from model.config import ExperimentConfig, ModelConfig, TrainConfig
+from model.config import ExperimentConfig, TrainConfig
 from model.losses import RELATIVE_LOSS_FLOOR_Y, build_loss
 from model.methods import SpanTFPMethod, method_from_spec
 from model.streaming import TensorWindows
 from model.training import cosine_lr, run_training
 from modeltest_fakes import make_scene
-
-TINY_MODEL = ModelConfig(window=7, num_features=8, num_blocks=1, deform_groups=2)
-
+from test_model_training import tiny_experiment
 
 def budget_experiment(**train) -> ExperimentConfig:
-    base = dict(num_windows=3, crop=16, batch_size=2, epochs=1000, lr=3e-3, samples_per_epoch=4, val_crop=16,
-                val_max_samples=1, val_every=1000, seed=0, lr_schedule="cosine", calibration_steps=2)
-    base.update(train)
-    return ExperimentConfig("budget", model=TINY_MODEL, train=TrainConfig(**base))
+    """test_model_training's tiny run on the cosine schedule, with a short calibration."""
+    return tiny_experiment(**{"lr_schedule": "cosine", "calibration_steps": 2, **train})
 
 
 @pytest.fixture(scope="module")
