@@ -82,7 +82,7 @@ def test_reconstruct_and_evaluate_take_lrrep_by_name(tmp_path, capsys):
     dat = Simulator(cam, backend="numpy", seed=1).run_to_dat([y] * 123, tmp_path / "s.dat", flip=False)
     rc, err = run_cli(["reconstruct", dat, "--method", "lrrep", "-o", tmp_path / "rec", "--no-gif", "--no-mp4"], capsys)
     assert rc == 0, err
-    assert len(list((tmp_path / "rec").glob("*.png"))) == 3
+    assert len(list((tmp_path / "rec").rglob("*.png"))) == 3
     np.save(tmp_path / "gt.npy", y)
     rc, err = run_cli(["evaluate", "--dat", dat, "--gt", tmp_path / "gt.npy", "--center", 61, "--methods", "tfp",
                        "lrrep", "--json"], capsys)
