@@ -36,13 +36,8 @@ STAGES = ("sensor", "render", "pipeline")
 # ---- the machine ------------------------------------------------------------------------------------
 def machine_info() -> dict[str, Any]:
     """What the figures were measured on: CPU model and cores, GPU (if any), library versions."""
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo") as f:
-            cpu = next((line.split(":", 1)[1].strip() for line in f if line.startswith("model name")), cpu)
-    except OSError:
-        pass
-    info: dict[str, Any] = {"cpu": cpu, "cores": os.cpu_count(), "python": platform.python_version()}
+    from pipelines.machine import cpu_model
+    info: dict[str, Any] = {"cpu": cpu_model(), "cores": os.cpu_count(), "python": platform.python_version()}
     import drjit
     info["drjit"] = drjit.__version__
     if "cuda" in available_backends():
