@@ -8,6 +8,7 @@ Defaults are the paper's (section Implementation Details) and the authors' relea
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import asdict, dataclass, field, fields
 from importlib import resources
 from pathlib import Path
@@ -32,7 +33,7 @@ def _require(cond: bool, msg: str) -> None:
 def _from_dict(cls: type, data: dict[str, Any], where: str) -> Any:
     """Build a dataclass from a dict, naming unknown keys instead of ignoring them."""
     if not isinstance(data, dict):
-        raise TypeError(f"{where}: expected a JSON object, got {type(data).__name__}")
+        raise ValueError(f"{where}: expected a JSON object, got {type(data).__name__}")
     known = {f.name for f in fields(cls)}
     unknown = sorted(set(data) - known)
     if unknown:
@@ -170,7 +171,8 @@ class TrainConfig:
         for name in ("samples_per_epoch", "val_crop", "max_steps", "ckpt_every_steps"):
             pos_int(name, allow_none=True)
         _require(self.crop % 4 == 0, f"train.crop must be divisible by 4 (PCD pyramid), got {self.crop}")
-        _require(self.lr > 0, f"train.lr must be > 0, got {self.lr}")
+        _require(isinstance(self.lr, (int, float)) and not isinstance(self.lr, bool) and math.isfinite(self.lr)
+                 and 0 < self.lr <= 1, f"train.lr must be a number in (0, 1], got {self.lr!r}")
         _require(len(self.betas) == 2 and all(0 <= b < 1 for b in self.betas),
                  f"train.betas must be two numbers in [0, 1), got {self.betas}")
         _require(all(isinstance(m, int) and 0 < m for m in self.lr_milestones)
@@ -231,7 +233,7 @@ class ExperimentConfig:
     @classmethod
     def from_dict(cls, data: dict[str, Any], where: str = "config") -> "ExperimentConfig":
         if not isinstance(data, dict):
-            raise TypeError(f"{where}: expected a JSON object")
+            raise ValueError(f"{where}: expected a JSON object, got {type(data).__name__}")
         unknown = sorted(set(data) - {"name", "description", "model", "train"})
         if unknown:
             raise ValueError(f"{where}: unknown top-level field(s) {unknown}")

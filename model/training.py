@@ -79,6 +79,11 @@ def resolve_device(name: str) -> torch.device:
     return dev
 
 
+class TrainingDiverged(ValueError):
+    """The loss stopped being a finite number: bad input to the run (its learning rate, usually),
+    reported in one line like any other, not a traceback."""
+
+
 class _CsvLog:
     """Append-only CSV with a fixed header (kept across resumes)."""
 
@@ -185,7 +190,14 @@ def _epoch_order(n: int, seed: int, epoch: int) -> list[int]:
     return torch.randperm(n, generator=g).tolist()
 
 
-def _resume(last_path: Path, dev: torch.device, mc: Any, model: torch.nn.Module, opt: Any, sched: Any,
+#: Training settings a resumed run must keep (the others: how long, how often to save or validate,
+#: the loader's processes, may change between legs).
+RESUME_FIXED = ("num_windows", "crop", "batch_size", "lr", "betas", "lr_milestones", "lr_gamma", "loss",
+                "samples_per_epoch", "start_stride", "precision", "grad_clip", "seed", "lr_schedule",
+                "lr_final_ratio", "channels_last", "calibration_steps")
+
+
+def _resume(last_path: Path, dev: torch.device, mc: Any, tc: Any, model: torch.nn.Module, opt: Any, sched: Any,
             scaler: Any) -> tuple[int, int, int, float, dict[str, Any]]:
     """Restore a run from its last checkpoint; returns (epoch, batch in epoch, step, best aligned
     validation PSNR, the checkpoint's extra record).
@@ -199,6 +211,12 @@ def _resume(last_path: Path, dev: torch.device, mc: Any, model: torch.nn.Module,
         raise ValueError(f"--resume: {last_path}: its config is not valid: {exc}") from None
     if saved.model != mc:
         raise ValueError(f"--resume: {last_path} holds a different model config: {saved.model} vs {mc}")
+    changed = {k: (getattr(saved.train, k), getattr(tc, k)) for k in RESUME_FIXED
+               if getattr(saved.train, k) != getattr(tc, k)}
+    if changed:
+        what = ", ".join(f"{k} {a!r} -> {b!r}" for k, (a, b) in changed.items())
+        raise ValueError(f"--resume: {last_path} was trained with other settings ({what}); a resumed run continues "
+                         "the same run: drop those overrides, or start a new run (--overwrite or another --out)")
     try:
         model.load_state_dict(state["model_state"])
         opt.load_state_dict(state["optimizer_state"])
@@ -306,7 +324,7 @@ def _start_or_resume(out: Path, resume: bool, experiment: ExperimentConfig, run:
     """(epoch, batch in epoch, step, best validation PSNR, the checkpoint's extra record) to start from."""
     last_path = out / "last.pt"
     if resume:
-        return _resume(last_path, dev, experiment.model, run.model, run.opt, run.sched, run.scaler)
+        return _resume(last_path, dev, experiment.model, experiment.train, run.model, run.opt, run.sched, run.scaler)
     existing = [name for name in RUN_FILES if (out / name).exists()]
     if existing and not overwrite:
         raise FileExistsError(f"{out} holds a run ({', '.join(existing)}): pass --resume to continue it, "
@@ -407,7 +425,8 @@ def _train_step(run: _Run, batch: dict, dev: torch.device, tc: Any, step: int, d
         pred = run.forward(spikes)
     loss = run.loss_fn(pred.float(), gt)
     if not torch.isfinite(loss):
-        raise FloatingPointError(f"loss became {loss.item()} at step {step}")
+        raise TrainingDiverged(f"the loss became {loss.item()} at step {step} (learning rate "
+                               f"{run.opt.param_groups[0]['lr']:g}): lower --lr; last.pt holds the last good state")
     run.opt.zero_grad(set_to_none=True)
     run.scaler.scale(loss).backward()
     if tc.grad_clip is not None:

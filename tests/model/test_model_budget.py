@@ -186,3 +186,35 @@ def test_a_trained_model_is_never_replaced_without_being_asked(scenes, tmp_path)
     assert (tmp_path / "best.pt").read_bytes() == b"a model someone kept"
     run_training(budget_experiment(max_steps=1), scenes, [], tmp_path, device="cpu", progress=False, overwrite=True)
     assert not (tmp_path / "best.pt").exists() and (tmp_path / "last.pt").exists()
+
+
+@pytest.mark.parametrize("lr", [1e300, float("nan"), float("inf"), 0, -1e-3, 2.0])
+def test_a_learning_rate_outside_zero_to_one_is_refused(lr):
+    with pytest.raises(ValueError, match="train.lr must be a number in"):
+        TrainConfig(lr=lr)
+
+
+def test_a_config_that_is_not_an_object_is_one_line(tmp_path):
+    from model.config import load_config
+    (tmp_path / "list.json").write_text("[]")
+    with pytest.raises(ValueError, match="expected a JSON object, got list"):
+        load_config(tmp_path / "list.json")
+
+
+def test_a_diverging_run_says_so_in_one_line(scenes, tmp_path, monkeypatch):
+    from model import training
+    from model.training import TrainingDiverged
+    monkeypatch.setattr(training, "build_loss", lambda name: lambda pred, gt: (pred - gt).abs().mean() * float("nan"))
+    with pytest.raises(TrainingDiverged, match="became nan at step 0 .learning rate 0.003.: lower --lr") as info:
+        run_training(budget_experiment(max_steps=5), scenes, [], tmp_path, device="cpu", progress=False)
+    assert isinstance(info.value, ValueError)  # the command line's one-line errors
+
+
+def test_resume_refuses_overrides_it_would_ignore(scenes, tmp_path):
+    run_training(budget_experiment(max_steps=2), scenes, [], tmp_path, device="cpu", progress=False)
+    with pytest.raises(ValueError, match="batch_size 2 -> 4, lr 0.003 -> 0.5"):
+        run_training(budget_experiment(max_steps=3, batch_size=4, lr=0.5), scenes, [], tmp_path, device="cpu",
+                     resume=True, progress=False)
+    summary = run_training(budget_experiment(max_steps=3), scenes, [], tmp_path, device="cpu", resume=True,
+                           progress=False)  # a longer run is the same run
+    assert summary["steps"] == 3
