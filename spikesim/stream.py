@@ -203,9 +203,12 @@ class DatReader:
     with its rows flipped, so the columns are the same whichever way the rows are stored.
     """
 
-    def __init__(self, path: str | Path, height: int = 250, width: int = 400, flip: bool = True,
+    def __init__(self, path: str | Path, height: int | None = None, width: int | None = None, flip: bool | None = None,
                  header_columns: int = 0, drop_partial: bool = False):
+        """height, width, flip None: as recorded beside the stream (its `.dat.json` sidecar or a
+        dataset's meta.json), else the PKU camera's 250 x 400 with rows bottom-up."""
         self.path = Path(path)
+        height, width, flip = stream_geometry(self.path, height, width, flip)
         if height <= 0 or width <= 0 or header_columns < 0:
             raise ValueError(f"bad frame geometry height={height} width={width} header_columns={header_columns}")
         self.height, self.width, self.flip = height, width, flip
@@ -217,9 +220,10 @@ class DatReader:
         if rest and not drop_partial:
             raise ValueError(
                 f"{self.path}: {size} bytes is not a whole number of {height}x{self.stored_width} frames "
-                f"({self.frame_bytes} bytes each; {full} frames and {rest} bytes left over). The file is "
-                "truncated or the geometry is wrong; pass drop_partial=True (--drop-partial) to ignore the "
-                "partial last frame.")
+                f"({self.frame_bytes} bytes each; {full} frames and {rest} bytes left over). The geometry is "
+                "likely wrong: give height, width and header_columns as the recording has them (a sidecar or "
+                "meta.json records them). Only for a file cut off mid-frame, drop_partial=True (--drop-partial) "
+                "ignores the partial last frame.")
         self.num_steps = full
         self._mm = np.memmap(self.path, dtype=np.uint8, mode="r", shape=(full, self.frame_bytes)) if full else np.zeros((0, self.frame_bytes), np.uint8)
 

@@ -89,3 +89,24 @@ def test_reads_the_spk2imgnet_sample(shared_data):
     corr = np.corrcoef(tfp.ravel(), gt.ravel())[0, 1]
     unflipped = DatReader(d / "203_part1_key_id151.dat", 250, 400, flip=False).read(131, 172).unpack().mean(axis=0)
     assert corr > 0.8 and abs(np.corrcoef(unflipped.ravel(), gt.ravel())[0, 1]) < 0.3
+
+
+def test_a_reader_without_geometry_reads_what_is_recorded_beside_the_stream(tmp_path):
+    """DatReader(path) takes height, width and row order from the stream's sidecar (it assumed
+    250 x 400 bottom-up, and advised drop_partial, which returned garbage)."""
+    import dataclasses
+
+    from spikesim import SpikeCamera
+    from spikesim.simulate import Simulator
+
+    y = np.linspace(0.05, 0.9, 30 * 40, dtype=np.float32).reshape(30, 40)
+    cam = dataclasses.replace(SpikeCamera.noiseless(), height=30, width=40)
+    dat = Simulator(cam, backend="numpy", seed=0).run_to_dat([y] * 20, tmp_path / "s.dat", flip=False)
+    reader = DatReader(dat)
+    assert (reader.height, reader.width, reader.flip, reader.num_steps) == (30, 40, False, 20)
+    counts = reader.read().unpack().sum(0)
+    assert counts[:, 0].mean() < counts[:, -1].mean()  # bright on the right, top-down as written
+    plain = tmp_path / "plain.dat"
+    plain.write_bytes(dat.read_bytes())  # no sidecar: 250 x 400 is assumed, and the error says what to do
+    with pytest.raises(ValueError, match="geometry is likely wrong: give height, width and header_columns"):
+        DatReader(plain)
