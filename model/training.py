@@ -474,6 +474,10 @@ def run_training(experiment: ExperimentConfig, train_scenes: Sequence[Scene], va
               f"{f' x {dist.world} processes' if dist.world > 1 else ''}, {run.precision}, {len(train_ds)} "
               f"samples/epoch from {len(train_scenes)} scenes, {len(val_ds) if val_ds else 0} validation samples",
               file=sys.stderr)
+        if val_ds is None:
+            print(f"[train] no validation scenes (a scene is never both trained on and validated on: give more scenes "
+                  f"or --val-data): best.pt will not be written; {out / 'last.pt'} is the trained model",
+                  file=sys.stderr)
 
     def checkpoint(path: Path) -> None:
         if dist.is_main:

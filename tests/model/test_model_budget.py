@@ -218,3 +218,10 @@ def test_resume_refuses_overrides_it_would_ignore(scenes, tmp_path):
     summary = run_training(budget_experiment(max_steps=3), scenes, [], tmp_path, device="cpu", resume=True,
                            progress=False)  # a longer run is the same run
     assert summary["steps"] == 3
+
+
+def test_a_run_without_validation_says_no_best_pt_will_be_written(scenes, tmp_path, capsys):
+    run_training(budget_experiment(max_steps=1), scenes[:1], [], tmp_path, device="cpu", progress=False)
+    err = capsys.readouterr().err
+    assert "no validation scenes" in err and "best.pt will not be written" in err
+    assert not (tmp_path / "best.pt").exists() and (tmp_path / "last.pt").exists()
