@@ -151,6 +151,15 @@ def _first_line(exc: BaseException, limit: int = 160) -> str:
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
+def for_inference(model: torch.nn.Module, experiment: ExperimentConfig) -> torch.nn.Module:
+    """The network in eval mode with GISI clipped at its training horizon, K*T + 1 steps: on a
+    stream longer than its training sequences the "never fired" distance would otherwise grow with
+    the stream's length, to values the network never saw (ReconNet.max_interval)."""
+    if hasattr(model, "max_interval"):
+        model.max_interval = float(experiment.train.num_windows * experiment.model.window + 1)
+    return model.eval()
+
+
 def model_from_checkpoint(path: str | Path, map_location: str | torch.device = "cpu"
                           ) -> tuple[torch.nn.Module, ExperimentConfig]:
     """Rebuild the network a checkpoint describes and load its weights (strict)."""

@@ -8,7 +8,7 @@ from typing import Iterator, Protocol
 
 import torch
 
-from .checkpoint import model_from_checkpoint
+from .checkpoint import for_inference, model_from_checkpoint
 from .representations import tfi_windows, tfp_windows
 from .streaming import WindowSource, stream_reconstruct
 
@@ -119,9 +119,7 @@ class ModelMethod:
             self.model, self.experiment = load_pretrained(self.pretrained, self.device)
         else:
             self.model, self.experiment = model_from_checkpoint(self.checkpoint, self.device)
-            # GISI beyond the training horizon (K*T + 1) is clipped: see ReconNet.max_interval.
-            self.model.max_interval = float(self.experiment.train.num_windows * self.experiment.model.window + 1)
-        self.model.eval()
+            for_inference(self.model, self.experiment)
         self.window = self.experiment.model.window
 
     @property

@@ -15,7 +15,8 @@ from typing import Any
 
 import torch
 
-from .checkpoint import FORMAT_VERSION, atomic_torch_save, load_checkpoint, model_from_checkpoint, state_fingerprint
+from .checkpoint import (FORMAT_VERSION, atomic_torch_save, for_inference, load_checkpoint, model_from_checkpoint,
+                         state_fingerprint)
 from .config import ExperimentConfig
 
 WEIGHTS_DIR = resources.files(__package__) / "weights"
@@ -64,16 +65,14 @@ def load_pretrained(name: str = "lrrep", device: str | torch.device = "cpu"
                     ) -> tuple[torch.nn.Module, ExperimentConfig]:
     """The shipped network `name` in eval mode, with its config, on `device`.
 
-    GISI is clipped at the training horizon (K*T + 1 steps), as for any trained checkpoint
-    (model/methods.py ModelMethod)."""
+    GISI is clipped at the training horizon, as for any trained checkpoint (checkpoint.for_inference)."""
     path = pretrained_path(name)
     model, experiment = model_from_checkpoint(path, device)
     fingerprint = state_fingerprint(model.state_dict())
     if fingerprint != PRETRAINED[name].weights_sha256:
         raise ValueError(f"shipped weights {name!r}: weights fingerprint {fingerprint[:16]}... differs from the "
                          f"model card's {PRETRAINED[name].weights_sha256[:16]}...")
-    model.max_interval = float(experiment.train.num_windows * experiment.model.window + 1)
-    return model.eval(), experiment
+    return for_inference(model, experiment), experiment
 
 
 def export_weights(checkpoint: str | Path, out: str | Path, provenance: dict[str, Any] | None = None) -> dict[str, str]:

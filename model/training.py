@@ -15,6 +15,7 @@ import json
 import math
 import os
 import random
+import shutil
 import sys
 import time
 import warnings
@@ -335,7 +336,6 @@ def _start_or_resume(out: Path, resume: bool, experiment: ExperimentConfig, run:
     if dist.is_main:
         for stale in RUN_FILES:
             if (out / stale).is_dir() and not (out / stale).is_symlink():
-                import shutil
                 shutil.rmtree(out / stale)
             else:
                 (out / stale).unlink(missing_ok=True)
@@ -387,10 +387,9 @@ class _Timer:
     def __init__(self) -> None:
         self.wait = self.busy = 0.0
         self.samples = 0
-        self.first_step_s: float | None = None
         self.step_times: list[float] = []
         """Wall seconds of the first steps (waiting for the batch included), for the budget's plan."""
-        self._mark = self._start = time.perf_counter()
+        self._mark = time.perf_counter()
         self._waited = 0.0
 
     def batch_arrived(self) -> float:
@@ -405,8 +404,6 @@ class _Timer:
         took, self._mark = now - self._mark, now
         self.busy += took
         self.samples += samples
-        if self.first_step_s is None:
-            self.first_step_s = now - self._start
         if len(self.step_times) < 1000:
             self.step_times.append(self._waited + took)
         return took

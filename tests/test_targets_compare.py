@@ -131,3 +131,14 @@ def test_compare_checks_every_config_before_training_any(tmp_path, capsys):
                  "--device", "cpu", "--out", str(tmp_path / "o"), "--configs", f"E={e}", str(tmp_path / "long.json")]) == 2
     err = capsys.readouterr().err
     assert "--configs long: no scene has 21 consecutive windows" in err and not (tmp_path / "o" / "runs").exists()
+
+
+def test_a_baseline_is_a_seedless_method_spec():
+    import argparse
+
+    from pipelines.compare import baseline_label, baseline_spec
+    assert baseline_spec("tfp:205") == "tfp:205" and baseline_label("tfp:205") == "TFP-205"
+    for bad, why in (("lrrep", "a baseline is"), ("x=tfp", "a baseline is"), ("tfp:82", "odd number"),
+                     ("runs/best.pt", "a baseline is")):
+        with pytest.raises(argparse.ArgumentTypeError, match=why):
+            baseline_spec(bad)
