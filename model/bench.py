@@ -1,6 +1,7 @@
 """Measurements for docs/model.md: parameter count, inference time per frame, training throughput.
 
     python -m model.bench --config full --height 250 --width 400 --windows 7 --threads 2
+    python -m model.bench --config tiny --train-steps 6 --thread-sweep 1,2 --load 1   # train's default threads
 
 Inference is timed on a synthetic low-light stream (Bernoulli spikes at rate 0.05, seeded), after
 one warm-up pass (oneDNN builds its kernels per shape on the first call). Times are wall clock on
@@ -10,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import time
 
 import torch
@@ -78,6 +80,38 @@ def time_training(config: str, steps: int, seed: int = 0, precision: str = "fp32
             "samples_per_s": steps * tc.batch_size / dt}
 
 
+def _busy(stop) -> None:  # one core's worth of load, the way another job on the machine would be
+    while not stop.is_set():
+        sum(range(10_000))
+
+
+def thread_sweep(config: str, steps: int, threads: list[int], load: int, rounds: int = 2) -> list[dict]:
+    """Training samples/s at each thread count, interleaved over `rounds` (the machine drifts), while
+    `load` busy processes run beside it: `train`'s default thread count comes from this
+    (docs/performance.md, "Threads"). OpenMP threads spin-wait at each barrier, so a thread that
+    shares its core with another job stalls all of them; one thread does not wait on anyone."""
+    import multiprocessing as mp
+
+    ctx = mp.get_context("spawn")
+    stop = ctx.Event()
+    workers = [ctx.Process(target=_busy, args=(stop,), daemon=True) for _ in range(load)]
+    for w in workers:
+        w.start()
+    rates: dict[int, list[float]] = {n: [] for n in threads}
+    try:
+        for _ in range(rounds):
+            for n in threads:
+                torch.set_num_threads(n)
+                rates[n].append(time_training(config, steps)["samples_per_s"])
+    finally:
+        stop.set()
+        for w in workers:
+            w.join(timeout=5)
+    base = max(rates[threads[0]])
+    return [{"config": config, "threads": n, "load_processes": load, "samples_per_s": max(r),
+             "ratio_to_first": max(r) / base} for n, r in rates.items()]
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--config", default="full")
@@ -91,7 +125,16 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--train-variants", action="store_true",
                    help="time training in fp32 and bf16, each with and without channels_last, interleaved "
                         "(ratios from one run: the machine drifts)")
+    p.add_argument("--thread-sweep", help="comma-separated thread counts: time training at each (with --train-steps)")
+    p.add_argument("--load", type=int, default=0, help="busy processes beside a --thread-sweep (simulated load)")
     a = p.parse_args(argv)
+    if a.thread_sweep:
+        from spikesim.machine import cpu_model
+
+        print(json.dumps({"cpu": cpu_model(), "cores": os.cpu_count()}))
+        for row in thread_sweep(a.config, a.train_steps or 6, [int(t) for t in a.thread_sweep.split(",")], a.load):
+            print(json.dumps(row))
+        return 0
     torch.set_num_threads(a.threads)
     print(json.dumps(time_inference(a.config, a.height, a.width, a.windows, a.chunk, repeats=a.repeats)))
     if a.train_steps and a.train_variants:

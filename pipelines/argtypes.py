@@ -172,3 +172,10 @@ class CommandParsers:
     def add_parser(self, name: str, **kwargs) -> argparse.ArgumentParser:
         kwargs["formatter_class"] = HelpFormatter
         return self._action.add_parser(name, **kwargs)
+
+
+def add_threads_argument(parser: argparse.ArgumentParser) -> None:
+    """`--threads`, the same in every command that runs torch on the CPU (model.threads)."""
+    parser.add_argument("--threads", type=nonnegative_int, default=0,
+                        help="torch CPU threads (default 0: the cores not busy now, from the load average; "
+                             "threads that share a busy core stall each other)")

@@ -36,7 +36,7 @@ STAGES = ("sensor", "render", "pipeline")
 # ---- the machine ------------------------------------------------------------------------------------
 def machine_info() -> dict[str, Any]:
     """What the figures were measured on: CPU model and cores, GPU (if any), library versions."""
-    from pipelines.machine import cpu_model
+    from spikesim.machine import cpu_model
     info: dict[str, Any] = {"cpu": cpu_model(), "cores": os.cpu_count(), "python": platform.python_version()}
     import drjit
     info["drjit"] = drjit.__version__

@@ -30,7 +30,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from pipelines.argtypes import nonnegative_int, output_dir, positive_float, positive_int
+from model.threads import set_cpu_threads
+from pipelines.argtypes import add_threads_argument, nonnegative_int, output_dir, positive_float, positive_int
 
 MIN_SEEDS = 3
 BASELINES = ("tfp", "tfi")
@@ -265,8 +266,6 @@ def write_comparison(stats: Sequence[SeedStat], rows: Sequence[Any], text: str, 
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
-    import torch
-
     from model.data import open_scenes
     from model.precision import resolve_precision
     from model.training import resolve_device
@@ -274,8 +273,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
     dev = resolve_device(args.device)
     if args.precision:
         resolve_precision(args.precision, dev)
-    if args.threads:
-        torch.set_num_threads(args.threads)
+    threads = set_cpu_threads(args.threads)  # before any torch work
+    print(f"[compare] {threads}", file=sys.stderr)
     seeds = list(dict.fromkeys(args.seeds))
     if len(seeds) < MIN_SEEDS:
         raise ValueError(f"--seeds: a comparison needs at least {MIN_SEEDS} distinct training seeds, got {seeds}")
@@ -337,7 +336,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--precision", choices=("bf16", "fp16", "fp32"),
                    help="training precision of every run (default: each config's, auto)")
     p.add_argument("--device", default="auto", help="auto (CUDA when present), cpu, cuda, cuda:N or mps")
-    p.add_argument("--threads", type=nonnegative_int, default=0, help="torch CPU threads (0: torch's default)")
+    add_threads_argument(p)
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.add_argument("--json", action="store_true", help="print the statistics over seeds as JSON instead of the tables")
     p.set_defaults(func=cmd_compare)

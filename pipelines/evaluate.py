@@ -32,7 +32,8 @@ from model.data import Scene, open_scenes
 from model.methods import Method, method_from_spec
 from model.metrics import AUTHORS_CONVENTION, METRIC_CONVENTION, METRICS, NORMALISED_CONVENTION
 from model.streaming import StepWindows
-from pipelines.argtypes import existing_file, nonnegative_int, positive_float, positive_int
+from model.threads import set_cpu_threads
+from pipelines.argtypes import add_threads_argument, existing_file, nonnegative_int, positive_float, positive_int
 from pipelines.inspect_cmd import header_columns_arg
 from spikesim.dataset import SATURATION_Y
 
@@ -269,8 +270,7 @@ def write_results(rows: Sequence[Score], methods: Sequence[str], out: Path) -> t
 def cmd_evaluate(args: argparse.Namespace) -> int:
     from model.training import resolve_device
     device = str(resolve_device(args.device))
-    if args.threads:
-        torch.set_num_threads(args.threads)
+    set_cpu_threads(args.threads)
     methods = [method_from_spec(s, args.window, args.chunk, device) for s in args.methods]
     names = [m.name for m in methods]
     if len(set(names)) != len(names):
@@ -359,7 +359,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--window", type=positive_int, default=41, help="readout steps per window")
     p.add_argument("--chunk", type=positive_int, default=8, help="windows held in memory by a network")
     p.add_argument("--device", default="auto", help="auto (CUDA when present), cpu, cuda, cuda:N or mps")
-    p.add_argument("--threads", type=nonnegative_int, default=0, help="torch CPU threads (0: torch's default)")
+    add_threads_argument(p)
     p.add_argument("--quiet", action="store_true", help="no per-scene progress lines")
     p.set_defaults(func=cmd_evaluate)
     return p

@@ -277,7 +277,7 @@ def _load_state(o: Options) -> dict[str, StageRecord]:
 
 
 def _machine() -> dict[str, Any]:
-    from pipelines.machine import cpu_model
+    from spikesim.machine import cpu_model
     return {"cpu": cpu_model(), "cores": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version()}
 
 

@@ -19,7 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pipelines.argtypes import nonnegative_int, output_file, positive_int
+from model.threads import set_cpu_threads
+from pipelines.argtypes import add_threads_argument, nonnegative_int, output_file, positive_int
 from pipelines.inspect_cmd import header_columns_arg, open_stream
 
 
@@ -72,14 +73,11 @@ def compose_panel(frames: dict[str, np.ndarray], captions: dict[str, str], perce
 
 
 def run(args: argparse.Namespace) -> int:
-    import torch
-
     from model.noref import no_reference_scores
     from model.training import resolve_device
 
     device = str(resolve_device(args.device))
-    if args.threads:
-        torch.set_num_threads(args.threads)
+    set_cpu_threads(args.threads)
     header = None if args.header_columns == "auto" else args.header_columns
     frames, reference, read = panel_frames(args.input, args.methods, args.height, args.width, header, args.flip,
                                            args.start, args.num_windows, args.frame, args.window, device)
@@ -130,6 +128,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                       help="rows stored bottom-up (a real PKU camera's files; the default where nothing is recorded)")
     flip.add_argument("--no-flip", dest="flip", action="store_false", help="rows stored top-down (SPCS/SCSim)")
     p.add_argument("--device", default="auto", help="auto (CUDA when present), cpu, cuda, cuda:N or mps")
-    p.add_argument("--threads", type=nonnegative_int, default=0, help="torch CPU threads (0: torch's default)")
+    add_threads_argument(p)
     p.add_argument("--json", action="store_true", help="print the measures as JSON")
     p.set_defaults(func=run)

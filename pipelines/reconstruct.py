@@ -28,7 +28,8 @@ import torch
 
 from model.methods import method_from_spec
 from model.streaming import StepWindows
-from pipelines.argtypes import nonnegative_int, positive_float, positive_int
+from model.threads import set_cpu_threads
+from pipelines.argtypes import add_threads_argument, nonnegative_int, positive_float, positive_int
 from pipelines.inspect_cmd import header_columns_arg, open_stream
 from spikesim._optional import require
 from spikesim.errors import UnavailableError
@@ -175,8 +176,7 @@ def replace_outputs(stage: Path, out: Path) -> None:
 def cmd_reconstruct(args: argparse.Namespace) -> int:
     from model.training import resolve_device
     device = str(resolve_device(args.device))
-    if args.threads:
-        torch.set_num_threads(args.threads)
+    set_cpu_threads(args.threads)
     header = None if args.header_columns == "auto" else args.header_columns
     summary = reconstruct_file(Path(args.input), Path(args.out), args.method, args.height, args.width, header,
                                args.flip, args.start, args.num_windows, args.window, args.chunk,
@@ -213,7 +213,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                    help="steps per window for tfp/tfi (a model uses its own)")
     p.add_argument("--chunk", type=positive_int, default=8, help="windows held in memory by a network")
     p.add_argument("--device", default="auto", help="auto (CUDA when present), cpu, cuda, cuda:N or mps")
-    p.add_argument("--threads", type=nonnegative_int, default=0, help="torch CPU threads (0: torch's default)")
+    add_threads_argument(p)
     p.add_argument("--enhance", choices=["none", "gamma", "stretch"], default="gamma",
                    help="display only: none (linear), gamma (1/gamma encode; default), stretch (percentile to white + gamma)")
     p.add_argument("--gamma", type=positive_float, default=2.2, help="display gamma of --enhance gamma")

@@ -11,17 +11,17 @@ The loop itself is model/training.py; this module parses arguments and prints.
 from __future__ import annotations
 
 import argparse
+import sys
 import dataclasses
 import json
 from pathlib import Path
-
-import torch
 
 from model.config import LR_SCHEDULES, ExperimentConfig, available_configs, load_config
 from model.data import open_scenes, split_scenes
 from model.precision import PRECISIONS, resolve_precision
 from model.training import resolve_device, run_training
-from pipelines.argtypes import nonnegative_int, positive_float, positive_int
+from model.threads import set_cpu_threads
+from pipelines.argtypes import add_threads_argument, nonnegative_int, positive_float, positive_int
 
 __all__ = ["add_parser", "cmd_train", "resolve_device", "run_training"]
 
@@ -42,8 +42,8 @@ def _apply_overrides(exp: ExperimentConfig, args: argparse.Namespace) -> Experim
 
 def cmd_train(args: argparse.Namespace) -> int:
     dev = resolve_device(args.device)  # before any work: a missing GPU is one line, not a late traceback
-    if args.threads:
-        torch.set_num_threads(args.threads)
+    threads = set_cpu_threads(args.threads)  # before any torch work
+    print(f"[train] {threads}", file=sys.stderr)
     exp = _apply_overrides(load_config(args.config), args)
     resolve_precision(exp.train.precision, dev)  # bf16 on a GPU without it: one line, before any work
     scenes = open_scenes(args.data)
@@ -75,7 +75,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         help="replace the run in --out (its checkpoints, logs and config); without it a folder "
                              "holding a run is refused")
     p.add_argument("--device", default="auto", help="auto (CUDA when present), cpu, cuda, cuda:N or mps")
-    p.add_argument("--threads", type=nonnegative_int, default=0, help="torch CPU threads (0: torch's default)")
+    add_threads_argument(p)
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     g = p.add_argument_group("overrides of the config's train section (default: the config's value)")
     g.add_argument("--epochs", type=positive_int, help="passes over the training samples")

@@ -1,0 +1,45 @@
+"""How many torch CPU threads a command uses when the user does not say.
+
+Measured on the 2-core VM (docs/performance.md, "Threads"; `python -m model.bench --config tiny
+--train-steps 6 --thread-sweep 1,2 --load N`): on a quiet machine two threads train 1.5x faster
+than one; with one other busy process on the machine two threads train 4.4x *slower* than one,
+because OpenMP threads spin-wait at every barrier for the thread that shares its core. So the
+default takes only the cores that are free now (cores minus the 1-minute load average), never
+fewer than one. A user-given count is used as it is.
+"""
+from __future__ import annotations
+
+import math
+import os
+
+import torch
+
+
+def free_cores(cores: int | None = None, load_1min: float | None = None) -> int:
+    """Cores not busy with other work: `cores` minus the load average rounded to the nearest
+    whole process, at least 1."""
+    cores = cores if cores is not None else (len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
+                                             else os.cpu_count() or 1)
+    if load_1min is None:
+        try:
+            load_1min = os.getloadavg()[0]
+        except OSError:  # no load average on this platform: assume a quiet machine
+            load_1min = 0.0
+    if not math.isfinite(load_1min) or load_1min < 0:
+        load_1min = 0.0
+    return max(1, cores - int(load_1min + 0.5))
+
+
+def set_cpu_threads(requested: int = 0) -> str:
+    """Set torch's intra-op threads: `requested` if > 0, else `free_cores()`. Returns how the
+    count was chosen, for the command's log line."""
+    if requested < 0:
+        raise ValueError(f"threads must be >= 0 (0: chosen from the free cores), got {requested}")
+    if requested:
+        torch.set_num_threads(requested)
+        return f"{requested} thread(s), as asked"
+    n = free_cores()
+    torch.set_num_threads(n)
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else 0.0
+    return (f"{n} thread(s): {os.cpu_count()} cores, load average {load:.1f} "
+            "(threads sharing a busy core stall each other; --threads N to choose)")
