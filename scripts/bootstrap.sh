@@ -43,7 +43,7 @@ if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
   [ -x "$VENV/bin/python" ] || "$PY" -m venv "$VENV"
   "$VENV/bin/python" -m pip install -q --upgrade pip 2>&1 | grep -v '^WARNING: Location' || true
   # torch first, so the project's `torch>=...` range is satisfied by the CPU build.
-  "$VENV/bin/python" -m pip install -q -r requirements/cpu.txt 2>&1 | grep -v '^WARNING: Location' || true
+  bash "$here/scripts/torch_cpu.sh" "$VENV/bin/python"
   "$VENV/bin/python" -m pip install -q -e ".[test,train,plot,video,cluster]" 2>&1 | grep -v '^WARNING: Location' || true
   "$VENV/bin/python" -c "import torch, drjit, mitsuba, spikesim" 
   echo "$want" > "$stamp"
