@@ -174,7 +174,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--light-power-factor", type=positive_float, help="scale every light's power (default 1); the lux recorded in meta.json includes it")
     p.add_argument("--windows", type=positive_int, help="41-step windows per scene (llr, scene)")
     p.add_argument("--steps", type=positive_int, help="steps per RLLR scene (paper 1000)")
-    p.add_argument("--gt-stride", type=positive_int, help="RLLR ground truth every this many steps (paper 1)")
+    p.add_argument("--gt-stride", type=positive_int,
+                   help="RLLR ground truth every this many steps (paper 1), on the centres of 41-step windows "
+                        "(stride 41: steps 20, 61, 102, ...)")
     p.add_argument("--gt-spp", type=positive_int, help="samples per pixel of ground-truth renders")
     p.add_argument("--camera", type=camera_spec,
                    help="realistic, noiseless or a JSON/TOML camera file (default: realistic; its size comes from the "

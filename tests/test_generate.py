@@ -27,16 +27,16 @@ def test_generate_verify_and_read_back(tmp_path):
     scenes = open_dataset(tmp_path)
     assert [s.name for s in scenes] == ["rllr_0000", "rllr_0001"]
     s = scenes[0]
-    assert s.num_steps == 82 and s.gt_steps == [0, 41] and s.spikes(0, 41).shape == (41, 12, 32)
+    assert s.num_steps == 82 and s.gt_steps == [20, 61] and s.spikes(0, 41).shape == (41, 12, 32)
     meta = s.meta
     # RLLR darkening: a factor in (0, 1) recorded, and applied to the ground truth
     f = meta["light_power_factor"]
     assert 0 < f < 1
     from spikesim.patterns import MovingPattern
     p = MovingPattern(height=12, width=32, peak_y=0.3, seed=meta["job"]["source"]["pattern_seed"])
-    assert np.allclose(s.ground_truth(41), p.frame(41) * np.float32(f))
+    assert np.allclose(s.ground_truth(61), p.frame(61) * np.float32(f))
     # the stream's mean rate follows the darkened light
-    assert s.spikes().mean() == pytest.approx(p.frame(41).mean() * f, rel=0.25, abs=0.01)
+    assert s.spikes().mean() == pytest.approx(p.frame(61).mean() * f, rel=0.25, abs=0.01)
 
 
 def test_verify_names_altered_and_missing_files(tmp_path):
@@ -45,12 +45,12 @@ def test_verify_names_altered_and_missing_files(tmp_path):
     data = bytearray(dat.read_bytes())
     data[10] ^= 0xFF
     dat.write_bytes(bytes(data))
-    (tmp_path / "rllr_0001" / "gt" / "step_000041.exr").unlink()
+    (tmp_path / "rllr_0001" / "gt" / "step_000061.exr").unlink()
     with open(tmp_path / "rllr_0001" / "spikes.dat", "ab") as f:
         f.write(b"\x00")
     problems = verify(tmp_path)
     assert any("rllr_0000/spikes.dat" in p and "checksum" in p for p in problems)
-    assert any("step_000041.exr: missing" in p for p in problems)
+    assert any("step_000061.exr: missing" in p for p in problems)
     assert any("rllr_0001/spikes.dat" in p and "bytes" in p for p in problems)
 
 
@@ -126,14 +126,14 @@ def test_rllr_random_scene_end_to_end(tmp_path):
     jobs = plan_rllr(preset, seed=3, count=1)
     generate(jobs, tmp_path, workers=1, show_progress=False)
     (s,) = open_dataset(tmp_path)
-    assert s.num_steps == 42 and s.gt_steps == [0, 41]
-    gt = s.ground_truth(41)
+    assert s.num_steps == 42 and s.gt_steps == [20]
+    gt = s.ground_truth(20)
     assert gt.shape == (20, 32) and np.isfinite(gt).all() and gt.max() > 0
     assert s.meta["source"]["scene"] and 0 < s.meta["light_power_factor"] < 1
     assert verify(tmp_path) == []
     # the random scene's temporary folder does not leak into meta.json: same job, same bytes
     generate(jobs, tmp_path / "again", workers=1, show_progress=False)
-    for f in ("meta.json", "spikes.dat", "gt/step_000041.exr"):
+    for f in ("meta.json", "spikes.dat", "gt/step_000020.exr"):
         assert (tmp_path / "rllr_0000" / f).read_bytes() == (tmp_path / "again" / "rllr_0000" / f).read_bytes(), f
 
 

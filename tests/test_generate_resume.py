@@ -34,7 +34,7 @@ def test_quick_resume_rebuilds_truncated_and_deleted_files(clean_and_copy):
     jobs, clean, root = clean_and_copy
     dat = root / "rllr_0000" / "spikes.dat"
     dat.write_bytes(dat.read_bytes()[:-1])
-    (root / "rllr_0001" / "gt" / "step_000041.exr").unlink()
+    (root / "rllr_0001" / "gt" / "step_000061.exr").unlink()
     assert len(verify(root)) == 2
     assert job_status(jobs[0], root) == "damaged" and job_status(jobs[1], root) == "damaged"
     report = generate(jobs, root, workers=1, show_progress=False)
@@ -107,7 +107,7 @@ def test_a_refusal_removes_nothing(clean_and_copy):
     # rllr_0000 is damaged (rebuilt on a normal rerun), but rllr_0001 is from other parameters
     # and --overwrite is not given: the run stops before removing either.
     jobs, clean, root = clean_and_copy
-    (root / "rllr_0000" / "gt" / "step_000041.exr").unlink()
+    (root / "rllr_0000" / "gt" / "step_000061.exr").unlink()
     meta = json.loads((root / "rllr_0001" / "meta.json").read_text())
     (root / "rllr_0001" / "meta.json").write_text(json.dumps({**meta, "job_digest": "0" * 16}))
     with pytest.raises(FileExistsError, match="rllr_0001 was generated with other parameters"):

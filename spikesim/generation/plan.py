@@ -38,7 +38,8 @@ class Preset(HoldsRenderSettings):
     rllr_steps: int
     """Steps per RLLR scene (paper: 1000)."""
     rllr_gt_stride: int = 1
-    """Ground truth every this many steps in RLLR (1 = every step, as the paper)."""
+    """Ground truth every this many steps in RLLR (1 = every step, as the paper), on the centres of
+    41-step windows (rllr_gt_steps)."""
     render: RenderSettings = RenderSettings()
     """spp, gt_spp, variant ("auto" = mono when the lights share one spectrum, else spectral) and
     keyframe_every; a job sets its own seed and the resolution (height, width)."""
@@ -238,6 +239,14 @@ def darkening_factor(rng: np.random.Generator, darkening: str = "uniform") -> fl
     return factor
 
 
+def rllr_gt_steps(num_steps: int, stride: int) -> tuple[int, ...]:
+    """Steps with ground truth in an RLLR scene: every `stride` steps, placed on the centres of
+    the 41-step windows that start at step 0 (20, 61, 102, ... for stride 41), since training
+    takes K windows centred on ground-truth steps (model/data.py). At the windows' edges (0, 41,
+    ...) the first one is unusable and a 164-step scene gave one K=3 sample instead of two."""
+    return tuple(range((WINDOW // 2) % stride, num_steps, stride))
+
+
 def plan_rllr(preset: Preset, seed: int = 0, camera: Any | None = None, count: int | None = None,
               source: str = "random", quality: str | None = None, darkening: str = "uniform") -> list[SceneJob]:
     """RLLR: random scenes, each darkened by a random factor (paper, "RLLR": uniform in (0, 1);
@@ -249,7 +258,7 @@ def plan_rllr(preset: Preset, seed: int = 0, camera: Any | None = None, count: i
         raise ValueError(f"darkening={darkening!r}; expected one of {DARKENINGS}")
     rng = np.random.default_rng(np.random.SeedSequence([seed, 7]))
     n = preset.rllr_scenes if count is None else count
-    gt = tuple(range(0, preset.rllr_steps, preset.rllr_gt_stride))
+    gt = rllr_gt_steps(preset.rllr_steps, preset.rllr_gt_stride)
     jobs = []
     for i in range(n):
         factor = darkening_factor(rng, darkening)
