@@ -144,6 +144,10 @@ class TrainConfig:
     val_crop: int | None = None
     val_max_samples: int = 4
     val_every: int = 1
+    min_validations: int = 10
+    """Validate at least this many times over a run: where val_every epochs would give fewer (a
+    run of few, short epochs, such as `tiny`'s one-step epochs), the cadence becomes the run's
+    epochs / min_validations, so best.pt is chosen from the run and not just its last step."""
     ckpt_every: int = 1
     ckpt_every_steps: int | None = None
     """Also write last.pt every this many steps, so a run cut anywhere loses at most that many."""
@@ -166,7 +170,7 @@ class TrainConfig:
             _require(isinstance(v, int) and not isinstance(v, bool) and v >= 1,
                      f"train.{name} must be a positive integer, got {v!r}")
         for name in ("num_windows", "crop", "batch_size", "epochs", "start_stride", "val_max_samples",
-                     "val_every", "ckpt_every"):
+                     "val_every", "min_validations", "ckpt_every"):
             pos_int(name)
         for name in ("samples_per_epoch", "val_crop", "max_steps", "ckpt_every_steps"):
             pos_int(name, allow_none=True)

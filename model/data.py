@@ -61,9 +61,76 @@ def sequence_starts(scene: Scene, window: int, num_windows: int, stride: int = 1
     return starts
 
 
+@dataclass(frozen=True)
+class TimeSlice:
+    """Steps [start, stop) of a scene, seen as a scene of its own: one scene split in time gives a
+    training part and a validation part that share no step (split_by_time)."""
+
+    scene: Scene
+    start: int
+    stop: int
+
+    @property
+    def name(self) -> str:
+        return f"{self.scene.name}[{self.start}:{self.stop}]"
+
+    @property
+    def num_steps(self) -> int:
+        return self.stop - self.start
+
+    @property
+    def height(self) -> int:
+        return self.scene.height
+
+    @property
+    def width(self) -> int:
+        return self.scene.width
+
+    @property
+    def gt_steps(self) -> list[int]:
+        return [int(g) - self.start for g in self.scene.gt_steps if self.start <= int(g) < self.stop]
+
+    def spikes(self, start: int = 0, stop: int | None = None) -> np.ndarray:
+        stop = self.num_steps if stop is None else stop
+        if not 0 <= start <= stop <= self.num_steps:
+            raise IndexError(f"{self.name}: steps [{start}, {stop}) are outside its {self.num_steps} steps")
+        return self.scene.spikes(self.start + start, self.start + stop)
+
+    def ground_truth(self, step: int) -> np.ndarray:
+        if not 0 <= step < self.num_steps:
+            raise KeyError(f"{self.name}: no step {step}")
+        return self.scene.ground_truth(self.start + step)
+
+
+def split_by_time(scene: Scene, window: int, num_windows: int,
+                  val_fraction: float) -> tuple[TimeSlice, TimeSlice] | None:
+    """(train, validation) parts of one scene: validation is its last stretch, at least
+    `val_fraction` of the steps and at least one sample of `num_windows` windows; training is
+    everything before it, so no step is in both (the content, objects and motion, is shared: a
+    weaker check than held-out scenes, and said so where it is used). The cut is at the start of
+    a window centred on a ground-truth step, as late as allows. None when the scene is too short
+    for a sample on each side."""
+    half = window // 2
+    n = scene.num_steps
+    for cut in sorted({int(g) - half for g in scene.gt_steps if int(g) - half > 0}, reverse=True):
+        if n - cut < val_fraction * n:
+            continue
+        train, val = TimeSlice(scene, 0, cut), TimeSlice(scene, cut, n)
+        if sequence_starts(val, window, num_windows) and sequence_starts(train, window, num_windows):
+            return train, val
+    return None
+
+
 def split_scenes(scenes: Sequence[Scene], val_fraction: float, val_names: Sequence[str] = (),
-                 seed: int = 0) -> tuple[list[Scene], list[Scene]]:
-    """(train, validation) split by scene, so no validation frame is seen in training."""
+                 seed: int = 0, window: int | None = None,
+                 num_windows: int | None = None) -> tuple[list[Scene], list[Scene]]:
+    """(train, validation) split by scene, so no validation frame is seen in training. A single
+    scene (no names given, `val_fraction` > 0, `window` and `num_windows` given) is split in time
+    instead, when it is long enough (split_by_time): else there is no validation."""
+    if len(scenes) == 1 and not val_names and val_fraction > 0 and window and num_windows:
+        parts = split_by_time(scenes[0], window, num_windows, val_fraction)
+        if parts is not None:
+            return [parts[0]], [parts[1]]
     by_name = {s.name: s for s in scenes}
     if val_names:
         missing = sorted(set(val_names) - set(by_name))

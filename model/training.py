@@ -29,7 +29,7 @@ from torch.utils.data import DataLoader
 from .arch import build_model, count_parameters
 from .checkpoint import load_checkpoint, save_checkpoint, state_fingerprint
 from .config import ExperimentConfig
-from .data import Scene, SequenceDataset
+from .data import Scene, SequenceDataset, TimeSlice
 from .losses import build_loss
 from .metrics import psnr, psnr_aligned, ssim
 from .precision import autocast, grad_scaler, resolve_precision
@@ -472,9 +472,13 @@ def run_training(experiment: ExperimentConfig, train_scenes: Sequence[Scene], va
               f"samples/epoch from {len(train_scenes)} scenes, {len(val_ds) if val_ds else 0} validation samples",
               file=sys.stderr)
         if val_ds is None:
-            print(f"[train] no validation scenes (a scene is never both trained on and validated on: give more scenes "
-                  f"or --val-data): best.pt will not be written; {out / 'last.pt'} is the trained model",
-                  file=sys.stderr)
+            print(f"[train] no validation scenes (a scene is never both trained on and validated on, and one scene "
+                  f"too short to split in time gives none: give more scenes, longer ones or --val-data): best.pt will "
+                  f"not be written; {out / 'last.pt'} is the trained model", file=sys.stderr)
+        elif any(isinstance(s, TimeSlice) for s in val_scenes):
+            print(f"[train] one scene, split in time: training on {', '.join(s.name for s in train_scenes)}, "
+                  f"validating on {', '.join(s.name for s in val_scenes)} (no step is in both; the objects and "
+                  "motion are, so this checks less than held-out scenes would)", file=sys.stderr)
 
     def checkpoint(path: Path) -> None:
         if dist.is_main:
@@ -490,6 +494,12 @@ def run_training(experiment: ExperimentConfig, train_scenes: Sequence[Scene], va
         if budget is not None and budget.planned_steps is not None:
             return min(budget.planned_steps, total)
         return total
+
+    def validation_every() -> int:
+        """Epochs between validations: val_every, or fewer where the run is too short to validate
+        min_validations times at that cadence."""
+        run_epochs = math.ceil(last_step() / batches_per_epoch)
+        return min(tc.val_every, max(1, run_epochs // tc.min_validations))
 
     bar = progress_bar(total=_total_steps(tc, batches_per_epoch), initial=step, desc=f"train {experiment.name}",
                        unit="step", quiet=not (progress and dist.is_main))
@@ -538,10 +548,11 @@ def run_training(experiment: ExperimentConfig, train_scenes: Sequence[Scene], va
                 with warnings.catch_warnings():  # a run resumed exactly at an epoch's end steps no batch first
                     warnings.filterwarnings("ignore", message="Detected call of `lr_scheduler.step")
                     run.sched.step()
-            if dist.is_main and val_ds is not None and (stopped or epoch % tc.val_every == 0):
+            if dist.is_main and val_ds is not None and (stopped or epoch % validation_every() == 0):
                 scores = validate(run.model, val_ds, dev)
                 logs.validation(epoch, step, scores)
-                bar.write(f"[train] epoch {epoch} step {step}: loss {last_loss:.4f}, val aligned PSNR "
+                bar.write(f"[train] step {step} of {last_step()} (epoch {epoch}, {batches_per_epoch} step(s) each): "
+                          f"loss {last_loss:.4f}, val aligned PSNR "
                           f"{scores['psnr_aligned']:.2f} dB (TFP {scores['psnr_aligned_tfp']:.2f}), PSNR "
                           f"{scores['psnr']:.2f} dB (TFP {scores['psnr_tfp']:.2f}), SSIM {scores['ssim']:.4f}",
                           file=sys.stderr)

@@ -50,7 +50,8 @@ def cmd_train(args: argparse.Namespace) -> int:
     if args.val_data:
         train_scenes, val_scenes = scenes, open_scenes(args.val_data)
     else:
-        train_scenes, val_scenes = split_scenes(scenes, exp.train.val_fraction, exp.train.val_scenes, exp.train.seed)
+        train_scenes, val_scenes = split_scenes(scenes, exp.train.val_fraction, exp.train.val_scenes, exp.train.seed,
+                                                window=exp.model.window, num_windows=exp.train.num_windows)
     out = Path(args.out) if args.out else Path("runs") / exp.name
     summary = run_training(exp, train_scenes, val_scenes, out, args.device, args.resume, progress=not args.quiet,
                            overwrite=args.overwrite)

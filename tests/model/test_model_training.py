@@ -202,3 +202,46 @@ def test_sigterm_finishes_the_step_and_writes_last(scenes, tmp_path, monkeypatch
     assert summary["stopped_by"] == "SIGTERM" and summary["steps"] == 2
     assert load_checkpoint(tmp_path / "last.pt")["step"] == 2
     assert signal.getsignal(signal.SIGTERM) is not None  # the handler was put back
+
+
+def test_one_scene_is_split_in_time_with_no_shared_step():
+    from model.data import TimeSlice, split_by_time
+    scene = make_scene("one", 16, 20, 7 * 12, seed=5)
+    train, val = split_scenes([scene], 0.25, window=7, num_windows=3)
+    (tr,), (va,) = train, val
+    assert isinstance(tr, TimeSlice) and isinstance(va, TimeSlice) and tr.stop == va.start
+    assert va.num_steps >= 0.25 * scene.num_steps and va.stop == scene.num_steps and tr.start == 0
+    # every sample's windows stay on their side of the cut
+    for part in (tr, va):
+        for c in sequence_starts(part, 7, 3):
+            assert c - 3 >= 0 and c + 2 * 7 + 3 <= part.num_steps - 1
+    assert sequence_starts(tr, 7, 3) and sequence_starts(va, 7, 3)
+    # a slice reads the scene's own steps and ground truth, shifted
+    assert np.array_equal(va.spikes(0, 5), scene.spikes(va.start, va.start + 5))
+    assert np.array_equal(va.ground_truth(va.gt_steps[0]), scene.ground_truth(va.start + va.gt_steps[0]))
+    with pytest.raises(IndexError):
+        va.spikes(0, va.num_steps + 1)
+    # too short for a sample on each side: no split, and split_scenes gives no validation
+    short = make_scene("short", 16, 20, 7 * 4, seed=6)
+    assert split_by_time(short, 7, 3, 0.1) is None
+    assert split_scenes([short], 0.1, window=7, num_windows=3) == ([short], [])
+    # without the window geometry (old callers) a single scene is not split
+    assert split_scenes([scene], 0.25) == ([scene], [])
+
+
+def test_training_on_one_scene_writes_best_pt(tmp_path, capsys):
+    scene = make_scene("one", 16, 20, 7 * 12, seed=5)
+    train, val = split_scenes([scene], 0.25, window=7, num_windows=3)
+    run_training(tiny_experiment(max_steps=4, samples_per_epoch=2), train, val, tmp_path, device="cpu",
+                 progress=False)
+    err = capsys.readouterr().err
+    assert "one scene, split in time" in err and (tmp_path / "best.pt").exists()
+
+
+def test_validation_cadence_fits_the_run(scenes, tmp_path):
+    # val_every=1000 epochs of one step each, in a 20-step run: validated 10 times (min_validations),
+    # not only at the end, so best.pt is chosen from the run
+    exp = tiny_experiment(max_steps=20, samples_per_epoch=2, batch_size=2, val_every=1000)
+    run_training(exp, scenes[:1], scenes[1:2], tmp_path, device="cpu", progress=False)
+    rows = list(csv.DictReader((tmp_path / "val_log.csv").open()))
+    assert [int(r["step"]) for r in rows] == list(range(2, 21, 2))
