@@ -16,6 +16,7 @@ _SUBCOMMANDS = (
     "pipelines.inspect_cmd",
     "pipelines.bench",
     "pipelines.golden_stats",
+    "pipelines.camera_cmd",
     "pipelines.generate",
     "pipelines.render_cmd",
     "pipelines.train",
@@ -32,7 +33,7 @@ _SUBCOMMANDS = (
 # model's pull in torch, ~2 s) unless the full list is asked for.
 _COMMAND_MODULE = {
     "demo": "pipelines.demo", "simulate": "pipelines.simulate_cmd", "inspect": "pipelines.inspect_cmd",
-    "bench": "pipelines.bench", "golden": "pipelines.golden_stats", "generate": "pipelines.generate",
+    "bench": "pipelines.bench", "golden": "pipelines.golden_stats", "camera": "pipelines.camera_cmd", "generate": "pipelines.generate",
     "verify": "pipelines.generate", "render": "pipelines.render_cmd", "train": "pipelines.train",
     "evaluate": "pipelines.evaluate", "compare": "pipelines.compare", "reconstruct": "pipelines.reconstruct", "tradeoff": "pipelines.tradeoff",
     "panel": "pipelines.panel", "gpu-campaign": "pipelines.gpu_campaign_cmd",

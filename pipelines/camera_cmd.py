@@ -1,0 +1,54 @@
+"""`spikesim camera`: write a camera file to start from, or check one.
+
+    spikesim camera --write mine.toml                  # every field, its unit and the published default
+    spikesim camera --write mine.toml --preset noiseless
+    spikesim camera mine.toml                          # check a camera file: the camera it describes
+
+Edit the written file and pass it as `--camera mine.toml` to simulate, generate, demo or golden.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from pathlib import Path
+
+from pipelines.argtypes import camera_spec, load_camera, output_file
+
+
+def run(args: argparse.Namespace) -> int:
+    from spikesim.camera_file import GEOMETRY_FIELDS, camera_toml
+
+    if args.write:
+        out: Path = args.write
+        if out.suffix != ".toml":
+            raise ValueError(f"--write {out}: a camera file written with comments is TOML; name it *.toml")
+        if out.exists() and not args.overwrite:
+            raise FileExistsError(f"--write {out}: the file exists (--overwrite to replace it)")
+        tmp = out.with_name(f".{out.name}.part")
+        try:
+            tmp.write_text(camera_toml(preset=args.preset))
+            os.replace(tmp, out)
+        except OSError as exc:
+            tmp.unlink(missing_ok=True)
+            raise OSError(exc.errno, f"cannot write {out}: {exc.strerror}") from None
+        print(f"[camera] wrote {out} ({args.preset}); edit it and pass --camera {out}", file=sys.stderr)
+        return 0
+    camera = load_camera(args.file)
+    fields = {k: v for k, v in camera.to_dict().items() if k not in GEOMETRY_FIELDS}
+    print(json.dumps(fields, indent=2))
+    return 0
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("camera", help="write a commented camera file to start from, or check one",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("file", nargs="?", type=camera_spec, default="realistic",
+                   help="a camera file to check (or realistic / noiseless): prints the camera it describes")
+    p.add_argument("--write", type=output_file, metavar="FILE.toml",
+                   help="write every field with its unit, meaning and published default")
+    p.add_argument("--preset", choices=["realistic", "noiseless"], default="realistic",
+                   help="with --write: the values to write (default: realistic, the published magnitudes)")
+    p.add_argument("--overwrite", action="store_true", help="with --write: replace an existing file")
+    p.set_defaults(func=run)
