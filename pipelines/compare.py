@@ -206,7 +206,7 @@ def markdown(stats: Sequence[SeedStat], labels: Sequence[str], baselines: Sequen
     """Per group, a table of mean +- std over seeds; then every pair of configs, with the
     difference called only where it exceeds the spread."""
     from model.metrics import METRICS
-    from pipelines.evaluate import ALL
+    from pipelines.evaluate import ALL, TABLE_ROWS, method_label
 
     cols = [baseline_label(b) for b in baselines] + list(labels)
     by = {(s.label, s.group, s.metric): s for s in stats}
@@ -223,8 +223,10 @@ def markdown(stats: Sequence[SeedStat], labels: Sequence[str], baselines: Sequen
         lines += ["Steps per run: " + "; ".join(f"{label} {', '.join(map(str, n))}" for label, n in per_label.items()), ""]
     for g in groups:
         title = "All scenes" if g == ALL else f"{g.split('_', 1)[1].capitalize()} light"
-        lines += [f"**{title}**", "", "| Metric | " + " | ".join(cols) + " |", "|---|" + "---|" * len(cols)]
-        for key, (_, label, fmt) in METRICS.items():
+        lines += [f"**{title}**", "", "| Metric | " + " | ".join(method_label(c) for c in cols) + " |",
+                  "|---|" + "---|" * len(cols)]
+        for key in TABLE_ROWS:  # aligned PSNR first: the floors cannot win it
+            _, label, fmt = METRICS[key]
             lines.append(f"| {label} | " + " | ".join(_fmt(by[(c, g, key)], fmt) for c in cols) + " |")
         lines.append("")
     pairs = list(itertools.combinations(labels, 2))
@@ -232,7 +234,8 @@ def markdown(stats: Sequence[SeedStat], labels: Sequence[str], baselines: Sequen
         lines += ["| Groups | Metric | " + " | ".join(f"{a} - {b}" for a, b in pairs) + " |",
                   "|---|---|" + "---|" * len(pairs)]
         for g in groups:
-            for key, (_, label, fmt) in METRICS.items():
+            for key in TABLE_ROWS:
+                _, label, fmt = METRICS[key]
                 cells = []
                 for a, b in pairs:
                     sa, sb = by[(a, g, key)], by[(b, g, key)]

@@ -29,7 +29,7 @@ import numpy as np
 import torch
 
 from model.data import Scene, open_scenes
-from model.methods import Method, method_from_spec
+from model.methods import FLOORS, Method, method_from_spec
 from model.metrics import AUTHORS_CONVENTION, METRIC_CONVENTION, METRICS, NORMALISED_CONVENTION
 from model.streaming import StepWindows
 from model.threads import set_cpu_threads
@@ -133,7 +133,8 @@ def evaluate(scenes: Sequence[Scene], methods: Sequence[Method], window: int, pr
     for sc in scenes:
         rows += evaluate_scene(sc, methods, window)
         if progress:
-            print(f"[evaluate] {sc.name}: " + ", ".join(f"{r.method} {r.psnr:.2f} dB" for r in rows[-len(methods):]),
+            print(f"[evaluate] {sc.name}: aligned PSNR " + ", ".join(f"{r.method} {r.psnr_aligned:.2f} dB"
+                                                                  for r in rows[-len(methods):]),
                   file=sys.stderr)
     per_scene = list(rows)
     for cond in CONDITIONS:
@@ -206,14 +207,29 @@ def _cell(value: float, fmt: str, best: bool) -> str:
     return f"**{text}**" if best else text
 
 
+#: The tables' row order: first the metric a black or constant image cannot win (aligned PSNR
+#: scores it at the floor, model/metrics.py), then light-normalised, then the absolute ones, on
+#: which a black image beats every method in low light (its ground truth is nearly black too).
+TABLE_ROWS = ("psnr_aligned", "psnr_norm", "ssim_norm", "psnr", "ssim", "psnr_8bit", "ssim_8bit")
+
+
+def method_label(method: str) -> str:
+    """A column's name: floors are marked as floors."""
+    return f"{method} (floor)" if method in FLOORS else method
+
+
 def _group_table(rows: Sequence[Score], methods: Sequence[str], group: str) -> list[str]:
-    """Table 1 layout (metrics x methods) for one group of scenes; the best of each row in bold."""
+    """Table 1 layout (metrics x methods) for one group of scenes; the best method of each row in
+    bold (the floors are shown, never bolded: they are what no structure scores)."""
     by = {r.method: r for r in rows if r.scene == group}
-    lines = ["| Metric | " + " | ".join(methods) + " |", "|---|" + "---|" * len(methods)]
-    for key, (_, label, fmt) in METRICS.items():
-        best = max(by[m].value(key) for m in methods)
-        lines.append(f"| {label} | " + " | ".join(_cell(by[m].value(key), fmt, len(methods) > 1 and by[m].value(key) == best)
-                                                 for m in methods) + " |")
+    contenders = [m for m in methods if m not in FLOORS]
+    lines = ["| Metric | " + " | ".join(method_label(m) for m in methods) + " |", "|---|" + "---|" * len(methods)]
+    for key in TABLE_ROWS:
+        _, label, fmt = METRICS[key]
+        best = max((by[m].value(key) for m in contenders), default=math.nan)
+        lines.append(f"| {label} | " + " | ".join(
+            _cell(by[m].value(key), fmt, len(contenders) > 1 and m in contenders and by[m].value(key) == best)
+            for m in methods) + " |")
     return lines
 
 
@@ -229,7 +245,8 @@ def markdown_table(rows: Sequence[Score], methods: Sequence[str]) -> str:
             continue
         title = "All scenes" if cond is None else f"{cond.capitalize()} light"
         lines += [f"**{title}** ({present[0].frames} frames)", ""] + _group_table(rows, methods, group) + [""]
-    lines += ["| Scene | frames | " + " | ".join(f"{m} PSNR / SSIM | {m} 8-bit | {m} light-norm. / aligned" for m in methods) + " |",
+    lines += ["| Scene | frames | " + " | ".join(f"{method_label(m)} aligned / light-norm. | {method_label(m)} PSNR / SSIM | "
+                                                  f"{method_label(m)} 8-bit" for m in methods) + " |",
               "|---|---|" + "---|" * (3 * len(methods))]
     scenes = [r.scene for r in rows if not r.scene.startswith(ALL) and r.method == methods[0]]
     for sc in scenes:
@@ -237,8 +254,8 @@ def markdown_table(rows: Sequence[Score], methods: Sequence[str]) -> str:
         cells = []
         for m in methods:
             r = by[m]
-            cells += [f"{r.psnr:.3f} / {r.ssim:.5f}", f"{r.psnr_8bit:.3f} / {r.ssim_8bit:.5f}",
-                      f"{r.psnr_norm:.3f} / {r.ssim_norm:.5f} / {r.psnr_aligned:.3f}"]
+            cells += [f"{r.psnr_aligned:.3f} / {r.psnr_norm:.3f} / {r.ssim_norm:.5f}", f"{r.psnr:.3f} / {r.ssim:.5f}",
+                      f"{r.psnr_8bit:.3f} / {r.ssim_8bit:.5f}"]
         lines.append(f"| {sc} | {by[methods[0]].frames} | " + " | ".join(cells) + " |")
     lines += ["", f"Metric conventions. PSNR, SSIM: {METRIC_CONVENTION} {AUTHORS_CONVENTION} "
                   f"{NORMALISED_CONVENTION} Ground truth clipped at saturation (y = {SATURATION_Y:g}). "

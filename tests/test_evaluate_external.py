@@ -133,3 +133,20 @@ def test_panel_measures_every_method_on_the_same_pixels(tmp_path, capsys) -> Non
     assert image.width > 2 * 64 and image.height > 64
     rc, err = run_cli(["panel", dat, "--frame", 7, "-o", tmp_path / "q.png"], capsys)
     assert rc == 2 and "numbered 0..2" in one_line(err)
+
+
+def test_tables_lead_with_aligned_psnr_and_never_bold_a_floor() -> None:
+    from pipelines.evaluate import Score, markdown_table
+    # low light: black beats TFP in PSNR (the ground truth is nearly black) but not aligned
+    rows = [Score(scene, "tfp", psnr=30.0, ssim=0.5, frames=3, psnr_8bit=30.0, ssim_8bit=0.5, psnr_norm=1.0,
+                  ssim_norm=0.1, psnr_aligned=16.0) for scene in ("a_low", "ALL_low", "ALL")]
+    rows += [Score(scene, "black", psnr=50.0, ssim=0.9, frames=3, psnr_8bit=50.0, ssim_8bit=0.9, psnr_norm=10.0,
+                   ssim_norm=0.2, psnr_aligned=14.0) for scene in ("a_low", "ALL_low", "ALL")]
+    rows += [Score(scene, "net", psnr=40.0, ssim=0.8, frames=3, psnr_8bit=40.0, ssim_8bit=0.8, psnr_norm=5.0,
+                   ssim_norm=0.3, psnr_aligned=20.0) for scene in ("a_low", "ALL_low", "ALL")]
+    text = markdown_table(rows, ["tfp", "black", "net"])
+    table = text.split("\n\n")[1].splitlines()
+    assert table[0] == "| Metric | tfp | black (floor) | net |"
+    assert table[2].startswith("| PSNR aligned |") and "**20.000**" in table[2]
+    psnr_row = next(line for line in table if line.startswith("| PSNR |"))
+    assert "**40.000**" in psnr_row and "**50.000**" not in psnr_row  # the floor's 50 dB is shown, not bolded
