@@ -205,8 +205,10 @@ def measure_reference(camera: SpikeCamera | None = None, backend: str = "numpy",
                       seeds: Sequence[int] = REFERENCE_SEEDS, progress: Any = None) -> dict[str, Any]:
     """A reference: the mean of each statistic over replicate seeds, its standard error (the
     seeds' batch-mean errors combined), and the spread between the seeds (`seed_sd`, which the
-    batch-mean error should match: a check of it). A statistic undefined at any seed, or with no
-    spread at all (a fraction that is 0 or 1 everywhere), is left out: it carries no z-score."""
+    batch-mean error should match: a check of it). A statistic undefined at any seed is left out.
+    One with no error at all (every block and every seed the same value: a noiseless camera's
+    rates, a fraction that is 0 or 1 everywhere) is kept as exact, with se 0: a check then passes
+    only on the same value (compare's z is 0 or infinite), which is what such a statistic means."""
     seeds = list(seeds)
     if len(set(seeds)) != len(seeds) or not seeds:
         raise ValueError(f"reference seeds must be distinct and at least one, got {seeds}")
@@ -221,9 +223,12 @@ def measure_reference(camera: SpikeCamera | None = None, backend: str = "numpy",
         for name in entry:
             values = np.array([r["stats"][band][name]["value"] for r in runs])
             ses = np.array([r["stats"][band][name]["se"] for r in runs])
-            if not (np.isfinite(values).all() and np.isfinite(ses).all() and ses.min() > 0):
+            if not (np.isfinite(values).all() and np.isfinite(ses).all()):
                 continue
-            stats[band][name] = {"value": float(values.mean()), "se": float(np.sqrt((ses ** 2).sum()) / len(seeds))}
+            se = float(np.sqrt((ses ** 2).sum()) / len(seeds))
+            if se == 0 and np.ptp(values) != 0:
+                continue  # no error within a seed but different values between seeds: no error bar holds
+            stats[band][name] = {"value": float(values.mean()), "se": se}
             if len(seeds) > 1:
                 stats[band][name]["seed_sd"] = float(values.std(ddof=1))
     return {**{k: v for k, v in runs[0].items() if k not in ("seed", "stats")}, "seeds": seeds, "stats": stats}

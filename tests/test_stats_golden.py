@@ -3,6 +3,7 @@ golden statistics (spikesim/golden.py: a reference averaged over replicate seeds
 batch-mean standard errors, a Bonferroni t threshold), including the check's power to see a
 changed noise term (the full table: docs/sensor.md)."""
 import json
+import math
 
 import numpy as np
 import pytest
@@ -180,3 +181,21 @@ def test_power_prints_a_table_per_term_and_change(monkeypatch, capsys):
     cells = [c.strip() for c in row.strip("|").split("|")]
     assert cells[1].startswith("100%") and cells[2].startswith("100%") and cells[3] == "y=0.03 isi_cv2", row
     assert "unchanged camera: failed at 0% of 1 seeds" in out
+
+
+def test_a_noiseless_reference_keeps_its_exact_statistics():
+    """A noiseless camera's statistics have no error at all; they are kept as exact (se 0), so the
+    check still covers every statistic, passes on the same camera and fails on a changed one."""
+    from spikesim import golden
+    from spikesim.camera import SpikeCamera
+
+    ref = golden.measure_reference(SpikeCamera.noiseless(), seeds=[0])
+    measured = golden.measure(SpikeCamera.noiseless(), seed=1000)
+    # every statistic defined without noise (15; a dark pixel's Fano factor is not) is kept
+    full = sum(math.isfinite(g["value"]) and math.isfinite(g["se"]) for e in measured["stats"].values() for g in e.values())
+    kept = [(b, n) for b, e in ref["stats"].items() for n, g in e.items()]
+    assert len(kept) == full >= 15 and any(g["se"] == 0 for e in ref["stats"].values() for g in e.values())
+    same = golden.compare(measured, ref)
+    assert len(same) == full and all(r.passed for r in same)
+    changed = golden.compare(golden.measure(SpikeCamera.noiseless().replace(dark_current_hz=94.0), seed=1000), ref)
+    assert not all(r.passed for r in changed)
