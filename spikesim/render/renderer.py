@@ -55,12 +55,18 @@ class SceneRenderer:
                  spp: int | None = None, resolution: tuple[int, int] | None = None, seed: int | None = None,
                  *, camera: Any = None, optics: Optics | None = None, pixel: PixelResponse | None = None,
                  exposure: Exposure | None = None, motion: str | Path | None = None,
-                 lights: str | Path | None = None, settings: RenderSettings | None = None, **overrides: Any):
+                 lights: str | Path | None = None, settings: RenderSettings | None = None,
+                 light_power_factor: float = 1.0, **overrides: Any):
         film = {"resolution": (int(camera.height), int(camera.width))} if hasattr(camera, "height") else None
         values, _ = merge_layers([("camera", film), ("settings", settings.to_dict() if settings else None),
                                   ("arguments", {"variant": variant, "spp": spp, "resolution": resolution,
                                                  "seed": seed, **overrides})])
         self.settings = RenderSettings.from_dict(values)
+        factor = light_power_factor
+        if isinstance(factor, bool) or not isinstance(factor, (int, float)) or not 0 < factor <= 1e6:
+            raise ValueError(f"light_power_factor={factor!r} must be a number in (0, 1e6]")
+        self.light_power_factor = float(factor)
+        """Multiplies every light's power; light transport is linear in it, so it scales y."""
         self.files = SceneFiles.resolve(scene, motion=motion, lights=lights)
         self.light = light
         self.lighting = scene_lighting(self.files, light)  # the light file's condition, or the XML's emitters
@@ -87,6 +93,8 @@ class SceneRenderer:
         self.camera_model = PinholeCamera.from_params(self.params, self.sensor_id, w, h)
         check_camera(self.files.xml, self.camera_model.to_world, self.camera_model.x_fov_deg)
         self._gain = self.exposure.gain_map(h, w, self.camera_model.x_fov_deg)
+        if self.light_power_factor != 1.0:
+            self._gain = (self._gain * self.light_power_factor).astype(self._gain.dtype, copy=False)
         self._gain_device: Any = None  # the gain map on the render device, made on first use
         self.stats = {"renders": 0, "render_seconds": 0.0, "frames": 0}
         self._view: tuple[np.ndarray, np.ndarray] | None = None  # _view_samples, made on first use
@@ -248,11 +256,16 @@ class SceneRenderer:
     # ---- reproducibility ----------------------------------------------------------------------
     def describe(self) -> dict[str, Any]:
         """Every parameter that determines the output, for a dataset's meta.json."""
+        light = self.lighting.describe(self.exposure.pixel)
+        if self.light_power_factor != 1.0:
+            from spikesim.generation.job import scale_light_amounts
+            light = {**scale_light_amounts(light, self.light_power_factor),
+                     "light_power_factor": self.light_power_factor}
         return {
             "scene": self.files.name,
             "files": {k: str(getattr(self.files, k)) for k in ("xml", "motion", "lights") if getattr(self.files, k)},
             "sha256": self.files.digests(),
-            "light": self.lighting.describe(self.exposure.pixel),
+            "light": light,
             "motion": self.motion.describe(),
             "render": {**self.settings.to_dict(), "variant_used": self.variant, "height": self.height,
                        "width": self.width, "mitsuba_variant": self._variant, "reconstruction_filter": "box",
