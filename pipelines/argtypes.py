@@ -135,29 +135,60 @@ def bundled_scene(text: str) -> str:
     return name
 
 
-DEVICE_HELP = ("where Mitsuba renders and, with --backend auto, the sensor runs: llvm (the CPU), cuda (a GPU), "
-               "or auto (the GPU when there is one); frames stay on that device and only packed spikes leave it")
+#: The largest light power factor a run takes (spikesim.generation.plan.SceneJob checks the same).
+MAX_LIGHT_POWER_FACTOR = 1e6
 
 
-def add_device_argument(parser: argparse.ArgumentParser) -> None:
-    """The --device flag of every command that renders (one definition, one help text)."""
+def light_power_factor(text: str) -> float:
+    """--light-power-factor: a finite number in (0, MAX_LIGHT_POWER_FACTOR]."""
+    v = positive_float(text)
+    if v > MAX_LIGHT_POWER_FACTOR:
+        raise argparse.ArgumentTypeError(f"must be at most {MAX_LIGHT_POWER_FACTOR:g}, got {text}")
+    return v
+
+
+def add_light_power_factor_argument(parser: argparse.ArgumentParser) -> None:
+    """The --light-power-factor flag of every command that renders a user scene (generate, render,
+    simulate --scene): one definition, one meaning, one help text."""
+    parser.add_argument("--light-power-factor", type=light_power_factor, default=None,
+                        help=f"scale every light's power by this factor, in (0, {MAX_LIGHT_POWER_FACTOR:g}] (default 1): "
+                             "the frames and ground truth are those of the dimmed (or brightened) scene, and the lux "
+                             "recorded (meta.json, render.json, the stream's sidecar) includes it")
+
+
+DEVICE_HELP = ("where Mitsuba renders{sensor}: llvm (the CPU), cuda (a GPU), or auto (the GPU when there is one)"
+               "{frames}")
+#: What --device says of the sensor: a command with --backend runs it there only with --backend auto; a
+#: command without one always runs it there; `render` runs none.
+_FRAMES = "; frames stay on that device and only packed spikes leave it"
+_DEVICE_SENSOR = {"backend": (" and, with --backend auto, the sensor runs", _FRAMES),
+                  "always": (" and the sensor runs", _FRAMES), "none": ("", "")}
+
+
+def add_device_argument(parser: argparse.ArgumentParser, sensor: str = "always") -> None:
+    """The --device flag of every command that renders (one definition, one help text); `sensor`
+    says where the command's sensor runs: "backend" (as its --backend says), "always" (there),
+    "none" (it has none)."""
     from spikesim._drjit import DEVICE_CHOICES
-    parser.add_argument("--device", choices=DEVICE_CHOICES, default="auto", help=DEVICE_HELP)
+    text, frames = _DEVICE_SENSOR[sensor]
+    parser.add_argument("--device", choices=DEVICE_CHOICES, default="auto",
+                        help=DEVICE_HELP.format(sensor=text, frames=frames))
 
 
-__all__ = ["add_device_argument", "positive_int", "nonnegative_int", "positive_float", "nonnegative_float", "existing_file",
+__all__ = ["add_device_argument", "add_light_power_factor_argument", "light_power_factor", "positive_int", "nonnegative_int", "positive_float", "nonnegative_float", "existing_file",
            "config_file", "output_file", "output_dir", "bundled_scene"]
 
 
 class HelpFormatter(argparse.RawDescriptionHelpFormatter):
     """Every command's help: descriptions as written, and each option's default appended unless
-    its help already states one or it has none worth showing (None, False: a flag that is off)."""
+    its help already states one or it has none worth showing (None, False: a flag that is off;
+    a flag that turns something off, whose True would read backwards: its help says the default)."""
 
     def _get_help_string(self, action: argparse.Action) -> str:
         text = action.help or ""
         default = action.default
         if (default in (None, False, argparse.SUPPRESS) or "default" in text or "%(default)" in text
-                or not action.option_strings):
+                or not action.option_strings or isinstance(action, argparse._StoreFalseAction)):
             return text
         shown = " ".join(map(str, default)) if isinstance(default, (list, tuple)) else "%(default)s"
         return f"{text} (default: {shown})"

@@ -97,7 +97,9 @@ def main(argv: list[str] | None = None) -> int:
 def _run(argv: list[str], command: str | None) -> int:
     parser = build_parser("--version" if command is None and "--version" in argv else command)
     try:
-        args = parser.parse_args(argv)
+        args, extras = parser.parse_known_args(argv)
+        if extras:  # refused by the command's own parser, so that the message names the command
+            _command_parser(parser, args.command).error(f"unrecognized arguments: {' '.join(extras)}")
     except SystemExit as exc:  # --help (0) or a refused argument (2), already printed
         return exc.code if isinstance(exc.code, int) else 2
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
@@ -110,6 +112,14 @@ def _run(argv: list[str], command: str | None) -> int:
             raise
         print(f"spikesim {args.command}: error: {_one_line(exc)}", file=sys.stderr)
         return 2
+
+
+def _command_parser(parser: argparse.ArgumentParser, command: str | None) -> argparse.ArgumentParser:
+    """The parser of subcommand `command` (the top-level parser if there is none)."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction) and command in action.choices:
+            return action.choices[command]
+    return parser
 
 
 def _one_line(exc: BaseException) -> str:

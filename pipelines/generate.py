@@ -10,8 +10,8 @@ import shlex
 import sys
 from pathlib import Path
 
-from pipelines.argtypes import (add_device_argument, camera_spec, existing_file, load_camera, nonnegative_int,
-                                positive_float, positive_int)
+from pipelines.argtypes import (add_device_argument, add_light_power_factor_argument, camera_spec, existing_file,
+                                load_camera, nonnegative_int, positive_int)
 from spikesim._drjit import resolve_device
 from spikesim.dataset import check_scene_name
 from spikesim.generation.plan import DARKENINGS, LOG_DARKENING_MIN
@@ -43,7 +43,7 @@ def _plain_name(text: str) -> str:
 
 # Options that only some kinds take: given to another kind, they would be silently ignored.
 _ONLY_FOR = {
-    "scenes": ("llr",), "count": ("rllr",), "pattern": ("rllr",), "darkening": ("rllr",), "steps": ("rllr",), "gt_stride": ("rllr",),
+    "scenes": ("llr",), "count": ("rllr",), "pattern": ("rllr",), "darkening": ("rllr",), "steps": ("rllr", "scene"), "gt_stride": ("rllr", "scene"),
     "windows": ("llr", "scene"), "xml": ("scene",), "motion": ("scene",), "lights": ("scene",),
     "light": ("scene",), "light_power_factor": ("scene",), "name": ("scene",),
 }
@@ -54,6 +54,10 @@ def _refuse_options_for_other_kinds(args: argparse.Namespace) -> None:
         if args.kind not in kinds and getattr(args, dest) not in (None, False):
             flag = "--" + dest.replace("_", "-")
             raise ValueError(f"{flag} applies to generate {' and '.join(kinds)}, not generate {args.kind}")
+    if args.kind == "scene" and args.windows is not None and (args.steps is not None or args.gt_stride is not None):
+        raise ValueError("--windows and --steps/--gt-stride are two ways to give a scene's length: windows of 41 steps "
+                         "with ground truth at their centres, or a number of steps with ground truth every --gt-stride "
+                         "steps (as RLLR); give one")
 
 
 #: Options that set a preset's value: option dest -> the preset's field.
@@ -66,7 +70,7 @@ def settings_from_args(args: argparse.Namespace) -> ResolvedSettings:
     """The preset, scene file, settings file, flags and quality, merged (spikesim.generation.settings)."""
     flags = {"--" + dest.replace("_", "-"): {field: getattr(args, dest)} for dest, field in _PRESET_OPTIONS.items()}
     return resolve_settings(args.kind, args.preset, xml=args.xml, settings_file=args.render_settings, flags=flags,
-                            quality=args.quality)
+                            quality=args.quality, camera=args.camera)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -88,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
                          motion=None if args.motion is None else str(args.motion),
                          lights=None if args.lights is None else str(args.lights), camera=camera,
                          light_power_factor=1.0 if args.light_power_factor is None else args.light_power_factor,
-                         name=args.name, quality=args.quality)
+                         name=args.name, quality=args.quality, length="steps" if resolved.kind == "scene-steps" else "windows")
     if not args.json:
         print(resolved.summary())
     jobs = [dataclasses.replace(job, settings=resolved.table()) for job in jobs]
@@ -171,16 +175,19 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--light", type=_plain_name, help="lighting condition in the lights file (default: normal)")
     p.add_argument("--name", type=_plain_name, help="scene folder name (generate scene; default: <XML folder>_<light>, plus the XML's, motion "
                         "and lights files' names and x<factor> for other variants of the folder's scene)")
-    p.add_argument("--light-power-factor", type=positive_float, help="scale every light's power (default 1); the lux recorded in meta.json includes it")
+    add_light_power_factor_argument(p)
     p.add_argument("--windows", type=positive_int, help="41-step windows per scene (llr, scene)")
-    p.add_argument("--steps", type=positive_int, help="steps per RLLR scene (paper 1000)")
+    p.add_argument("--steps", type=positive_int,
+                   help="steps per RLLR scene (paper 1000), or of a user scene instead of --windows (default: the "
+                        "preset's RLLR steps once --gt-stride is given)")
     p.add_argument("--gt-stride", type=positive_int,
-                   help="RLLR ground truth every this many steps (paper 1), on the centres of 41-step windows "
-                        "(stride 41: steps 20, 61, 102, ...)")
+                   help="ground truth every this many steps of an RLLR scene (paper 1) or of a user scene given "
+                        "--steps, on the centres of 41-step windows (stride 41: steps 20, 61, 102, ...; default: "
+                        "the preset's RLLR stride)")
     p.add_argument("--gt-spp", type=positive_int, help="samples per pixel of ground-truth renders")
     p.add_argument("--camera", type=camera_spec,
-                   help="realistic, noiseless or a JSON/TOML camera file (default: realistic; its size comes from the "
-                        "settings below)")
+                   help="realistic, noiseless or a JSON/TOML camera file (default: realistic); a file's height and "
+                        "width are used above the preset and a scene's film, below --render-settings and the flags")
     p.add_argument("--render-settings", type=existing_file, metavar="FILE",
                    help="JSON/TOML file of render settings (spp, gt_spp, variant, keyframe_every, resolution); "
                         "above the preset and a scene's own film, below the flags")

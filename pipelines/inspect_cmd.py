@@ -179,7 +179,27 @@ def open_stream(path: Path, height: int | None = None, width: int | None = None,
                          "--height/--width override it)") from None
 
 
+#: The first bytes of image files that `inspect` might be given instead of a spike stream.
+IMAGE_MAGIC = {b"\x76\x2f\x31\x01": "an OpenEXR image", b"\x89PNG": "a PNG image", b"\x93NUMPY": "a NumPy array"}
+
+
+def refuse_images(path: Path) -> None:
+    """A ValueError when `path` is an image or an array rather than a spike stream (a .dat has no
+    header: its size alone would be checked, and blamed), suggesting what reads it."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(6)
+    except OSError:
+        return  # open_stream reports it, naming the file
+    for magic, what in IMAGE_MAGIC.items():
+        if head.startswith(magic):
+            raise ValueError(f"{path} is {what}, not a spike stream: inspect reads a .dat stream; to simulate one "
+                             "from rendered frames, spikesim simulate --frames <the folder of .exr frames, or the "
+                             ".npy array> -o stream.dat")
+
+
 def run(args: argparse.Namespace) -> int:
+    refuse_images(args.path)
     reader, header = open_stream(args.path, args.height, args.width, args.flip, args.header_columns,
                                  args.drop_partial)
     flip = reader.flip
@@ -240,7 +260,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "416-wide files, deciding by content when the size fits both) or a number")
     flip = p.add_mutually_exclusive_group()
     flip.add_argument("--flip", dest="flip", action="store_true", default=None, help="rows stored bottom-up (real cameras)")
-    flip.add_argument("--no-flip", dest="flip", action="store_false", help="rows stored top-down (SPCS/SCSim)")
+    flip.add_argument("--no-flip", dest="flip", action="store_false",
+                      help="rows stored top-down (SPCS/SCSim); default: as recorded, else rows stored bottom-up (flip)")
     p.add_argument("--drop-partial", action="store_true", help="ignore a partial last frame instead of failing")
     p.add_argument("--start", type=nonnegative_int, default=0, help="first step (default 0)")
     p.add_argument("--stop", type=positive_int, help="step after the last (default: the end; clipped to it)")

@@ -126,7 +126,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     flip = p.add_mutually_exclusive_group()
     flip.add_argument("--flip", dest="flip", action="store_true", default=None,
                       help="rows stored bottom-up (a real PKU camera's files; the default where nothing is recorded)")
-    flip.add_argument("--no-flip", dest="flip", action="store_false", help="rows stored top-down (SPCS/SCSim)")
+    flip.add_argument("--no-flip", dest="flip", action="store_false",
+                      help="rows stored top-down (SPCS/SCSim); default: as recorded, else rows stored bottom-up (flip)")
     p.add_argument("--device", default="auto", help="auto (CUDA when present), cpu, cuda, cuda:N or mps")
     add_threads_argument(p)
     p.add_argument("--json", action="store_true", help="print the measures as JSON")

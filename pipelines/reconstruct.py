@@ -206,7 +206,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     flip.add_argument("--flip", dest="flip", action="store_true", default=None,
                       help="rows stored bottom-up (real cameras; the default unless recorded otherwise)")
     flip.add_argument("--no-flip", dest="flip", action="store_false",
-                      help="rows stored top-down (SPCS/SCSim/LR-Rep authors)")
+                      help="rows stored top-down (SPCS/SCSim/LR-Rep authors); default: as recorded, else rows stored bottom-up (flip)")
     p.add_argument("--start", type=nonnegative_int, default=0, help="first step of the first window")
     p.add_argument("--num-windows", type=positive_int, help="frames to make (default: as many as fit)")
     p.add_argument("--window", type=positive_int, default=41,

@@ -18,8 +18,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from pipelines.argtypes import (add_device_argument, config_file, existing_file, nonnegative_int, output_dir,
-                                positive_float, positive_int)
+from pipelines.argtypes import (add_device_argument, add_light_power_factor_argument, config_file, existing_file,
+                                nonnegative_int, output_dir, positive_float, positive_int)
 
 
 MAX_STEPS = 1_000_000  # steps one call may render (a typo such as 0:1e11 would exhaust memory instead)
@@ -61,6 +61,25 @@ def _resolution(args: argparse.Namespace) -> tuple[int, int] | None:
     return None if args.height is None else (args.height, args.width)
 
 
+def resolve_render_settings(args: argparse.Namespace, xml: Path) -> Any:
+    """The film size, samples per pixel and light power factor of this run, each with its origin:
+    the scene's own film and sampler unless a settings file or a flag says otherwise, decided as
+    `generate scene` decides them (spikesim.generation.settings.resolve_command_settings)."""
+    from spikesim.config_io import read_config_file
+    from spikesim.generation.settings import resolve_command_settings
+    from spikesim.render import RenderSettings
+
+    _resolution(args)  # --height and --width go together
+    defaults = RenderSettings()
+    file_values = read_config_file(args.render_settings) if args.render_settings is not None else None
+    flags = {"--spp": {"spp": args.spp}, "--gt-spp": {"gt_spp": args.gt_spp},
+             "--height": {"height": args.height}, "--width": {"width": args.width},
+             "--light-power-factor": {"light_power_factor": args.light_power_factor}}
+    return resolve_command_settings(xml, {"spp": defaults.spp, "gt_spp": defaults.gt_spp, "light_power_factor": 1.0},
+                                    settings=file_values, settings_origin=f"--render-settings {args.render_settings}",
+                                    flags=flags)
+
+
 def percentile(text: str) -> float:
     """A percentile, 0 to 100."""
     try:
@@ -83,13 +102,15 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
                         "the lighting has one spectrum, else spectral)")
     p.add_argument("--steps", type=parse_steps, default=[0], help="steps to render: N, A:B, A:B:S, comma lists")
     p.add_argument("--ground-truth", action="store_true", help="render ground truth (gt_spp) instead of frames")
-    p.add_argument("--spp", type=positive_int, default=None, help="samples per pixel per frame render (default 4)")
+    p.add_argument("--spp", type=positive_int, default=None,
+                   help="samples per pixel per frame render (default: the scene's sampler, else 4)")
     p.add_argument("--gt-spp", type=positive_int, default=None,
                    help="samples per pixel per ground-truth render (default 64)")
     p.add_argument("--seed", type=nonnegative_int, default=None, help="render seed (default 0)")
-    add_device_argument(p)
+    add_device_argument(p, sensor="none")
     p.add_argument("--height", type=positive_int, help="film rows, pixels (default: the scene's film; with --width)")
     p.add_argument("--width", type=positive_int, help="film columns, pixels (default: the scene's film; with --height)")
+    add_light_power_factor_argument(p)
     p.add_argument("--motion", type=existing_file, default=None, help="motion file (default: motion.json beside the XML)")
     p.add_argument("--lights", type=existing_file, default=None, help="light file (default: lights.json beside the XML)")
     p.add_argument("--render-settings", type=config_file, default=None, metavar="FILE",
@@ -100,6 +121,8 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--png-percentile", type=percentile, default=None,
                    help="PNG preview: map this percentile (0-100) of y to white (for dark scenes)")
     p.add_argument("-o", "--out", type=output_dir, default=Path("out/render"), help="output folder")
+    p.add_argument("--quiet", action="store_true",
+                   help="no line per step: the settings and one line of what was written")
     p.add_argument("--json", action="store_true", help="print the render description (render.json) instead of file names")
     p.set_defaults(func=run)
     return p
@@ -109,15 +132,21 @@ def run(args: argparse.Namespace) -> int:
     from pipelines.render_folder import check_output_folder, remove_stage, replace_outputs
     from spikesim.imageio import write_exr, write_png
     from spikesim.render import Exposure, RenderSettings, SceneRenderer, write_ground_truth
+    from spikesim.render.scene_files import SceneFiles
 
     previous = check_output_folder(args.out)  # files no record lists: refused before any rendering
     # A bad scene, light or config file raises SceneError/ValueError: one line from pipelines.cli.
     settings = RenderSettings.from_file(args.render_settings) if args.render_settings is not None else None
     exposure = Exposure.from_file(args.exposure) if args.exposure is not None else None
-    kw: dict[str, Any] = {"gt_spp": args.gt_spp} if args.gt_spp is not None else {}
-    renderer = SceneRenderer(args.scene, light=args.light, variant=args.variant, spp=args.spp,
-                             resolution=_resolution(args), seed=args.seed, motion=args.motion,
-                             lights=args.lights, settings=settings, exposure=exposure, device=args.device, **kw)
+    resolved = resolve_render_settings(args, SceneFiles.resolve(args.scene, args.motion, args.lights).xml)
+    used = resolved.values
+    film = (used["height"], used["width"]) if "height" in used and "width" in used else None
+    renderer = SceneRenderer(args.scene, light=args.light, variant=args.variant, spp=used["spp"],
+                             gt_spp=used["gt_spp"], resolution=film, seed=args.seed, motion=args.motion,
+                             lights=args.lights, settings=settings, exposure=exposure, device=args.device,
+                             light_power_factor=used["light_power_factor"])
+    if not args.json:
+        print(resolved.summary())
     kind = "gt" if args.ground_truth else ("preview" if renderer.variant == "rgb" else "frames")
     args.out.mkdir(parents=True, exist_ok=True)
     # The run is written aside and moved in whole, so the folder always holds one run: a failed
@@ -141,16 +170,18 @@ def run(args: argparse.Namespace) -> int:
                 write_exr(name.with_suffix(".exr"), y)
                 write_png(name.with_suffix(".png"), y, scale=args.png_scale, percentile=args.png_percentile)
             timings.append(time.perf_counter() - t0)
-            if not args.json:
+            if not args.json and not args.quiet:
                 print(f"{args.out / kind / name.name}  ({timings[-1]:.2f} s)")
         meta = {**renderer.describe(), "kind": kind, "steps": args.steps, "seconds_per_step": timings,
-                "stats": renderer.stats}
+                "stats": renderer.stats, "settings": resolved.table()}
         written = [p.relative_to(stage).as_posix() for p in sorted(stage.rglob("*")) if p.is_file()]
         replace_outputs(stage, args.out, written, previous, meta)
     finally:
         remove_stage(stage)
     if args.json:
         print(json.dumps({**meta, "files": written}, indent=2, default=str))
+    elif args.quiet:
+        print(f"{args.out / kind}: {len(args.steps)} step(s), {sum(timings):.2f} s")
     return 0
 
 

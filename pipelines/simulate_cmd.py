@@ -11,7 +11,7 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from pipelines.argtypes import (add_device_argument, camera_spec, existing_file, load_camera,
+from pipelines.argtypes import (add_device_argument, add_light_power_factor_argument, camera_spec, existing_file, load_camera,
                                 nonnegative_float, nonnegative_int,
                                 output_file, positive_int)
 from spikesim.camera import SpikeCamera
@@ -34,29 +34,52 @@ def add_camera_arguments(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("camera")
     g.add_argument("--camera", type=camera_spec, default="realistic",
                    help="a built-in camera (realistic: every noise term; noiseless: none) or a JSON/TOML camera file")
-    g.add_argument("--height", type=positive_int, help="sensor rows (default: the camera's, 250)")
-    g.add_argument("--width", type=positive_int, help="sensor columns (default: the camera's, 400)")
+    g.add_argument("--height", type=positive_int,
+                   help="sensor rows (default: a camera file's, else a --scene's film, else 250)")
+    g.add_argument("--width", type=positive_int,
+                   help="sensor columns (default: a camera file's, else a --scene's film, else 400)")
 
 
-def frames_from_source(args: argparse.Namespace, cam: SpikeCamera,
-                       sensor_device: str | None = None) -> tuple[Iterator[Any], dict, int]:
+def scene_settings(args: argparse.Namespace) -> Any:
+    """The film size, samples per pixel and light power factor of a rendered scene, each with its
+    origin: the scene's own film and sampler unless a camera file or a flag says otherwise,
+    decided as `generate scene` and `render` decide them
+    (spikesim.generation.settings.resolve_command_settings)."""
+    from spikesim.generation.settings import resolve_command_settings
+    from spikesim.render import RenderSettings
+    from spikesim.render.scene_files import SceneFiles
+
+    base = load_camera(args.camera)
+    flags = {"--spp": {"spp": args.spp}, "--height": {"height": args.height}, "--width": {"width": args.width},
+             "--light-power-factor": {"light_power_factor": args.light_power_factor}}
+    defaults = {"height": base.height, "width": base.width, "spp": RenderSettings().spp, "light_power_factor": 1.0}
+    xml = SceneFiles.resolve(args.scene, args.motion, args.lights).xml
+    return resolve_command_settings(xml, defaults, camera=None if args.camera == "realistic" else args.camera,
+                                    flags=flags)
+
+
+def frames_from_source(args: argparse.Namespace, cam: SpikeCamera, sensor_device: str | None = None,
+                       settings: Any = None) -> tuple[Iterator[Any], dict, int]:
     """The irradiance source named on the command line, as a frame iterator, a description and
     the number of steps to simulate (--steps, else what the frames cover; the keyframes may reach
     past it, spikesim.keyframes). A rendered scene's frames stay on the render device when the
     sensor runs there too."""
     if args.frames is not None and args.scene is not None:
         raise ValueError("give --frames or --scene, not both")
-    for flag, value in (("--motion", args.motion), ("--lights", args.lights), ("--spp", args.spp)):
+    for flag, value in (("--motion", args.motion), ("--lights", args.lights), ("--spp", args.spp),
+                        ("--light-power-factor", args.light_power_factor)):
         if value is not None and args.scene is None:
             raise ValueError(f"{flag} applies to a rendered scene; give --scene too")
     k = args.keyframe_every
     if args.scene is not None:
         from spikesim.render import SceneRenderer
+        settings = settings or scene_settings(args)
         r = SceneRenderer(args.scene, light=args.light, camera=cam, motion=args.motion, lights=args.lights,
-                          spp=args.spp, seed=args.seed, device=args.device)
+                          spp=settings.values["spp"], seed=args.seed, device=args.device,
+                          light_power_factor=settings.values["light_power_factor"])
         steps = DEFAULT_STEPS if args.steps is None else args.steps
         frames = r.frames(0, steps, keyframe_every=k, device=sensor_device == r.device)
-        return frames, {"source": "scene", **r.describe()}, steps
+        return frames, {"source": "scene", **r.describe(), "settings": settings.table()}, steps
     if args.frames is not None:
         src = Path(args.frames)
         if src.is_dir():
@@ -158,11 +181,16 @@ def run(args: argparse.Namespace) -> int:
     check_outputs(args)
     cam = camera_from_args(args)
     backend = args.backend
-    if args.scene is not None:
+    settings = None
+    if args.scene is not None and args.frames is None:
+        settings = scene_settings(args)  # the scene's film and spp unless a camera file or a flag says otherwise
+        cam = cam.replace(height=settings.values["height"], width=settings.values["width"])
+        if not args.json:
+            print(settings.summary())
         device = resolve_device(args.device)  # an unavailable GPU fails first
         backend = device if backend == "auto" else backend   # the sensor where the frames are
     sim = Simulator(cam, backend=backend, seed=args.seed)  # an unavailable backend fails first
-    frames, source, steps = frames_from_source(args, cam, sim.backend_name)
+    frames, source, steps = frames_from_source(args, cam, sim.backend_name, settings)
     log.info("simulating on backend %s, %dx%d, from %s", sim.backend_name, cam.width, cam.height,
              source.get("scene") or source.get("source"))
     t0 = time.perf_counter()
@@ -206,8 +234,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                      help="lighting condition of the scene (normal, low; a scene XML without a lights.json: normal, its own emitters)")
     src.add_argument("--motion", type=existing_file, help="motion file (default: motion.json beside the XML)")
     src.add_argument("--lights", type=existing_file, help="lights file (default: lights.json beside the XML)")
-    src.add_argument("--spp", type=positive_int, help="render samples per pixel (default: the renderer's)")
-    add_device_argument(src)
+    src.add_argument("--spp", type=positive_int, help="render samples per pixel (default: the scene's sampler, else 4)")
+    add_light_power_factor_argument(src)
+    add_device_argument(src, sensor="backend")
     src.add_argument("--peak-y", type=peak_y, default=0.25, help="pattern brightness: y of white (spikes/step)")
     src.add_argument("--steps", type=positive_int,
                      help=f"sensor steps to simulate, whatever --keyframe-every is (default: {DEFAULT_STEPS} for "
@@ -218,7 +247,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--backend", default="auto", choices=["auto", "numpy", "llvm", "cuda"],
                    help="sensor backend: auto (cuda > llvm > numpy), the NumPy reference, Dr.Jit CPU or GPU")
     p.add_argument("--seed", type=nonnegative_int, default=0, help="seed of the sensor's noise and fixed patterns")
-    p.add_argument("--no-flip", action="store_true", help="write rows top-down (SPCS/SCSim convention)")
+    p.add_argument("--no-flip", action="store_true",
+                   help="write rows top-down (SPCS/SCSim convention; default: rows stored bottom-up (flip), as real cameras)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--json", action="store_true", help="print the stream's summary as JSON")
     p.add_argument("-o", "--out", type=output_file, default=Path("out/stream.dat"),

@@ -78,7 +78,7 @@ def add_parser(subparsers: Any) -> None:
     p.add_argument("--repeats", type=positive_int, default=3, help="simulation timing repeats (minimum kept)")
     p.add_argument("--seed", type=nonnegative_int, default=0, help="seed of the renders and the sensor")
     p.add_argument("--backend", default="auto", choices=("auto", "numpy", "llvm", "cuda"), help="the sensor backend")
-    add_device_argument(p)
+    add_device_argument(p, sensor="backend")
     p.add_argument("-o", "--out", type=output_dir, default=Path("out/tradeoff"),
                    help="output folder (cache, CSV, Markdown, PNG)")
     p.add_argument("--images", type=output_dir, default=None, help="also write the plot as <DIR>/tradeoff_pareto.png")

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cli_testing import run_cli
+from cli_testing import one_line, run_cli
 
 H, W = 8, 16
 SIM = f"--height {H} --width {W} --backend numpy --quiet"
@@ -205,3 +205,18 @@ def test_bad_input_ends_in_one_line(argv, names, bad, capsys):
     rc, err = run_cli(shlex.split(argv.format(d=bad)), capsys)
     assert rc == 2, err
     assert_one_error_line(err, names)
+
+
+@pytest.mark.parametrize("argv", [["render", "ball"], ["simulate"], ["inspect", "s.dat"], ["generate", "llr", "-o", "d"]])
+def test_an_unknown_option_is_refused_naming_the_command(argv, capsys):
+    rc, err = run_cli([*argv, "--no-such-option"], capsys)
+    assert rc == 2 and f"spikesim {argv[0]}: error: unrecognized arguments: --no-such-option" in err
+
+
+def test_inspect_on_an_image_says_it_is_not_a_spike_stream(tmp_path, capsys):
+    from spikesim.imageio import write_exr
+    exr = tmp_path / "step_000000.exr"
+    write_exr(exr, np.ones((4, 6), dtype=np.float32))
+    rc, err = run_cli(["inspect", exr], capsys)
+    line = one_line(err)
+    assert rc == 2 and "OpenEXR image, not a spike stream" in line and "simulate --frames" in line

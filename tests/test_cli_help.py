@@ -40,3 +40,24 @@ def test_defaults_are_not_stated_twice() -> None:
         for action in parser._actions:
             rendered = HelpFormatter(name)._get_help_string(action) if action.help else ""
             assert rendered.count("default") <= 2, (name, action.option_strings, rendered)
+
+
+@pytest.mark.parametrize("name", sorted(COMMANDS))
+def test_no_flag_that_turns_something_off_shows_default_true(name: str) -> None:
+    """--no-flip (store_false) used to read "rows stored top-down (default: True)": backwards."""
+    text = " ".join(COMMANDS[name].format_help().split())
+    assert "(default: True)" not in text
+    if "--no-flip " in text and name != "evaluate":  # evaluate's says "default as recorded, else bottom-up"
+        assert "rows stored bottom-up (flip)" in text
+
+
+@pytest.mark.parametrize("name", sorted(COMMANDS))
+def test_device_help_names_only_flags_the_command_has(name: str) -> None:
+    parser = COMMANDS[name]
+    device = next((a for a in parser._actions if "--device" in a.option_strings), None)
+    if device is not None and "--backend" in (device.help or ""):
+        assert any("--backend" in a.option_strings for a in parser._actions), name
+
+
+def test_render_has_quiet() -> None:
+    assert any("--quiet" in a.option_strings for a in COMMANDS["render"]._actions)

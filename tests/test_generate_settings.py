@@ -77,7 +77,7 @@ def test_a_bad_settings_file_names_itself(tmp_path, capsys):
 def test_the_quality_is_reported_as_the_origin_of_the_knobs_it_sets():
     resolved = resolve_settings("llr", "small", flags={"--spp": {"spp": 3}}, quality="draft")
     assert resolved.table()["spp"] == {"value": 16, "from": "--quality draft"}
-    assert resolved.preset.spp == 3  # the job applies the quality itself; its digest is unchanged
+    assert resolved.preset.spp == 16  # planned with: the job records the spp its renderer is given
 
 
 def test_generate_prints_each_setting_with_its_origin_and_records_it_in_meta(tmp_path):

@@ -303,8 +303,19 @@ def user_scene_name(xml: str | Path, light: str, motion: str | Path | None = Non
 
 def plan_user(xml: str, light: str, preset: Preset, num_windows: int | None = None, seed: int = 0,
               motion: str | None = None, lights: str | None = None, camera: Any | None = None,
-              light_power_factor: float = 1.0, name: str | None = None, quality: str | None = None) -> list[SceneJob]:
-    wins, centres = llr_windows(preset.llr_windows if num_windows is None else num_windows)
+              light_power_factor: float = 1.0, name: str | None = None, quality: str | None = None,
+              length: str = "windows") -> list[SceneJob]:
+    """The job of a user's scene. Its length is `length`: "windows" (the preset's llr_windows, or
+    `num_windows`, of 41 steps, ground truth at each centre, as LLR) or "steps" (the preset's
+    rllr_steps, ground truth every rllr_gt_stride steps on the window centres, as RLLR)."""
+    if length == "steps":
+        wins, num_steps = (), preset.rllr_steps
+        centres = rllr_gt_steps(num_steps, preset.rllr_gt_stride)
+    elif length == "windows":
+        wins, centres = llr_windows(preset.llr_windows if num_windows is None else num_windows)
+        num_steps = wins[-1][1]
+    else:
+        raise ValueError(f"length={length!r}; expected 'windows' or 'steps'")
     xml_path = Path(xml).resolve()
     if name is None:
         name = user_scene_name(xml_path, light, motion, lights, light_power_factor)
@@ -312,6 +323,6 @@ def plan_user(xml: str, light: str, preset: Preset, num_windows: int | None = No
            "motion": str(Path(motion).resolve()) if motion else None, "lights": str(Path(lights).resolve()) if lights else None}
     s = scene_seed(seed, xml_path.parent.name, light)
     return [SceneJob(name=name, source=src, camera=_camera_dict(preset, camera),
-                     render=_render_dict(preset, s), num_steps=wins[-1][1], gt_steps=centres, windows=wins,
+                     render=_render_dict(preset, s), num_steps=num_steps, gt_steps=centres, windows=wins,
                      light_power_factor=light_power_factor, seed=s, keyframe_every=preset.keyframe_every,
                      quality=quality)]

@@ -92,10 +92,26 @@ def _compare_with_record(job: SceneJob, meta: dict[str, Any], digest: str) -> tu
             return "changed", ["its record does not say which files it was made from"]
         return ("changed", found) if found else ("done", [])
     params = {k: v for k, v in recorded.items() if k != "inputs"}
-    if params != job.parameters():
+    if params != job.parameters() and _as_rendered(params) != job.parameters():
         return "stale", parameter_changes(params, job.parameters()) or ["its recorded job differs"]
     found = changes(recorded["inputs"] if isinstance(recorded["inputs"], dict) else {}, job.inputs)
     return ("changed", found) if found else ("stale", ["its recorded digest does not match its recorded job"])
+
+
+def _as_rendered(params: dict[str, Any]) -> dict[str, Any]:
+    """A recorded job with the render knobs of its quality in place of the planned ones: what a
+    job records since it records the values its renderer was given. A scene generated with a
+    quality before then is the same scene (the job applied the quality's knobs itself)."""
+    quality = params.get("quality")
+    if not isinstance(quality, str) or not isinstance(params.get("render"), dict):
+        return params
+    from spikesim.quality import QualitySettings
+    try:
+        knobs = QualitySettings.from_name(quality).render_kwargs()
+    except ValueError:
+        return params
+    render = {**params["render"], **{k: v for k, v in knobs.items() if k in params["render"]}}
+    return {**params, "render": render, "keyframe_every": knobs["keyframe_every"]}
 
 
 def _flat(d: Any, prefix: str = "") -> dict[str, Any]:
@@ -293,8 +309,12 @@ def generate(jobs: list[SceneJob], root: str | Path, workers: int | None = None,
     try:
         with _sigterm_raises(), output_lock(root, command or shlex.join(sys.argv)):
             listed: dict[str, dict[str, Any]] = {}
+            recorded_jobs: dict[str, Any] = {}
             if (root / MANIFEST).exists() or (root / MANIFEST).is_symlink():
-                listed = read_manifest(root)["scenes"]
+                previous = read_manifest(root)
+                listed = previous["scenes"]
+                if isinstance(previous.get("jobs"), dict):
+                    recorded_jobs = previous["jobs"]
             todo, rebuilt = _jobs_to_run(jobs, root, overwrite_stale, check, listed)
             log.info("%d scene(s) planned, %d already complete, %d to generate in %s",
                      len(jobs), len(jobs) - len(todo), len(todo), root)
@@ -302,8 +322,12 @@ def generate(jobs: list[SceneJob], root: str | Path, workers: int | None = None,
             results = _run_jobs(todo, root, workers, ray_address, show_progress, device)
             fresh = {j.name for j in todo}
             kept = {name: entries for name, entries in listed.items() if name not in fresh}
-            manifest = write_manifest(root, {**(info or {}), "jobs": {j.name: j.digest for j in jobs}},
-                                      scenes=_passing_scenes(root, names, check, kept), recorded=kept)
+            listing = _passing_scenes(root, names, check, kept)
+            # every listed scene's job, from whichever run made it: this run's, and earlier runs'
+            jobs_record = {name: recorded_jobs[name] for name in listing if name in recorded_jobs}
+            jobs_record.update({j.name: j.digest for j in jobs})
+            manifest = write_manifest(root, {**(info or {}), "jobs": dict(sorted(jobs_record.items()))},
+                                      scenes=listing, recorded=kept)
     except BaseException:
         _remove_if_empty(created)
         raise

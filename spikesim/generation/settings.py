@@ -1,10 +1,12 @@
-"""The settings a generation uses, and where each came from.
+"""The settings a generation uses, and where each came from; and the same for every command that
+renders a scene (`render`, `simulate --scene`): one place decides what a scene's own file sets.
 
-Layers, later ones winning: the preset; for a user's own scene, its XML's film size and sampler
-samples per pixel (a user scene keeps its own film and spp); a render-settings file; each
-command-line flag; and a quality preset, which sets the render knobs it was measured with. The
+Layers, later ones winning: the preset (a command's defaults); for a user's own scene, its XML's
+film size and sampler samples per pixel (a user scene keeps its own film and spp); a camera
+file's height and width; a render-settings file; each command-line flag; and a quality preset,
+which sets the render knobs it was measured with (`scene_layers` holds the middle ones). The
 result is a Preset for planning and, for each setting, its value and origin, which `generate`
-prints and records in each scene's meta.json.
+prints and records in each scene's meta.json (`render` in render.json, `simulate` in the sidecar).
 """
 from __future__ import annotations
 
@@ -19,10 +21,16 @@ from spikesim.render_settings import RenderSettings, merge_layers
 
 #: The settings each kind of dataset uses (the others would be ignored, so they are not reported).
 KIND_SETTINGS = {
-    "llr": ("height", "width", "llr_windows", *PRESET_RENDER_KNOBS),
-    "rllr": ("height", "width", "rllr_scenes", "rllr_steps", "rllr_gt_stride", *PRESET_RENDER_KNOBS),
-    "scene": ("height", "width", "llr_windows", *PRESET_RENDER_KNOBS),
+    "llr": ("camera", "height", "width", "llr_windows", *PRESET_RENDER_KNOBS),
+    "rllr": ("camera", "height", "width", "rllr_scenes", "rllr_steps", "rllr_gt_stride", *PRESET_RENDER_KNOBS),
+    "scene": ("camera", "height", "width", "llr_windows", *PRESET_RENDER_KNOBS),
+    # a user scene given a length (--steps, --gt-stride) as RLLR scenes are, not windows
+    "scene-steps": ("camera", "height", "width", "rllr_steps", "rllr_gt_stride", *PRESET_RENDER_KNOBS),
+    # `render` and `simulate --scene`
+    "command": ("camera", "height", "width", "spp", "gt_spp", "light_power_factor"),
 }
+#: The fields of a camera file that set the film, which a run takes as a layer of its settings.
+CAMERA_GEOMETRY = ("height", "width")
 #: What a render-settings file may set for a dataset (seed, device and resolution are per job).
 FILE_SETTINGS = (*PRESET_RENDER_KNOBS, "resolution")
 
@@ -31,8 +39,9 @@ FILE_SETTINGS = (*PRESET_RENDER_KNOBS, "resolution")
 class ResolvedSettings:
     """A preset with every layer applied, and the origin of each value that applies."""
 
-    preset: Preset
-    """What the jobs are planned from (a quality's knobs are applied by each job, not here)."""
+    preset: Preset | None
+    """What the jobs are planned from, a quality's knobs included (None for a command, which
+    plans no jobs)."""
     values: dict[str, Any]
     """Every setting as the jobs use it, a quality's knobs included."""
     origins: dict[str, str]
@@ -40,7 +49,8 @@ class ResolvedSettings:
 
     def table(self) -> dict[str, dict[str, Any]]:
         """{setting: {"value": v, "from": origin}} for the settings this kind uses."""
-        return {k: {"value": self.values[k], "from": self.origins[k]} for k in KIND_SETTINGS[self.kind]}
+        return {k: {"value": self.values[k], "from": self.origins[k]} for k in KIND_SETTINGS[self.kind]
+                if k in self.values}
 
     def summary(self) -> str:
         """One line: each setting with its origin."""
@@ -119,18 +129,45 @@ def settings_file_values(path: str | Path) -> dict[str, Any]:
     return out
 
 
+def camera_name(camera: str | Path | None) -> str:
+    """How a --camera value is shown: a built-in camera's name, or the file's path."""
+    return "realistic" if camera is None else str(camera)
+
+
+def camera_file_geometry(camera: str | Path | None) -> dict[str, int]:
+    """The film fields (CAMERA_GEOMETRY) a camera file sets; {} for a built-in camera."""
+    if not isinstance(camera, Path):
+        return {}
+    from spikesim.config_io import read_config_file
+    data = read_config_file(camera)
+    return {k: data[k] for k in CAMERA_GEOMETRY if data.get(k) is not None}
+
+
+def scene_layers(xml: str | Path | None, camera: str | Path | None = None) -> list[tuple[str, Mapping[str, Any]]]:
+    """The layers a scene's own file and a --camera value add above a command's defaults, in
+    their order: the camera (named, so the settings say which), the scene's film and spp, then a
+    camera file's height and width (a camera file that sets them is used, never ignored)."""
+    layers: list[tuple[str, Mapping[str, Any]]] = [
+        ("default" if camera is None else "--camera", {"camera": camera_name(camera)})]
+    if xml is not None:
+        layers.append((f"scene file {Path(xml).name}", scene_file_settings(xml)))
+    if geometry := camera_file_geometry(camera):
+        layers.append((f"--camera {Path(camera).name}", geometry))
+    return layers
+
+
 def resolve_settings(kind: str, preset: str | Preset = "small", xml: str | Path | None = None,
                      settings_file: str | Path | None = None, flags: Mapping[str, Any] | None = None,
-                     quality: str | None = None) -> ResolvedSettings:
+                     quality: str | None = None, camera: str | Path | None = None) -> ResolvedSettings:
     """Merge the layers (see the module's docstring). `flags` maps a flag as the user wrote it
     ("--spp") to {setting: value} (None: not given). A quality's render knobs are reported as
-    coming from it, but the preset keeps the others: the job applies the quality itself."""
-    if kind not in KIND_SETTINGS:
-        raise ValueError(f"kind={kind!r}; expected one of {sorted(KIND_SETTINGS)}")
+    coming from it, and planned with: the jobs record the values their renderer is given. A
+    user scene given --steps or --gt-stride is planned as RLLR scenes are (kind "scene-steps")."""
+    if kind not in KIND_SETTINGS or kind == "command":
+        raise ValueError(f"kind={kind!r}; expected one of {sorted(set(KIND_SETTINGS) - {'command'})}")
     base = PRESETS[preset] if isinstance(preset, str) else preset
     layers: list[tuple[str, Mapping[str, Any] | None]] = [(f"preset {base.name}", base.values())]
-    if kind == "scene" and xml is not None:
-        layers.append((f"scene file {Path(xml).name}", scene_file_settings(xml)))
+    layers += scene_layers(xml if kind.startswith("scene") else None, camera)
     if settings_file is not None:
         layers.append((f"--render-settings {settings_file}", settings_file_values(settings_file)))
     layers += list((flags or {}).items())
@@ -138,8 +175,28 @@ def resolve_settings(kind: str, preset: str | Preset = "small", xml: str | Path 
         from spikesim.quality import QualitySettings
         layers.append((f"--quality {quality}", QualitySettings.from_name(quality).render_kwargs()))
     values, origins = merge_layers(layers)
-    planned, _ = merge_layers(layers[:-1] if quality is not None else layers)
+    if kind == "scene" and any(origins.get(k, "").startswith("--") for k in ("rllr_steps", "rllr_gt_stride")):
+        kind = "scene-steps"
+    planned = {k: v for k, v in values.items() if k != "camera"}
     return ResolvedSettings(base.replace(**planned), values, origins, kind)
 
 
-__all__ = ["ResolvedSettings", "resolve_settings", "scene_file_settings", "settings_file_values", "KIND_SETTINGS"]
+def resolve_command_settings(xml: str | Path, defaults: Mapping[str, Any], camera: str | Path | None = None,
+                             settings: Mapping[str, Any] | None = None, settings_origin: str = "--render-settings",
+                             flags: Mapping[str, Any] | None = None) -> ResolvedSettings:
+    """The film, samples and light power factor of a command that renders a scene (`render`,
+    `simulate --scene`): its `defaults` (origin "default"), then the layers `generate` gives a
+    scene (`scene_layers`: the XML's film and spp, a camera file's size), then a render-settings
+    file's `settings` (its resolution as height and width), then the `flags`."""
+    file_values = dict(settings or {})
+    if file_values.get("resolution") is not None:
+        file_values["height"], file_values["width"] = file_values.pop("resolution")
+    file_values = {k: v for k, v in file_values.items() if k in KIND_SETTINGS["command"]}
+    layers: list[tuple[str, Mapping[str, Any] | None]] = [("default", defaults), *scene_layers(xml, camera),
+                                                          (settings_origin, file_values), *(flags or {}).items()]
+    values, origins = merge_layers(layers)
+    return ResolvedSettings(None, values, origins, "command")
+
+
+__all__ = ["ResolvedSettings", "resolve_settings", "resolve_command_settings", "scene_file_settings",
+           "scene_layers", "settings_file_values", "KIND_SETTINGS"]

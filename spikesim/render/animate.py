@@ -88,10 +88,13 @@ class Animator:
         self.params.update()
         self._last_t = t
 
-    def world_points(self, t: float) -> np.ndarray:
-        """Sample points of every moving object at time t, (K, 3) world coordinates."""
+    def world_points(self, t: float, skip: tuple[str, ...] = ()) -> np.ndarray:
+        """Sample points of every moving object at time t, (K, 3) world coordinates; the targets
+        in `skip` (the camera: its points are not scene points) are left out."""
         out = []
         for tg in self.targets:
+            if tg.id in skip:
+                continue
             m = self.motion.transform(tg.id, t)
             out.append(tg.points @ m[:3, :3].T + m[:3, 3])
         return np.concatenate(out) if out else np.zeros((0, 3))

@@ -8,6 +8,7 @@ has +z forward, +x to the *left* and +y up; film column 0 is the left edge, row 
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -50,6 +51,23 @@ class PinholeCamera:
         uv = np.stack([col, row], axis=-1)
         uv[~front] = np.nan
         return uv, front
+
+    def moved(self, transform: np.ndarray) -> "PinholeCamera":
+        """The camera carried by a world transform (4, 4): a motion file's M(t) of the camera,
+        applied to this pose as to the rest pose of any other object."""
+        return dataclasses.replace(self, to_world=np.asarray(transform, dtype=np.float64) @ self.to_world)
+
+    def rays(self, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """World rays through pixel coordinates (..., 2) as (column, row), the inverse of
+        `project`: (origins (..., 3), unit directions (..., 3))."""
+        px = np.asarray(pixels, dtype=np.float64)
+        tx = math.tan(math.radians(self.x_fov_deg) / 2.0)
+        ty = tx * self.height / self.width
+        d = np.stack([(1.0 - 2.0 * px[..., 0] / self.width) * tx, (1.0 - 2.0 * px[..., 1] / self.height) * ty,
+                      np.ones(px.shape[:-1])], axis=-1)
+        d = d @ self.to_world[:3, :3].T
+        d /= np.linalg.norm(d, axis=-1, keepdims=True)
+        return np.broadcast_to(self.to_world[:3, 3], d.shape).copy(), d
 
 
 __all__ = ["PinholeCamera"]

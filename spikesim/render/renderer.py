@@ -55,12 +55,18 @@ class SceneRenderer:
                  spp: int | None = None, resolution: tuple[int, int] | None = None, seed: int | None = None,
                  *, camera: Any = None, optics: Optics | None = None, pixel: PixelResponse | None = None,
                  exposure: Exposure | None = None, motion: str | Path | None = None,
-                 lights: str | Path | None = None, settings: RenderSettings | None = None, **overrides: Any):
+                 lights: str | Path | None = None, settings: RenderSettings | None = None,
+                 light_power_factor: float = 1.0, **overrides: Any):
         film = {"resolution": (int(camera.height), int(camera.width))} if hasattr(camera, "height") else None
         values, _ = merge_layers([("camera", film), ("settings", settings.to_dict() if settings else None),
                                   ("arguments", {"variant": variant, "spp": spp, "resolution": resolution,
                                                  "seed": seed, **overrides})])
         self.settings = RenderSettings.from_dict(values)
+        factor = light_power_factor
+        if isinstance(factor, bool) or not isinstance(factor, (int, float)) or not 0 < factor <= 1e6:
+            raise ValueError(f"light_power_factor={factor!r} must be a number in (0, 1e6]")
+        self.light_power_factor = float(factor)
+        """Multiplies every light's power; light transport is linear in it, so it scales y."""
         self.files = SceneFiles.resolve(scene, motion=motion, lights=lights)
         self.light = light
         self.lighting = scene_lighting(self.files, light)  # the light file's condition, or the XML's emitters
@@ -87,8 +93,11 @@ class SceneRenderer:
         self.camera_model = PinholeCamera.from_params(self.params, self.sensor_id, w, h)
         check_camera(self.files.xml, self.camera_model.to_world, self.camera_model.x_fov_deg)
         self._gain = self.exposure.gain_map(h, w, self.camera_model.x_fov_deg)
+        if self.light_power_factor != 1.0:
+            self._gain = (self._gain * self.light_power_factor).astype(self._gain.dtype, copy=False)
         self._gain_device: Any = None  # the gain map on the render device, made on first use
         self.stats = {"renders": 0, "render_seconds": 0.0, "frames": 0}
+        self._view: tuple[np.ndarray, np.ndarray] | None = None  # _view_samples, made on first use
 
     # ---- time ---------------------------------------------------------------------------------
     @property
@@ -99,15 +108,58 @@ class SceneRenderer:
         """Seconds on the motion clock at `fraction` of step `step`'s readout period."""
         return self.motion.start_time_s + (step + fraction) * self.readout_period_s
 
+    def camera_at(self, t: float) -> PinholeCamera:
+        """The camera's pose at time t: the rest pose, moved when the motion file moves the camera."""
+        if self.sensor_id not in self.motion.targets:
+            return self.camera_model
+        return self.camera_model.moved(self.motion.transform(self.sensor_id, t))
+
     def motion_px(self, step: int) -> float:
-        """Largest image-plane displacement (pixels) of any moving object during step `step`."""
+        """Largest image-plane displacement (pixels) of anything the camera sees during step
+        `step`: each moving object's sample points, projected through the camera at the start and
+        at the end of the step; and, when the camera itself moves, the scene points it sees (a
+        grid of pixels at their depth in the rest pose, `_view_samples`), carried along the camera's
+        rays at the start and projected through its pose at the end, which covers both its turn
+        (every point shifts, the far ones included) and its translation (near points the most)."""
         if not self.animator.moving:
             return 0.0
-        a, _ = self.camera_model.project(self.animator.world_points(self.time_of(step, 0.0)))
-        b, _ = self.camera_model.project(self.animator.world_points(self.time_of(step, 1.0)))
-        d = np.linalg.norm(b - a, axis=-1)
+        t0, t1 = self.time_of(step, 0.0), self.time_of(step, 1.0)
+        cam0, cam1 = self.camera_at(t0), self.camera_at(t1)
+        skip = (self.sensor_id,)
+        a, _ = cam0.project(self.animator.world_points(t0, skip))
+        b, _ = cam1.project(self.animator.world_points(t1, skip))
+        d = [np.linalg.norm(b - a, axis=-1)]
+        if cam0 is not self.camera_model:
+            pixels, depth = self._view_samples()
+            origins, dirs = cam0.rays(pixels)
+            seen, _ = cam1.project(origins + depth[:, None] * dirs)
+            d.append(np.linalg.norm(seen - pixels, axis=-1))
+        d = np.concatenate(d)
         d = d[np.isfinite(d)]
         return float(d.max()) if d.size else 0.0
+
+    #: Pixels per side of the grid whose depths sample what a moving camera sees.
+    VIEW_SAMPLES = 16
+
+    def _view_samples(self) -> tuple[np.ndarray, np.ndarray]:
+        """A grid of pixel centres (K, 2) and the distance along each one's ray to the surface
+        it sees in the rest pose (K,); rays that hit nothing see the background, which counts as
+        far away (a thousand times the scene's size): it shifts with the camera's turn only."""
+        if self._view is None:
+            cols = (np.arange(min(self.VIEW_SAMPLES, self.width)) + 0.5) * self.width / min(self.VIEW_SAMPLES, self.width)
+            rows = (np.arange(min(self.VIEW_SAMPLES, self.height)) + 0.5) * self.height / min(self.VIEW_SAMPLES, self.height)
+            pixels = np.stack(np.meshgrid(cols, rows), axis=-1).reshape(-1, 2)
+            use_variant(self._variant)
+            origins, dirs = self.camera_model.rays(pixels)
+            ray = mi.Ray3f(mi.Point3f(*(origins.T.astype(np.float32))), mi.Vector3f(*(dirs.T.astype(np.float32))))
+            depth = np.array(self.scene.ray_intersect(ray).t, dtype=np.float64).ravel()
+            bbox = self.scene.bbox()
+            size = float(np.linalg.norm(np.array(bbox.max, dtype=np.float64).ravel()
+                                        - np.array(bbox.min, dtype=np.float64).ravel()))
+            far = 1e3 * max(size, float(np.linalg.norm(self.camera_model.to_world[:3, 3])), 1.0)
+            depth = np.where(np.isfinite(depth) & (depth > 0), depth, far)
+            self._view = pixels, depth
+        return self._view
 
     def substeps_for(self, step: int) -> int:
         """Renders averaged for step `step` (settings.substeps, or from the motion in pixels)."""
@@ -204,11 +256,16 @@ class SceneRenderer:
     # ---- reproducibility ----------------------------------------------------------------------
     def describe(self) -> dict[str, Any]:
         """Every parameter that determines the output, for a dataset's meta.json."""
+        light = self.lighting.describe(self.exposure.pixel)
+        if self.light_power_factor != 1.0:
+            from spikesim.generation.job import scale_light_amounts
+            light = {**scale_light_amounts(light, self.light_power_factor),
+                     "light_power_factor": self.light_power_factor}
         return {
             "scene": self.files.name,
             "files": {k: str(getattr(self.files, k)) for k in ("xml", "motion", "lights") if getattr(self.files, k)},
             "sha256": self.files.digests(),
-            "light": self.lighting.describe(self.exposure.pixel),
+            "light": light,
             "motion": self.motion.describe(),
             "render": {**self.settings.to_dict(), "variant_used": self.variant, "height": self.height,
                        "width": self.width, "mitsuba_variant": self._variant, "reconstruction_filter": "box",
