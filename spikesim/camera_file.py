@@ -3,7 +3,8 @@ published default, as commented TOML (`spikesim camera --write mine.toml`).
 
 The comments are the fields' own docstrings in spikesim/camera.py, read from its source, so the
 file and the code cannot say different things. Geometry (height, width) is written commented
-out: every command takes the frame size from the scene, the dataset preset or `--height/--width`.
+out: without it a command takes the frame size from the scene's film or the dataset preset; with
+it, the file's size wins over those and `--height/--width` over the file.
 """
 from __future__ import annotations
 
@@ -15,7 +16,7 @@ from typing import Any
 
 from .camera import SpikeCamera
 
-#: Fields a camera file leaves to the command (the frame size comes from the scene or flags).
+#: Fields the written file leaves commented out (the frame size is the scene's or the preset's).
 GEOMETRY_FIELDS = ("height", "width")
 
 
@@ -58,7 +59,8 @@ def camera_toml(camera: SpikeCamera | None = None, preset: str = "realistic") ->
             lines.append(f"# {text}")
         note = "" if value == published else f"  # the published value: {_toml_value(published)}"
         if f.name in GEOMETRY_FIELDS:
-            lines.append(f"# {f.name} = {_toml_value(value)}   (taken from the scene, the preset or --{f.name})")
+            lines.append(f"# {f.name} = {_toml_value(value)}   (uncomment to fix the frame size; else the scene's film "
+                         f"or the preset's, and --{f.name} wins over both)")
         else:
             lines.append(f"{f.name} = {_toml_value(value)}{note}")
         lines.append("")
