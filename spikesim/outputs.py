@@ -217,6 +217,18 @@ def output_folder(path: str | Path) -> Iterator[Path]:
         raise
 
 
+@contextlib.contextmanager
+def output_file(path: str | Path) -> Iterator[Path]:
+    """For a command whose output is one file (`simulate -o`, `panel -o`, `golden --write -o`):
+    its folder made as `output_folder` does, and `path` itself refused if it is a symlink or a
+    folder. Write it with `atomic_write_*` inside the block."""
+    path = check_not_link(path)
+    if path.is_dir():
+        raise IsADirectoryError(errno.EISDIR, "is a directory, expected a file name", str(path))
+    with output_folder(path.parent):
+        yield path
+
+
 def discard_empty(folders: list[Path]) -> None:
     """Remove each of `folders` (made by this run, outermost first) that is empty, innermost first."""
     for folder in reversed(folders):
@@ -228,4 +240,4 @@ def discard_empty(folders: list[Path]) -> None:
 
 __all__ = ["LINK_REFUSED", "inside", "writable", "check_not_link", "naming", "writing", "new_temp_beside",
            "atomic_write_with", "atomic_write_bytes", "atomic_write_text", "atomic_write_json", "append_text",
-           "make_dirs", "remove", "missing_folders", "output_folder", "discard_empty"]
+           "make_dirs", "remove", "missing_folders", "output_folder", "output_file", "discard_empty"]
