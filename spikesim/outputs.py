@@ -79,13 +79,19 @@ def naming(exc: OSError, path: str | Path) -> OSError:
 
 
 @contextlib.contextmanager
-def writing(path: str | Path) -> Iterator[None]:
+def writing(path: str | Path, stage: str | Path | None = None) -> Iterator[None]:
     """Inside the block, an OSError (a full disk, a read-only folder) is raised again naming
-    `path`: for writes that go to a staging file the user never sees."""
+    `path`: for writes that go to a staging folder the user never sees. With `stage` (a hidden
+    folder whose content will move to `path`'s folder), an error naming a file in the stage
+    names that file's place beside `path` instead."""
     try:
         yield
     except OSError as exc:
-        raise naming(exc, path) from exc
+        shown = Path(path)
+        if stage is not None and exc.filename is not None:
+            with contextlib.suppress(ValueError):
+                shown = shown.parent / Path(os.fspath(exc.filename)).relative_to(stage)
+        raise naming(exc, shown) from exc
 
 
 def new_temp_beside(path: str | Path, suffix: str = ".part") -> Path:

@@ -158,3 +158,144 @@ def test_output_folder_on_a_file_names_it(tmp_path):
         with outputs.output_folder(tmp_path / "f"):
             pass
     assert info.value.filename == str(tmp_path / "f")
+
+
+# ---- the commands: a planted link is refused (rc 2, one line naming it), the file it leads to is
+# byte-identical afterwards and nothing beside it is deleted -------------------------------------
+import json  # noqa: E402
+
+from cli_testing import one_line, run_cli  # noqa: E402
+
+SIM = ["simulate", "--steps", "20", "--height", "4", "--width", "8", "--backend", "numpy", "--quiet"]
+
+
+def _snapshot(folder):
+    return {p.name: p.read_bytes() for p in sorted(folder.iterdir())}
+
+
+@pytest.mark.parametrize("which", ["stream", "sidecar"])
+def test_simulate_refuses_a_link_at_its_output_or_sidecar(tmp_path, outside, capsys, which):
+    out = tmp_path / "o" / "s.dat"
+    out.parent.mkdir()
+    link = out if which == "stream" else out.with_name("s.dat.json")
+    link.symlink_to(outside / "keep.txt")
+    code, err = run_cli([*SIM, "-o", out], capsys)
+    assert code == 2 and link.name in one_line(err) and "symlink" in one_line(err), err
+    _untouched(outside)
+    assert link.is_symlink()
+
+
+def test_simulate_replaces_its_own_stream_but_not_another_file(tmp_path, capsys):
+    out = tmp_path / "s.dat"
+    assert run_cli([*SIM, "-o", out], capsys)[0] == 0
+    assert run_cli([*SIM, "--seed", "1", "-o", out], capsys)[0] == 0  # its own stream: replaced, as always
+    notes = tmp_path / "notes.dat"
+    notes.write_text("the user's notes")
+    code, err = run_cli([*SIM, "-o", notes], capsys)
+    assert code == 2 and "notes.dat exists and is not a spike stream" in one_line(err), err
+    assert notes.read_text() == "the user's notes" and not (tmp_path / "notes.dat.json").exists()
+    assert run_cli([*SIM, "--overwrite", "-o", notes], capsys)[0] == 0
+    assert notes.stat().st_size == 20 * 4
+
+
+def test_simulate_on_a_full_disk_names_the_stream_and_leaves_nothing(tmp_path, monkeypatch, capsys):
+    import spikesim.stream as stream
+
+    class FullDisk:
+        def __init__(self, f):
+            self.f = f
+
+        def write(self, data):
+            raise OSError(errno.ENOSPC, "No space left on device")
+
+        def __getattr__(self, name):
+            return getattr(self.f, name)
+
+    real = stream.open_temp_beside
+    monkeypatch.setattr(stream, "open_temp_beside", lambda *a, **k: (lambda f, t: (FullDisk(f), t))(*real(*a, **k)))
+    out = tmp_path / "new" / "s.dat"
+    code, err = run_cli([*SIM, "-o", out], capsys)
+    assert code == 2 and f"{out}: No space left on device" in one_line(err), err
+    assert not (tmp_path / "new").exists()
+
+
+def test_golden_write_names_the_target_not_its_temporary_file(tmp_path, monkeypatch, capsys):
+    from spikesim import golden
+    monkeypatch.setattr(golden, "measure_reference", lambda *a, **k: {"backend": "numpy", "stats": {}})
+    (tmp_path / "ro").mkdir()
+    target = tmp_path / "ro" / "ref.json"
+    os.chmod(tmp_path / "ro", 0o500)
+    try:
+        if os.access(tmp_path / "ro", os.W_OK):  # root writes anywhere: /proc is never writable
+            target = "/proc/version"
+        code, err = run_cli(["golden", "--write", "--seeds", "1", "--backend", "numpy", "-o", target], capsys)
+    finally:
+        os.chmod(tmp_path / "ro", 0o700)
+    line = one_line(err)
+    assert code == 2 and f"{target}:" in line and ".part" not in line, line
+
+
+def test_golden_write_refuses_a_link(tmp_path, outside, capsys):
+    (tmp_path / "ref.json").symlink_to(outside / "keep.txt")
+    code, err = run_cli(["golden", "--write", "--seeds", "1", "--backend", "numpy", "-o", tmp_path / "ref.json"],
+                        capsys)
+    assert code == 2 and "ref.json: is a symlink" in one_line(err), err
+    _untouched(outside)
+
+
+def test_inspect_preview_refuses_a_link(tmp_path, outside, capsys):
+    out = tmp_path / "s.dat"
+    assert run_cli([*SIM, "-o", out], capsys)[0] == 0
+    (tmp_path / "p.png").symlink_to(outside / "keep.txt")
+    code, err = run_cli(["inspect", out, "--window", "5", "--preview", tmp_path / "p.png"], capsys)
+    assert code == 2 and "p.png: is a symlink" in one_line(err), err
+    _untouched(outside)
+
+
+RENDER = ["render", "--height", "8", "--width", "12", "--spp", "1", "--steps", "0:2"]
+
+
+@pytest.fixture
+def xml(tmp_path):
+    from identity_testing import make_user_scene
+    return make_user_scene(tmp_path / "sc")
+
+
+@pytest.mark.parametrize("link, to", [("frames", "."), ("render.json", "keep.txt"), ("gt", ".")])
+@pytest.mark.parametrize("rerun", [False, True])
+def test_render_refuses_a_link_in_its_output(xml, tmp_path, outside, capsys, link, to, rerun):
+    d = tmp_path / "D"
+    if rerun:
+        assert run_cli([*RENDER, xml, "-o", d], capsys)[0] == 0
+        import shutil
+        shutil.rmtree(d / link) if (d / link).is_dir() else (d / link).unlink(missing_ok=True)
+    d.mkdir(exist_ok=True)
+    (d / link).symlink_to(outside / to if to != "." else outside)
+    code, err = run_cli([*RENDER, xml, "-o", d], capsys)
+    assert code == 2 and link in one_line(err), err
+    _untouched(outside)
+    assert (d / link).is_symlink()
+
+
+def test_render_never_deletes_what_a_record_names_outside(xml, tmp_path, outside, capsys):
+    d = tmp_path / "D"
+    assert run_cli([*RENDER, xml, "-o", d], capsys)[0] == 0
+    record = json.loads((d / "render.json").read_text())
+    record["files"].append("../elsewhere/keep.txt")  # a crafted record: a rerun removes what it lists
+    (d / "render.json").write_text(json.dumps(record))
+    code, err = run_cli([*RENDER, xml, "-o", d], capsys)
+    assert code == 2 and "outside the output root" in one_line(err), err
+    _untouched(outside)
+
+
+def test_render_on_a_full_disk_names_the_frame_and_leaves_no_folder(xml, tmp_path, monkeypatch, capsys):
+    from PIL import Image
+
+    def full(self, fp, *a, **k):
+        raise OSError(errno.ENOSPC, "No space left on device")
+    monkeypatch.setattr(Image.Image, "save", full)
+    d = tmp_path / "new" / "D"
+    code, err = run_cli([*RENDER, xml, "-o", d], capsys)
+    line = one_line(err)
+    assert code == 2 and f"{d / 'frames' / 'step_000000.png'}: No space left on device" in line, line
+    assert not (tmp_path / "new").exists()
