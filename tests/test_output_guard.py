@@ -277,6 +277,15 @@ def test_render_refuses_a_link_in_its_output(xml, tmp_path, outside, capsys, lin
     assert (d / link).is_symlink()
 
 
+def test_render_does_not_write_through_a_link_at_its_records_temporary_name(xml, tmp_path, outside, capsys):
+    d = tmp_path / "D"
+    d.mkdir()
+    (d / ".render.json.part").symlink_to(outside / "keep.txt")  # the fixed name the record was written to
+    assert run_cli([*RENDER, xml, "-o", d], capsys)[0] == 0
+    _untouched(outside)
+    assert json.loads((d / "render.json").read_text())["kind"] == "frames"
+
+
 def test_render_never_deletes_what_a_record_names_outside(xml, tmp_path, outside, capsys):
     d = tmp_path / "D"
     assert run_cli([*RENDER, xml, "-o", d], capsys)[0] == 0

@@ -28,6 +28,14 @@ def dat(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
+def dat16(tmp_path_factory):
+    """A stream big enough for panel's no-reference measures (16 x 16 at least)."""
+    from spikesim.stream import SpikeStream, write_dat
+    sc = make_scene("p", 16, 16, 7 * 3, brightness=0.3)
+    return write_dat(tmp_path_factory.mktemp("dat16") / "p.dat", SpikeStream.from_bool(sc.spike_array))
+
+
+@pytest.fixture(scope="module")
 def dataset(tmp_path_factory):
     pytest.importorskip("OpenEXR", reason="the dataset layout stores ground truth as EXR")
     from spikesim.dataset import write_scene
@@ -108,10 +116,14 @@ def test_reconstruct_on_a_full_disk_names_the_file_and_leaves_no_folder(dat, tmp
 
 @pytest.mark.parametrize("link, to", [("config.json", "config.json"), ("tb", "."),
                                       ("train_log.csv", "train_log.csv"), ("last.pt", "keep.txt")])
-@pytest.mark.parametrize("mode", [[], ["--overwrite"]])
+@pytest.mark.parametrize("mode", [[], ["--overwrite"], ["--resume"]])
 def test_train_refuses_a_link_in_its_run_folder(config_file, dataset, tmp_path, outside, capsys, link, to, mode):
     out = tmp_path / "t"
     out.mkdir()
+    if mode == ["--resume"]:  # a finished run, continued: it appends to its logs and TensorBoard
+        assert run_cli(train(config_file, dataset, out), capsys)[0] == 0
+        import shutil
+        shutil.rmtree(out / link) if (out / link).is_dir() else (out / link).unlink()
     (out / link).symlink_to(outside / to if to != "." else outside)
     before = snapshot(outside)
     code, err = run_cli(train(config_file, dataset, out, *mode), capsys)
@@ -139,6 +151,25 @@ def test_train_on_a_full_disk_names_the_checkpoint(config_file, dataset, tmp_pat
     assert code == 2 and "Traceback" not in err and line.startswith("spikesim train: error:"), err
     assert f"{out / 'last.pt'}: No space left on device" in line, line
     assert not (out / "last.pt").exists() and not [p for p in out.iterdir() if p.name.startswith(".")]
+
+
+@pytest.mark.parametrize("kind", ["evaluate", "panel"])
+def test_a_link_at_a_temporary_file_name_is_not_written_through(dat16, dataset, tmp_path, outside, capsys, kind):
+    """The temporary files had fixed names (.metrics.csv.part, .panel.png.part) opened for
+    writing: a link planted there led the write outside. They are now made exclusively."""
+    out = tmp_path / "o"
+    out.mkdir()
+    if kind == "evaluate":
+        (out / ".metrics.csv.part").symlink_to(outside / "keep.txt")
+        argv = ["evaluate", "--data", dataset, "--methods", "tfp", "--window", 7, "--out", out, "--device", "cpu",
+                "--quiet"]
+    else:
+        (out / ".panel.png.part").symlink_to(outside / "keep.txt")
+        argv = ["panel", dat16, "--height", 16, "--width", 16, "--window", 7, "--methods", "tfp",
+                "-o", out / "panel.png", "--device", "cpu"]
+    before = snapshot(outside)
+    assert run_cli(argv, capsys)[0] == 0
+    assert snapshot(outside) == before
 
 
 def test_evaluate_refuses_a_link_to_its_results(dataset, tmp_path, outside, capsys):
