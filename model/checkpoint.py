@@ -18,7 +18,7 @@ from typing import Any
 
 import torch
 
-from spikesim.stream import open_temp_beside
+from spikesim.outputs import atomic_write_with, writing
 
 from .arch import build_model
 from .config import ExperimentConfig
@@ -61,17 +61,19 @@ def state_fingerprint(obj: Any) -> str:
 
 def atomic_torch_save(obj: Any, path: str | Path) -> None:
     """torch.save to a temp file beside `path`, fsync, then os.replace: a crash mid-write never
-    leaves a truncated checkpoint under the final name."""
-    f, tmp = open_temp_beside(path, suffix=".tmp")
-    try:
-        with f:
+    leaves a truncated checkpoint under the final name, a link at `path` is refused, and a full
+    disk is an OSError naming `path` (spikesim.outputs)."""
+    path = Path(path)
+    with writing(path.parent):
+        path.parent.mkdir(parents=True, exist_ok=True)
+
+    def write(tmp: Path) -> None:
+        with open(tmp, "wb") as f:
             torch.save(obj, f)
             f.flush()
             os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+
+    atomic_write_with(path, write, suffix=".tmp")
 
 
 def save_checkpoint(path: str | Path, model: torch.nn.Module, experiment: ExperimentConfig,

@@ -11,11 +11,10 @@ from __future__ import annotations
 
 import csv
 import dataclasses
-import json
+import io
 import math
 import os
 import random
-import shutil
 import sys
 import time
 import warnings
@@ -35,6 +34,8 @@ from .metrics import psnr, psnr_aligned, ssim
 from .precision import autocast, grad_scaler, resolve_precision
 from .representations import tfp_windows
 from spikesim._optional import require
+from spikesim.outputs import (append_text, atomic_write_json, atomic_write_text, make_dirs, output_folder, remove,
+                              writable)
 
 
 def seed_everything(seed: int) -> None:
@@ -85,18 +86,23 @@ class TrainingDiverged(ValueError):
     reported in one line like any other, not a traceback."""
 
 
+def _csv_text(rows: Sequence[Sequence[Any]]) -> str:
+    buf = io.StringIO(newline="")
+    csv.writer(buf).writerows(rows)
+    return buf.getvalue()
+
+
 class _CsvLog:
-    """Append-only CSV with a fixed header (kept across resumes)."""
+    """Append-only CSV with a fixed header (kept across resumes); never written through a link,
+    and a full disk names the file (spikesim.outputs)."""
 
     def __init__(self, path: Path, fields: Sequence[str]) -> None:
         self.path, self.fields = path, list(fields)
         if not path.exists():
-            with path.open("w", newline="") as f:
-                csv.writer(f).writerow(self.fields)
+            atomic_write_text(path, _csv_text([self.fields]))
 
     def write(self, row: dict[str, Any]) -> None:
-        with self.path.open("a", newline="") as f:
-            csv.writer(f).writerow([row.get(k, "") for k in self.fields])
+        append_text(self.path, _csv_text([[row.get(k, "") for k in self.fields]]))
 
     def keep_steps_up_to(self, step: int) -> None:
         """Drop rows a cut run wrote after its last checkpoint (the resumed run writes them again),
@@ -104,10 +110,7 @@ class _CsvLog:
         with self.path.open(newline="") as f:
             rows = list(csv.reader(f))
         kept = rows[:1] + [r for r in rows[1:] if int(r[self.fields.index("step")]) <= step]
-        tmp = self.path.with_name(f".{self.path.name}.part")
-        with tmp.open("w", newline="") as f:
-            csv.writer(f).writerows(kept)
-        os.replace(tmp, self.path)
+        atomic_write_text(self.path, _csv_text(kept))
 
 
 class _StopOnSignal:
@@ -324,6 +327,8 @@ def _start_or_resume(out: Path, resume: bool, experiment: ExperimentConfig, run:
                      dist: _Distributed, overwrite: bool = False) -> tuple[int, int, int, float, dict[str, Any]]:
     """(epoch, batch in epoch, step, best validation PSNR, the checkpoint's extra record) to start from."""
     last_path = out / "last.pt"
+    for name in RUN_FILES:  # a link where the run writes is refused, naming it, before anything is written
+        writable(out, name)
     if resume:
         return _resume(last_path, dev, experiment.model, experiment.train, run.model, run.opt, run.sched, run.scaler)
     existing = [name for name in RUN_FILES if (out / name).exists()]
@@ -335,11 +340,8 @@ def _start_or_resume(out: Path, resume: bool, experiment: ExperimentConfig, run:
         tdist.barrier()
     if dist.is_main:
         for stale in RUN_FILES:
-            if (out / stale).is_dir() and not (out / stale).is_symlink():
-                shutil.rmtree(out / stale)
-            else:
-                (out / stale).unlink(missing_ok=True)
-        (out / "config.json").write_text(json.dumps(experiment.to_dict(), indent=2))
+            remove(out, stale)
+        atomic_write_json(writable(out, "config.json"), experiment.to_dict())
     return 0, 0, 0, -math.inf, {}
 
 
@@ -443,7 +445,15 @@ def run_training(experiment: ExperimentConfig, train_scenes: Sequence[Scene], va
                  out_dir: str | Path, device: str = "auto", resume: bool = False,
                  progress: bool = True, overwrite: bool = False) -> dict[str, Any]:
     """Train; returns a summary (steps, last loss, best validation PSNR, samples/s, data-wait share).
-    Under `torchrun` each process trains its share of every batch (DDP); rank 0 writes."""
+    Under `torchrun` each process trains its share of every batch (DDP); rank 0 writes. Every file
+    is written inside `out_dir`, never through a link there; a run that fails before writing
+    anything leaves no new empty folder (spikesim.outputs)."""
+    with output_folder(out_dir):
+        return _train(experiment, train_scenes, val_scenes, out_dir, device, resume, progress, overwrite)
+
+
+def _train(experiment: ExperimentConfig, train_scenes: Sequence[Scene], val_scenes: Sequence[Scene],
+           out_dir: str | Path, device: str, resume: bool, progress: bool, overwrite: bool) -> dict[str, Any]:
     from spikesim.progress import progress_bar
 
     out = Path(out_dir)
@@ -615,7 +625,7 @@ class _Logs:
             if resumed_at is not None:
                 self.train.keep_steps_up_to(resumed_at)
                 self.val.keep_steps_up_to(resumed_at)
-            self.tb = _Tensorboard(out / "tb")
+            self.tb = _Tensorboard(make_dirs(out, "tb"))
 
     def train_step(self, epoch: int, step: int, loss: float, lr: float, rate: float, waited: float) -> None:
         if self.enabled:

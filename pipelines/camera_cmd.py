@@ -10,11 +10,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 from pathlib import Path
 
 from pipelines.argtypes import camera_spec, load_camera, output_file
+from spikesim import outputs
 
 
 def run(args: argparse.Namespace) -> int:
@@ -26,13 +26,8 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError(f"--write {out}: a camera file written with comments is TOML; name it *.toml")
         if out.exists() and not args.overwrite:
             raise FileExistsError(f"--write {out}: the file exists (--overwrite to replace it)")
-        tmp = out.with_name(f".{out.name}.part")
-        try:
-            tmp.write_text(camera_toml(preset=args.preset))
-            os.replace(tmp, out)
-        except OSError as exc:
-            tmp.unlink(missing_ok=True)
-            raise OSError(exc.errno, f"cannot write {out}: {exc.strerror}") from None
+        with outputs.output_file(out):  # a link is refused; a failed write leaves nothing, naming the file
+            outputs.atomic_write_text(out, camera_toml(preset=args.preset))
         print(f"[camera] wrote {out} ({args.preset}); edit it and pass --camera {out}", file=sys.stderr)
         return 0
     camera = load_camera(args.file)

@@ -21,7 +21,7 @@ import dataclasses
 import itertools
 import json
 import math
-import os
+import io
 import shlex
 import sys
 from dataclasses import dataclass
@@ -32,6 +32,7 @@ import numpy as np
 
 from model.threads import set_cpu_threads
 from pipelines.argtypes import add_threads_argument, nonnegative_int, output_dir, positive_float, positive_int
+from spikesim.outputs import atomic_write_text, output_folder, writable
 
 MIN_SEEDS = 3
 BASELINES = ("tfp", "tfi")
@@ -85,6 +86,8 @@ def config_spec(text: str) -> tuple[str, Any]:
 
 
 def run_dir(out: Path, label: str, seed: int) -> Path:
+    """A run's folder: inside `out`, with no link on the way (refused, naming it)."""
+    writable(out, "runs", label, f"seed{seed}")
     return out / "runs" / label / f"seed{seed}"
 
 
@@ -245,27 +248,28 @@ def markdown(stats: Sequence[SeedStat], labels: Sequence[str], baselines: Sequen
     return "\n".join(lines) + "\n"
 
 
-def _write_text(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.part")
-    tmp.write_text(text)
-    os.replace(tmp, path)
+COMPARE_FILES = ("compare.csv", "compare.json", "compare.md")
 
 
 def write_comparison(stats: Sequence[SeedStat], rows: Sequence[Any], text: str, meta: dict[str, Any], out: Path) -> None:
-    """compare.csv, compare.json, compare.md and every run's per-scene metrics.csv, each written whole."""
-    from pipelines.evaluate import write_results
-    out.mkdir(parents=True, exist_ok=True)
-    write_results(rows, list(dict.fromkeys(r.method for r in rows)), out)
-    tmp = out / ".compare.csv.part"
-    with tmp.open("w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(["label", "group", "metric", "mean", "std", "seeds", "values"])
-        for s in stats:
-            w.writerow([s.label, s.group, s.metric, f"{s.mean:.6f}", f"{s.std:.6f}", s.n,
-                        " ".join(f"{v:.6f}" for v in s.values)])
-    os.replace(tmp, out / "compare.csv")
-    _write_text(out / "compare.json", json.dumps({**meta, "stats": [dataclasses.asdict(s) for s in stats]}, indent=1))
-    _write_text(out / "compare.md", text)
+    """compare.csv, compare.json, compare.md and every run's per-scene metrics.csv, each written
+    whole, inside `out` and never through a link there (spikesim.outputs)."""
+    from pipelines.evaluate import check_results, write_results
+    for name in COMPARE_FILES:
+        writable(out, name)
+    check_results(out)
+    buf = io.StringIO(newline="")
+    w = csv.writer(buf)
+    w.writerow(["label", "group", "metric", "mean", "std", "seeds", "values"])
+    for s in stats:
+        w.writerow([s.label, s.group, s.metric, f"{s.mean:.6f}", f"{s.std:.6f}", s.n,
+                    " ".join(f"{v:.6f}" for v in s.values)])
+    with output_folder(out):
+        write_results(rows, list(dict.fromkeys(r.method for r in rows)), out)
+        atomic_write_text(writable(out, "compare.csv"), buf.getvalue())
+        atomic_write_text(writable(out, "compare.json"),
+                          json.dumps({**meta, "stats": [dataclasses.asdict(s) for s in stats]}, indent=1))
+        atomic_write_text(writable(out, "compare.md"), text)
 
 
 def cmd_compare(args: argparse.Namespace) -> int:

@@ -29,9 +29,12 @@ def run(args: argparse.Namespace) -> int:
     from spikesim.dataset import open_dataset
     from spikesim.imageio import write_png
     from spikesim._drjit import resolve_device
+    from spikesim.outputs import make_dirs, writable
     from spikesim.stats import dark_pixel_fraction
 
     out = Path(args.out)
+    for name in ("llr", "previews", "metrics.csv", "metrics.md"):  # a link where the demo writes: refused now
+        writable(out, name)
     device = resolve_device(args.device)  # an unavailable GPU fails before any work
     # the methods first: a checkpoint that does not load fails now, not after the rendering
     models = [] if args.no_model else [method_from_spec(PRETRAINED_METHOD)]
@@ -64,14 +67,16 @@ def run(args: argparse.Namespace) -> int:
     # previews of the middle window of each scene's run (a network sees the whole run, as in the
     # table): every image stretched to its own 99.5th percentile, so a person sees what each method
     # made, dark or bright (a shared scale shows low-light TFP black and TFI white)
+    make_dirs(out, "previews")
     for sc in scenes:
         first, n = evaluation_run(sc, 41)
         mid = n // 2
-        write_png(out / "previews" / f"{sc.name}_gt_p99.png", sc.ground_truth(first + mid * 41), percentile=99.5)
+        write_png(writable(out, "previews", f"{sc.name}_gt_p99.png"), sc.ground_truth(first + mid * 41),
+                  percentile=99.5)
         src = StepWindows(sc.spikes, first - 20, 41, n)
         for m in (m for m in methods if m.name not in FLOORS):  # the floors show nothing
             frame = next(f for i, f in m.frames(src) if i == mid)
-            write_png(out / "previews" / f"{sc.name}_{m.name}_p99.png", np.asarray(frame), percentile=99.5)
+            write_png(writable(out, "previews", f"{sc.name}_{m.name}_p99.png"), np.asarray(frame), percentile=99.5)
     print(f"[demo] done in {time.perf_counter() - t0:.0f} s (rendering and simulation {t_gen:.0f} s); "
           f"data in {out / 'llr'}, table in {out / 'metrics.md'}, previews in {out / 'previews'} (each image "
           "stretched to its own 99.5th percentile: _p99)", file=sys.stderr)

@@ -17,9 +17,9 @@ from __future__ import annotations
 
 import argparse
 import csv
+import io
 import json
 import math
-import os
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -36,6 +36,7 @@ from model.threads import set_cpu_threads
 from pipelines.argtypes import add_threads_argument, existing_file, nonnegative_int, positive_float, positive_int
 from pipelines.inspect_cmd import header_columns_arg
 from spikesim.dataset import SATURATION_Y
+from spikesim.outputs import atomic_write_text, output_folder, writable
 
 ALL = "ALL"
 
@@ -264,24 +265,33 @@ def markdown_table(rows: Sequence[Score], methods: Sequence[str]) -> str:
 
 
 CSV_FIELDS = ("scene", "method", *METRICS, "frames")
+DEFAULT_OUT = "results/evaluate"
 
 
-def write_results(rows: Sequence[Score], methods: Sequence[str], out: Path) -> tuple[Path, Path]:
-    """metrics.csv (every row, every metric) and metrics.md, each written whole (temporary file,
-    then rename)."""
-    out.mkdir(parents=True, exist_ok=True)
-    csv_path, md_path = out / "metrics.csv", out / "metrics.md"
-    tmp = out / ".metrics.csv.part"
-    with tmp.open("w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(CSV_FIELDS)
-        for r in rows:
-            w.writerow([r.scene, r.method, *(f"{r.value(k):.6f}" for k in METRICS), r.frames])
-    os.replace(tmp, csv_path)
-    tmp = out / ".metrics.md.part"
-    tmp.write_text(markdown_table(rows, methods))
-    os.replace(tmp, md_path)
-    return csv_path, md_path
+RESULT_FILES = ("metrics.csv", "metrics.md")
+
+
+def check_results(out: Path) -> None:
+    """The results' paths in `out` are no links (refused, naming them): checked before the work."""
+    for name in RESULT_FILES:
+        writable(out, name)
+
+
+def write_results(rows: Sequence[Score], methods: Sequence[str], out: Path,
+                  markdown: str | None = None) -> tuple[Path, Path]:
+    """metrics.csv (every row, every metric) and metrics.md (`markdown`, else the Table 1 layout),
+    each written whole (temporary file, then rename), inside `out` and never through a link."""
+    out = Path(out)
+    buf = io.StringIO(newline="")
+    w = csv.writer(buf)
+    w.writerow(CSV_FIELDS)
+    for r in rows:
+        w.writerow([r.scene, r.method, *(f"{r.value(k):.6f}" for k in METRICS), r.frames])
+    with output_folder(out):
+        check_results(out)
+        atomic_write_text(writable(out, "metrics.csv"), buf.getvalue())
+        atomic_write_text(writable(out, "metrics.md"), markdown_table(rows, methods) if markdown is None else markdown)
+    return out / "metrics.csv", out / "metrics.md"
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
@@ -292,6 +302,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     names = [m.name for m in methods]
     if len(set(names)) != len(names):
         raise ValueError(f"method names must be unique, got {names}; name them with label=spec")
+    if args.out is not None:
+        check_results(Path(args.out))  # a link where results go: refused before the work
     if args.dat is not None:
         return _evaluate_pair_cmd(args, methods, names)
     if args.gt is not None or args.center is not None:
@@ -305,7 +317,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
                              f"{', '.join(s.name for s in scenes)})")
         scenes = [s for s in scenes if s.name in wanted]
     rows = evaluate(scenes, methods, args.window, progress=not (args.quiet or args.json))
-    csv_path, md_path = write_results(rows, names, Path(args.out))
+    csv_path, md_path = write_results(rows, names, Path(args.out or DEFAULT_OUT))
     if args.json:
         print(json.dumps(json_safe(scores_json(rows, names, {"data": str(args.data)})), indent=2))
     else:
@@ -328,6 +340,9 @@ def _evaluate_pair_cmd(args: argparse.Namespace, methods: Sequence[Method], name
         print(json.dumps(json_safe(doc), indent=2))
     else:
         print(_pair_table(rows, names, read))
+    if args.out is not None:  # -o given: the same files as --data writes (without it, only printed)
+        csv_path, md_path = write_results(rows, names, Path(args.out), markdown=_pair_table(rows, names, read))
+        print(f"[evaluate] wrote {csv_path} and {md_path}", file=sys.stderr)
     return 0
 
 
@@ -372,7 +387,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         "paths; 'label=spec' names a column")
     p.add_argument("--json", action="store_true", help="print the scores as JSON (every metric convention)")
     p.add_argument("--scenes", nargs="+", help="only these scenes")
-    p.add_argument("-o", "--out", default="results/evaluate", help="folder for metrics.csv and metrics.md (with --data)")
+    p.add_argument("-o", "--out", help=f"folder for metrics.csv and metrics.md (with --data, default {DEFAULT_OUT}; "
+                                        "with --dat, written only when -o is given)")
     p.add_argument("--window", type=positive_int, default=41, help="readout steps per window")
     p.add_argument("--chunk", type=positive_int, default=8, help="windows held in memory by a network")
     p.add_argument("--device", default="auto", help="auto (CUDA when present), cpu, cuda, cuda:N or mps")

@@ -67,6 +67,9 @@ def _num(x: float) -> Any:
 def _write(args: argparse.Namespace) -> int:
     from spikesim.progress import progress_bar
 
+    from spikesim.outputs import check_not_link
+
+    check_not_link(args.output)  # a link at -o is refused before the measurement, not after
     camera, backend = _camera(args), _backend(args.backend)
     seeds = list(range(args.seeds if args.seeds is not None else len(golden.REFERENCE_SEEDS)))
     if golden.MEASURE_SEED in seeds:

@@ -213,9 +213,11 @@ def run(args: argparse.Namespace) -> int:
         s["sidecar"] = {k: side[k] for k in ("seed", "backend", "keyframe_every", "irradiance") if k in side}
     if args.preview:
         from spikesim.imageio import write_png
+        from spikesim.outputs import output_file
         a = max(start, (start + stop) // 2 - args.window // 2)
         tfp = reader.read(a, min(stop, a + args.window)).unpack().mean(axis=0)
-        write_png(args.preview, tfp, percentile=99.5 if args.enhance else None)
+        with output_file(args.preview) as preview:  # never through a link; no new empty folder on failure
+            write_png(preview, tfp, percentile=99.5 if args.enhance else None)
         s["preview"] = str(args.preview)
     if args.json:
         print(json.dumps(s, indent=2))

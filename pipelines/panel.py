@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 from pathlib import Path
 
@@ -22,6 +21,7 @@ import numpy as np
 from model.threads import set_cpu_threads
 from pipelines.argtypes import add_threads_argument, nonnegative_int, output_file, positive_int
 from pipelines.inspect_cmd import header_columns_arg, open_stream
+from spikesim import outputs
 
 
 def panel_frames(path: Path, specs: list[str], height: int | None = None, width: int | None = None,
@@ -77,6 +77,7 @@ def run(args: argparse.Namespace) -> int:
     from model.training import resolve_device
 
     device = str(resolve_device(args.device))
+    outputs.check_not_link(args.out)  # refused before the work, not after
     set_cpu_threads(args.threads)
     header = None if args.header_columns == "auto" else args.header_columns
     frames, reference, read = panel_frames(args.input, args.methods, args.height, args.width, header, args.flip,
@@ -84,11 +85,8 @@ def run(args: argparse.Namespace) -> int:
     scores = {name: no_reference_scores(f, reference) for name, f in frames.items()}
     captions = {n: f"noise {s['flat_noise']:.3f}  edge {s['edge_sharpness']:.3f}" for n, s in scores.items()}
     image = compose_panel(frames, captions)
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.part")
-    image.save(tmp, format="PNG")
-    os.replace(tmp, out)
+    with outputs.output_file(args.out) as out:
+        outputs.atomic_write_with(out, lambda tmp: image.save(tmp, format="PNG"))
     doc = {"read": read, "scores": scores, "out": str(out),
            "measures": {"flat_noise": "std / mean in the flattest 10 % of 16 x 16 blocks of the reference (lower: "
                                       "less noise)",

@@ -33,6 +33,7 @@ from pipelines.argtypes import add_threads_argument, nonnegative_int, positive_f
 from pipelines.inspect_cmd import header_columns_arg, open_stream
 from spikesim._optional import require
 from spikesim.errors import UnavailableError
+from spikesim.outputs import make_dirs, output_folder, remove, writable, writing
 from spikesim.stream import HEADER_COLUMNS as PKU_HEADER
 from spikesim.stream import detect_header_columns  # noqa: F401  (callers and tests reach it here)
 
@@ -65,27 +66,35 @@ def display_frame(y: np.ndarray, enhance: str, gamma: float, scale: float, perce
 class _Video:
     """GIF and/or MP4 written frame by frame (nothing accumulates in memory)."""
 
-    def __init__(self, out: Path, fps: float, gif: bool, mp4: bool) -> None:
+    def __init__(self, out: Path, fps: float, gif: bool, mp4: bool, shown: Path | None = None) -> None:
         import imageio.v2 as imageio
         self.writers = []
+        self.names: list[str] = []
+        self.shown = out if shown is None else shown  # the folder errors name (the user's --out)
         if gif:
-            self.writers.append(imageio.get_writer(out / "frames.gif", mode="I", duration=1000.0 / fps, loop=0))
+            with writing(self.shown / "frames.gif"):
+                self.writers.append(imageio.get_writer(out / "frames.gif", mode="I", duration=1000.0 / fps, loop=0))
+            self.names.append("frames.gif")
         if mp4:
             try:
                 require("imageio_ffmpeg", "video", "MP4 output")
             except UnavailableError as exc:  # the MP4 is on by default: a note, the GIF and PNGs go on
                 print(f"[reconstruct] no MP4: {exc} (--no-mp4 skips it)", file=sys.stderr)
             else:
-                self.writers.append(imageio.get_writer(out / "frames.mp4", fps=fps, codec="libx264",
-                                                       quality=8, macro_block_size=1))
+                with writing(self.shown / "frames.mp4"):
+                    self.writers.append(imageio.get_writer(out / "frames.mp4", fps=fps, codec="libx264",
+                                                           quality=8, macro_block_size=1))
+                self.names.append("frames.mp4")
 
     def add(self, img: np.ndarray) -> None:
-        for w in self.writers:
-            w.append_data(img)
+        for w, name in zip(self.writers, self.names):
+            with writing(self.shown / name):
+                w.append_data(img)
 
     def close(self) -> None:
-        for w in self.writers:
-            w.close()
+        for w, name in zip(self.writers, self.names):
+            with writing(self.shown / name):
+                w.close()
 
 
 def reconstruct_file(path: Path, out: Path, method_spec: str = "tfp", height: int | None = None,
@@ -109,33 +118,39 @@ def reconstruct_file(path: Path, out: Path, method_spec: str = "tfp", height: in
         raise ValueError(f"{path}: {reader.num_steps} steps leave no full {window}-step window after --start {start}")
     n = available if num_windows is None else min(num_windows, available)
     source = StepWindows(lambda a, b: reader.read(a, b).unpack(), start, window, n)
-    out.mkdir(parents=True, exist_ok=True)
-    stage = Path(tempfile.mkdtemp(prefix=".reconstruct.", suffix=".part", dir=out))
-    try:
-        _render_frames(method, source, stage, n, start, window, (height, width),
-                       lambda y: display_frame(y, enhance, gamma, scale, percentile), fps, gif, mp4, save_npy,
-                       progress)
-        summary = {"input": str(path), "method": method.name, "frames": n, "window": window, "start": start,
-                   "height": height, "width": width, "header_columns": header_columns, "flip": flip,
-                   "display": {"enhance": enhance, "gamma": gamma, "scale": scale, "percentile": percentile},
-                   "outputs": sorted([p.name for p in stage.iterdir()] + ["reconstruct.json"])}
-        (stage / "reconstruct.json").write_text(json.dumps(summary, indent=2))
-        replace_outputs(stage, out)
-    finally:
-        shutil.rmtree(stage, ignore_errors=True)
+    with output_folder(out):  # a failed run leaves no new empty folder
+        check_outputs(out)  # a link where an output goes: refused before any work
+        with writing(out):
+            stage = Path(tempfile.mkdtemp(prefix=".reconstruct.", suffix=".part", dir=out))
+        try:
+            _render_frames(method, source, stage, n, start, window, (height, width),
+                           lambda y: display_frame(y, enhance, gamma, scale, percentile), fps, gif, mp4, save_npy,
+                           progress, shown=out)
+            summary = {"input": str(path), "method": method.name, "frames": n, "window": window, "start": start,
+                       "height": height, "width": width, "header_columns": header_columns, "flip": flip,
+                       "display": {"enhance": enhance, "gamma": gamma, "scale": scale, "percentile": percentile},
+                       "outputs": sorted([p.name for p in stage.iterdir()] + ["reconstruct.json"])}
+            with writing(out / "reconstruct.json"):
+                (stage / "reconstruct.json").write_text(json.dumps(summary, indent=2))
+            replace_outputs(stage, out)
+        finally:
+            shutil.rmtree(stage, ignore_errors=True)
     return summary
 
 
 def _render_frames(method, source: StepWindows, stage: Path, n: int, start: int, window: int,
                    shape: tuple[int, int], to_image, fps: float, gif: bool, mp4: bool, save_npy: bool,
-                   progress: bool) -> None:
-    """Write the frames of `method` on `source` into `stage`: PNGs, video, optional .npy."""
+                   progress: bool, shown: Path | None = None) -> None:
+    """Write the frames of `method` on `source` into `stage`: PNGs, video, optional .npy. An OS
+    error (a full disk) names the file as it will be in `shown` (the user's --out)."""
     from PIL import Image
 
+    shown = stage if shown is None else shown
     (stage / PNG_DIR).mkdir()
-    npy = (np.lib.format.open_memmap(stage / "frames.npy", mode="w+", dtype=np.float32, shape=(n, *shape))
-           if save_npy else None)
-    video = _Video(stage, fps, gif, mp4)
+    with writing(shown / "frames.npy"):
+        npy = (np.lib.format.open_memmap(stage / "frames.npy", mode="w+", dtype=np.float32, shape=(n, *shape))
+               if save_npy else None)
+    video = _Video(stage, fps, gif, mp4, shown)
     try:
         for i, frame in method.frames(source):
             y = frame.numpy() if isinstance(frame, torch.Tensor) else np.asarray(frame)
@@ -143,34 +158,52 @@ def _render_frames(method, source: StepWindows, stage: Path, n: int, start: int,
                 npy[i] = y
             img = to_image(y)
             centre = start + i * window + window // 2
-            Image.fromarray(img).save(stage / PNG_DIR / f"step_{centre:06d}.png")
+            name = f"step_{centre:06d}.png"
+            with writing(shown / PNG_DIR / name):
+                Image.fromarray(img).save(stage / PNG_DIR / name)
             video.add(img)
             if progress and (i + 1) % 10 == 0:
                 print(f"[reconstruct] {i + 1}/{n} frames", file=sys.stderr)
     finally:
         video.close()
         if npy is not None:
-            npy.flush()
+            with writing(shown / "frames.npy"):
+                npy.flush()
             del npy
+
+
+def check_outputs(out: Path) -> None:
+    """Every path a run writes or deletes in `out` (png/, its frames, the video, .npy and JSON)
+    is inside it and no symlink: a link there is refused, naming it, not followed
+    (spikesim.outputs)."""
+    for name in (PNG_DIR, *OUTPUT_FILES):
+        writable(out, name)
+    png = out / PNG_DIR
+    if png.is_dir():
+        for old in png.glob(PNG_PATTERN):
+            writable(out, PNG_DIR, old.name)
 
 
 def replace_outputs(stage: Path, out: Path) -> None:
     """Move a finished run's outputs from `stage` into `out`, removing what an earlier run wrote
     there that this one did not (stale frames, a video or .npy no longer asked for); files
-    that are not outputs of this command are left alone. reconstruct.json moves last."""
-    png = out / PNG_DIR
-    png.mkdir(exist_ok=True)
+    that are not outputs of this command are left alone. reconstruct.json moves last. Every
+    path is checked first (`check_outputs`): nothing moves if one is a link."""
+    check_outputs(out)
+    png = make_dirs(out, PNG_DIR)
     fresh = {p.name for p in (stage / PNG_DIR).glob(PNG_PATTERN)}
     for old in png.glob(PNG_PATTERN):
         if old.name not in fresh:
-            old.unlink()
+            remove(out, PNG_DIR, old.name)
     for name in sorted(fresh):
-        os.replace(stage / PNG_DIR / name, png / name)
+        with writing(out / PNG_DIR / name):
+            os.replace(stage / PNG_DIR / name, writable(out, PNG_DIR, name))
     for name in OUTPUT_FILES:
         if (stage / name).exists():
-            os.replace(stage / name, out / name)
+            with writing(out / name):
+                os.replace(stage / name, writable(out, name))
         else:
-            (out / name).unlink(missing_ok=True)
+            remove(out, name)
 
 
 def cmd_reconstruct(args: argparse.Namespace) -> int:

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import tempfile
 import time
 from pathlib import Path
@@ -20,6 +19,7 @@ from typing import Any
 
 from pipelines.argtypes import (add_device_argument, add_light_power_factor_argument, config_file, existing_file,
                                 nonnegative_int, output_dir, positive_float, positive_int)
+from spikesim.outputs import atomic_write_with, output_folder, writing
 
 
 MAX_STEPS = 1_000_000  # steps one call may render (a typo such as 0:1e11 would exhaust memory instead)
@@ -129,9 +129,8 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pipelines.render_folder import check_output_folder, remove_stage, replace_outputs
-    from spikesim.imageio import write_exr, write_png
-    from spikesim.render import Exposure, RenderSettings, SceneRenderer, write_ground_truth
+    from pipelines.render_folder import check_output_folder
+    from spikesim.render import Exposure, RenderSettings, SceneRenderer
     from spikesim.render.scene_files import SceneFiles
 
     previous = check_output_folder(args.out)  # files no record lists: refused before any rendering
@@ -148,10 +147,26 @@ def run(args: argparse.Namespace) -> int:
     if not args.json:
         print(resolved.summary())
     kind = "gt" if args.ground_truth else ("preview" if renderer.variant == "rgb" else "frames")
-    args.out.mkdir(parents=True, exist_ok=True)
+    with output_folder(args.out):  # a failed first run leaves no new empty folder
+        meta, written = _render_into(args, renderer, kind, previous, resolved.table())
+    if args.json:
+        print(json.dumps({**meta, "files": written}, indent=2, default=str))
+    elif args.quiet:
+        print(f"{args.out / kind}: {len(args.steps)} step(s), {sum(meta['seconds_per_step']):.2f} s")
+    return 0
+
+
+def _render_into(args: argparse.Namespace, renderer: Any, kind: str, previous: list[str],
+                 settings_table: Any) -> tuple[dict, list[str]]:
+    from pipelines.render_folder import remove_stage, replace_outputs
+    from spikesim.imageio import write_exr, write_png
+    from spikesim.render import write_ground_truth
+
     # The run is written aside and moved in whole, so the folder always holds one run: a failed
-    # rerun leaves the previous one as it was.
-    stage = Path(tempfile.mkdtemp(prefix=".render.", suffix=".part", dir=args.out))
+    # rerun leaves the previous one as it was. An OS error (a full disk) names the file as it
+    # would be in -o, not in the hidden stage.
+    with writing(args.out):
+        stage = Path(tempfile.mkdtemp(prefix=".render.", suffix=".part", dir=args.out))
     try:
         folder = stage / kind
         folder.mkdir()
@@ -159,30 +174,27 @@ def run(args: argparse.Namespace) -> int:
         for step in args.steps:
             t0 = time.perf_counter()
             name = folder / f"step_{step:06d}"
-            if kind == "preview":
-                rgb = renderer.preview_rgb(step)
-                _write_rgb_png(name.with_suffix(".png"), rgb, args.png_scale, args.png_percentile)
-            elif kind == "gt":
-                write_ground_truth(renderer, [step], folder, png_scale=args.png_scale,
-                                   png_percentile=args.png_percentile)
-            else:
-                y = renderer.render_step(step)
-                write_exr(name.with_suffix(".exr"), y)
-                write_png(name.with_suffix(".png"), y, scale=args.png_scale, percentile=args.png_percentile)
+            with writing(args.out / kind, stage=stage):
+                if kind == "preview":
+                    rgb = renderer.preview_rgb(step)
+                    _write_rgb_png(name.with_suffix(".png"), rgb, args.png_scale, args.png_percentile)
+                elif kind == "gt":
+                    write_ground_truth(renderer, [step], folder, png_scale=args.png_scale,
+                                       png_percentile=args.png_percentile)
+                else:
+                    y = renderer.render_step(step)
+                    write_exr(name.with_suffix(".exr"), y)
+                    write_png(name.with_suffix(".png"), y, scale=args.png_scale, percentile=args.png_percentile)
             timings.append(time.perf_counter() - t0)
             if not args.json and not args.quiet:
                 print(f"{args.out / kind / name.name}  ({timings[-1]:.2f} s)")
         meta = {**renderer.describe(), "kind": kind, "steps": args.steps, "seconds_per_step": timings,
-                "stats": renderer.stats, "settings": resolved.table()}
+                "stats": renderer.stats, "settings": settings_table}
         written = [p.relative_to(stage).as_posix() for p in sorted(stage.rglob("*")) if p.is_file()]
         replace_outputs(stage, args.out, written, previous, meta)
     finally:
         remove_stage(stage)
-    if args.json:
-        print(json.dumps({**meta, "files": written}, indent=2, default=str))
-    elif args.quiet:
-        print(f"{args.out / kind}: {len(args.steps)} step(s), {sum(timings):.2f} s")
-    return 0
+    return meta, written
 
 
 def _write_rgb_png(path: Path, rgb, scale: float | None, percentile: float | None) -> None:
@@ -194,9 +206,7 @@ def _write_rgb_png(path: Path, rgb, scale: float | None, percentile: float | Non
         ref = float(np.percentile(lum, percentile))
         scale = 1.0 / ref if ref > 0 else 1.0
     img = np.clip(rgb * (1.0 if scale is None else scale), 0.0, 1.0) ** (1 / 2.2)
-    tmp = path.with_name(f".{path.name}.part")
-    Image.fromarray(np.round(img * 255).astype(np.uint8)).save(tmp, format="PNG")
-    os.replace(tmp, path)
+    atomic_write_with(path, lambda tmp: Image.fromarray(np.round(img * 255).astype(np.uint8)).save(tmp, format="PNG"))
 
 
 __all__ = ["add_parser", "run", "parse_steps"]

@@ -16,6 +16,8 @@ import shutil
 from pathlib import Path
 from typing import Any
 
+from spikesim.outputs import atomic_write_text, make_dirs, remove, writable, writing
+
 log = logging.getLogger("spikesim.render")
 
 RECORD = "render.json"
@@ -71,7 +73,11 @@ def check_output_folder(folder: Path) -> list[str]:
     run replaces), or a ValueError naming the files its record does not list (they would end up
     beside the new ones, and `simulate --frames` would mix them in)."""
     folder = Path(folder)
+    for name in (RECORD, *KINDS):  # a link where a render writes: refused, naming it, never followed
+        writable(folder, name)
     listed = recorded_files(read_record(folder))
+    for rel in listed:  # what a rerun replaces or deletes: a record naming `..` or a link is refused
+        writable(folder, rel)
     unlisted = [f for f in _output_files(folder) if f not in set(listed)]
     if unlisted:
         shown = ", ".join(unlisted[:3]) + (f" and {len(unlisted) - 3} more" if len(unlisted) > 3 else "")
@@ -83,20 +89,22 @@ def check_output_folder(folder: Path) -> list[str]:
 
 def replace_outputs(stage: Path, folder: Path, new: list[str], old: list[str], record: dict[str, Any]) -> None:
     """Move a finished run's files from `stage` into `folder`, write its record, then remove what
-    the previous run wrote that this one did not (so the folder and its record describe this run)."""
-    for rel in new:
-        (folder / rel).parent.mkdir(parents=True, exist_ok=True)
-        os.replace(stage / rel, folder / rel)
-    tmp = folder / f".{RECORD}.part"
-    tmp.write_text(json.dumps({**record, "files": sorted(new)}, indent=2, default=str) + "\n")
-    os.replace(tmp, folder / RECORD)
+    the previous run wrote that this one did not (so the folder and its record describe this run).
+    Every path is checked first: inside `folder`, no link on the way (spikesim.outputs)."""
     stale = sorted(set(old) - set(new))
+    for rel in (*new, *stale, RECORD):
+        writable(folder, rel)
+    for rel in new:
+        make_dirs(folder, Path(rel).parent)
+        with writing(folder / rel):
+            os.replace(stage / rel, writable(folder, rel))
+    atomic_write_text(writable(folder, RECORD), json.dumps({**record, "files": sorted(new)}, indent=2, default=str) + "\n")
     for rel in stale:
-        (folder / rel).unlink(missing_ok=True)
+        remove(folder, rel)
     for kind in KINDS:
         try:
-            (folder / kind).rmdir()  # a kind this run did not write
-        except OSError:
+            writable(folder, kind).rmdir()  # a kind this run did not write
+        except (OSError, ValueError):
             pass
     if stale:
         log.info("%s: removed %d file(s) of the previous render (its %s listed them)", folder, len(stale), RECORD)

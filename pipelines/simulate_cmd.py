@@ -14,6 +14,7 @@ import numpy as np
 from pipelines.argtypes import (add_device_argument, add_light_power_factor_argument, camera_spec, existing_file, load_camera,
                                 nonnegative_float, nonnegative_int,
                                 output_file, positive_int)
+from spikesim import outputs
 from spikesim.camera import SpikeCamera
 from spikesim.keyframes import keyframe_count, steps_covered
 from spikesim.patterns import MovingPattern
@@ -158,11 +159,15 @@ def frames_steps(steps: int | None, num_frames: int, keyframe_every: int, source
 
 
 def check_outputs(args: argparse.Namespace) -> None:
-    """-o and its JSON sidecar can be written and overwrite no file this run reads (checked before
-    the simulation, which may take long)."""
+    """-o and its JSON sidecar can be written and overwrite no file this run reads, nor one that
+    is not a stream this command wrote (unless --overwrite); neither is a symlink (refused, not
+    followed nor replaced: spikesim.outputs). Checked before the simulation, which may take long."""
+    from spikesim.outputs import check_not_link
     from spikesim.stream import sidecar_path
 
     side = sidecar_path(args.out)
+    check_not_link(args.out)
+    check_not_link(side)
     if side.is_dir():
         raise ValueError(f"--out {args.out}: its sidecar {side} is a directory")
     camera_file = args.camera if isinstance(args.camera, Path) else None
@@ -171,6 +176,27 @@ def check_outputs(args: argparse.Namespace) -> None:
         for flag, path in inputs.items():
             if path is not None and written.exists() and Path(path).exists() and written.samefile(path):
                 raise ValueError(f"--out {args.out} would overwrite the {flag} input {path}")
+    if Path(args.out).exists() and not getattr(args, "overwrite", False) and not simulated_stream(Path(args.out)):
+        raise ValueError(f"--out {args.out} exists and is not a spike stream simulate wrote (no sidecar beside it "
+                         "that matches its size); pass --overwrite to replace it, or choose another -o")
+
+
+def simulated_stream(path: Path) -> bool:
+    """Whether `path` is a stream this command wrote: its sidecar records the spikesim version,
+    the geometry and a number of steps that give exactly its size. Such a file a rerun replaces
+    without asking (as it always did); any other needs --overwrite."""
+    from spikesim.stream import frame_bytes, read_sidecar
+
+    try:
+        info = read_sidecar(path)
+    except (ValueError, OSError):
+        return False
+    if not info or "spikesim_version" not in info:
+        return False
+    h, w, n = info.get("height"), info.get("width"), info.get("num_steps")
+    if not all(isinstance(v, int) and v > 0 for v in (h, w, n)):
+        return False
+    return path.is_file() and path.stat().st_size == n * frame_bytes(h, w)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -195,8 +221,9 @@ def run(args: argparse.Namespace) -> int:
              source.get("scene") or source.get("source"))
     t0 = time.perf_counter()
     try:
-        out = sim.run_to_dat(_progress(frames, args, steps), args.out, keyframe_every=args.keyframe_every,
-                             flip=not args.no_flip, extra={"irradiance": source}, max_steps=steps)
+        with outputs.output_file(args.out):  # a failed run leaves no new empty folder
+            out = sim.run_to_dat(_progress(frames, args, steps), args.out, keyframe_every=args.keyframe_every,
+                                 flip=not args.no_flip, extra={"irradiance": source}, max_steps=steps)
     except ValueError as exc:  # a bad frame of an .npy: name the file (EXR frames name theirs)
         if args.frames is None or Path(args.frames).is_dir():
             raise
@@ -253,6 +280,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", action="store_true", help="print the stream's summary as JSON")
     p.add_argument("-o", "--out", type=output_file, default=Path("out/stream.dat"),
                    help="the .dat file to write (its JSON sidecar goes beside it)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace -o even if it is not a stream simulate wrote (one is replaced without it)")
     p.set_defaults(func=run)
 
 

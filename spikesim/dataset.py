@@ -35,6 +35,7 @@ from typing import Any, Iterable
 
 import numpy as np
 
+from . import outputs
 from .imageio import read_exr, write_exr
 from .stream import DatReader, SpikeStream, write_dat
 
@@ -80,35 +81,18 @@ def check_scene_name(name: str) -> str:
 
 
 def inside_root(root: str | Path, *parts: str | Path, follow: bool = True) -> Path:
-    """`root` joined with `parts` and resolved (symlinks followed), if that lies strictly inside
-    the resolved root; a ValueError naming both otherwise (`..`, an absolute part, a symlink that
-    leads out, or the root itself). Every write, delete and read under a dataset root goes through
-    here, so no name or link in the data can reach a file outside it.
-
-    Writes and deletes pass `follow=False`: the path itself must not be a symlink either, so a link
-    planted in the output cannot redirect them to another file, even one inside the root."""
-    base = Path(os.path.realpath(root))
-    given = Path(root).joinpath(*parts)
-    path = Path(os.path.realpath(given))
-    shown = Path(*parts) if parts else Path(".")
-    if path == base:
-        raise ValueError(f"{shown}: is the root itself ({base}), not a path inside it")
-    if not path.is_relative_to(base):
-        raise ValueError(f"{shown}: resolves to {path}, outside the dataset root {base}")
-    if not follow and given.is_symlink():
-        raise ValueError(f"{given}: is a symlink; files are not written or deleted through links "
-                         "(remove the link, or choose another output folder)")
-    return path
+    """`root` joined with `parts` and resolved, if that lies strictly inside the resolved root; a
+    ValueError naming both otherwise. Every write, delete and read under a dataset root goes
+    through here, so no name or link in the data can reach a file outside it; writes and deletes
+    pass `follow=False`, so no link planted in the output redirects them. One implementation
+    for every command: `spikesim.outputs.inside`."""
+    return outputs.inside(root, *parts, follow=follow, what="dataset root")
 
 
 def remove_inside(root: str | Path, name: str) -> None:
-    """Delete `root/name` (a folder or a file), guarded by `inside_root`: never outside the root,
-    never through a symlink."""
-    path = inside_root(root, name, follow=False)
-    if path.is_dir():
-        shutil.rmtree(path)
-    elif path.exists():
-        path.unlink()
+    """Delete `root/name` (a folder or a file): `spikesim.outputs.remove`, never outside the
+    root, never through a symlink."""
+    outputs.remove(root, name)
 
 
 def sha256_file(path: Path, block: int = 1 << 20) -> str:

@@ -339,17 +339,12 @@ def _layout_problem(data: Any) -> str | None:
 
 
 def write_reference(measured: dict[str, Any], path: str | Path) -> Path:
-    """Write a reference atomically (temporary file, then rename)."""
-    import os
+    """Write a reference atomically (temporary file, then rename), never through a link at
+    `path`; an OS error names `path`, not the temporary file (spikesim.outputs)."""
+    from .outputs import atomic_write_json, output_file
 
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.part")
-    try:
-        tmp.write_text(json.dumps(measured, indent=2) + "\n")
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    with output_file(path) as path:
+        atomic_write_json(path, measured)
     return path
 
 

@@ -5,10 +5,11 @@ what the renderer produced; PNGs are previews only and are never read back for m
 """
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
+
+from .outputs import atomic_write_with
 
 CHANNEL = "Y"
 
@@ -22,10 +23,8 @@ def write_exr(path: str | Path, y: np.ndarray) -> Path:
     if y.ndim != 2:
         raise ValueError(f"{path}: expected a (H, W) image, got shape {y.shape}")
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.part")
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-    _write_then_rename(lambda: OpenEXR.File(header, {CHANNEL: y}).write(str(tmp)), tmp, path)
-    return path
+    return atomic_write_with(path, lambda tmp: OpenEXR.File(header, {CHANNEL: y}).write(str(tmp)))
 
 
 def read_exr(path: str | Path) -> np.ndarray:
@@ -112,20 +111,8 @@ def write_png(path: str | Path, y: np.ndarray, gamma: float = 2.2, scale: float 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     img = to_display(y, gamma=gamma, scale=scale, percentile=percentile)
-    tmp = path.with_name(f".{path.name}.part")
-    _write_then_rename(lambda: Image.fromarray(img).save(tmp, format="PNG"), tmp, path)
-    return path
-
-
-def _write_then_rename(write, tmp: Path, path: Path) -> None:
-    """Run `write` (which creates `tmp`), then rename `tmp` to `path`; on any failure remove
-    `tmp`, so a failed write leaves neither a partial image nor a temporary file."""
-    try:
-        write()
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    # written whole (temporary file, then rename), never through a link; a failure names `path`
+    return atomic_write_with(path, lambda tmp: Image.fromarray(img).save(tmp, format="PNG"))
 
 
 __all__ = ["write_exr", "read_exr", "write_png", "to_display"]

@@ -13,10 +13,8 @@ packed LSB first, top-down. With W a multiple of 8 (400 and 416 are) a flip is a
 from __future__ import annotations
 
 import errno
-import json
 import math
 import os
-import secrets
 import stat
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,6 +22,7 @@ from typing import Any, Iterable, Iterator
 
 import numpy as np
 
+from . import outputs
 from .config_io import read_json_object
 
 
@@ -123,17 +122,13 @@ def open_temp_beside(path: str | Path, suffix: str = ".part") -> tuple[Any, Path
     Created with mode 0666 masked by the user's umask, like any file the user writes (mkstemp's
     0600 would make shared datasets unreadable to others); O_EXCL so it never reuses a file.
     """
-    path = Path(path)
+    path = outputs.check_not_link(path)  # it is replaced by a rename: a link there is refused
     if path.is_dir():
         raise IsADirectoryError(errno.EISDIR, "is a directory; give a file name to write", str(path))
-    path.parent.mkdir(parents=True, exist_ok=True)
-    while True:
-        tmp = path.with_name(f".{path.name}.{secrets.token_hex(4)}{suffix}")
-        try:
-            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
-        except FileExistsError:
-            continue
-        return os.fdopen(fd, "wb"), tmp
+    with outputs.writing(path.parent):
+        path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = outputs.new_temp_beside(path, suffix)
+    return open(tmp, "wb"), tmp
 
 
 class DatWriter:
@@ -154,17 +149,19 @@ class DatWriter:
         if (stream.height, stream.width) != (self.height, self.width):
             raise ValueError(f"stream is {stream.height}x{stream.width}, writer is {self.height}x{self.width}")
         data = _flip_packed(stream.packed, self.height, self.width) if self.flip else stream.packed
-        self._file.write(np.ascontiguousarray(data).tobytes())
+        with outputs.writing(self.path):  # a full disk names the stream, not its temporary file
+            self._file.write(np.ascontiguousarray(data).tobytes())
         self.num_steps += stream.num_steps
 
     def close(self) -> Path:
         try:
             if self.num_steps == 0:
                 raise ValueError(f"{self.path}: no frames were written; not creating an empty stream")
-            self._file.flush()
-            os.fsync(self._file.fileno())
-            self._file.close()
-            os.replace(self._tmp, self.path)
+            with outputs.writing(self.path):
+                self._file.flush()
+                os.fsync(self._file.fileno())
+                self._file.close()
+                os.replace(self._tmp, outputs.check_not_link(self.path))
         except BaseException:
             self.abort()
             raise
@@ -284,15 +281,7 @@ def sidecar_path(dat_path: str | Path) -> Path:
 def write_sidecar(dat_path: str | Path, info: dict[str, Any]) -> Path:
     """A small JSON beside a simulated stream: camera parameters, seed, geometry, flip."""
     path = sidecar_path(dat_path)
-    f, tmp = open_temp_beside(path)
-    try:
-        with f:
-            f.write((json.dumps(info, indent=2, sort_keys=True) + "\n").encode())
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    return path
+    return outputs.atomic_write_json(path, info, sort_keys=True)
 
 
 def read_sidecar(dat_path: str | Path) -> dict[str, Any] | None:

@@ -28,7 +28,6 @@ import io
 import json
 import logging
 import math
-import os
 import time
 import zipfile
 from dataclasses import dataclass
@@ -39,6 +38,7 @@ import numpy as np
 
 from spikesim._optional import require
 from spikesim.config_io import read_json_object
+from spikesim.outputs import atomic_write_with, make_dirs, output_folder, writable
 from spikesim.render_settings import RenderSettings, render_knob
 
 log = logging.getLogger(__name__)
@@ -424,6 +424,8 @@ def run_study(cfg: StudyConfig, out: Path, progress: bool = True) -> list[dict[s
     """Run (or resume) every scene x light x run; returns the table rows."""
     from spikesim.progress import progress_bar
 
+    for name in ("study.json", "runs", *REPORT_FILES):  # a link where the study writes: refused before any run
+        writable(out, name)
     out.mkdir(parents=True, exist_ok=True)
     _write_json(out / "study.json", dataclasses.asdict(cfg))
     runs = plan_runs(cfg)
@@ -433,7 +435,7 @@ def run_study(cfg: StudyConfig, out: Path, progress: bool = True) -> list[dict[s
     bar = progress_bar(jobs, desc="tradeoff", unit="run", quiet=not progress)
     for scene, light, spec in bar:
         folder = out / "runs" / f"{scene}_{light}"
-        folder.mkdir(parents=True, exist_ok=True)
+        make_dirs(out, "runs", f"{scene}_{light}")  # inside -o, no link on the way
         path = folder / f"{_slug(spec.name)}.json"
         key = _digest({**cfg.result_key(), "scene": scene, "light": light, **spec.to_dict()})
         if _is_cached(path, folder / f"{_slug(spec.name)}.npz", key):
@@ -572,33 +574,43 @@ def plot(rows: Sequence[dict[str, Any]], path: Path) -> None:
         ax.axis("off")
     axes.flat[0].legend(fontsize=6, loc="lower left")
     fig.tight_layout()
-    fig.savefig(path, dpi=72)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=72)
     plt.close(fig)
     from PIL import Image  # a 64-colour palette keeps the figure small for the docs
-    Image.open(path).convert("RGB").quantize(64).save(path, optimize=True)
+    image = Image.open(buf).convert("RGB").quantize(64)
+    _write_atomic(path, lambda f: image.save(f, format="PNG", optimize=True))
+
+
+REPORT_FILES = ("tradeoff.csv", "tradeoff.md", "tradeoff.png")
 
 
 def write_report(rows: Sequence[dict[str, Any]], out: Path, images: Path | None = None) -> None:
-    write_csv(rows, out / "tradeoff.csv")
-    _write_atomic(out / "tradeoff.md", lambda f: f.write(markdown_table(rows).encode()))
-    if rows:
-        plot(rows, out / "tradeoff.png")
-        if images is not None:
-            images.mkdir(parents=True, exist_ok=True)
+    """tradeoff.csv, .md and .png in `out` (and the plot in `images`), each written whole, never
+    through a link (spikesim.outputs)."""
+    for name in REPORT_FILES:
+        writable(out, name)
+    if images is not None:
+        writable(images, "tradeoff_pareto.png")
+    with output_folder(out):
+        write_csv(rows, out / "tradeoff.csv")
+        _write_atomic(out / "tradeoff.md", lambda f: f.write(markdown_table(rows).encode()))
+        if rows:
+            plot(rows, out / "tradeoff.png")
+    if rows and images is not None:
+        with output_folder(images):
             plot(rows, images / "tradeoff_pareto.png")
 
 
 # ---- cache files: written whole (temporary file, then rename), read with errors naming the file ----
 def _write_atomic(path: Path, write: Callable[[BinaryIO], Any]) -> None:
-    """An interrupted study leaves the old file or the new one, never half of one."""
-    tmp = path.with_name(f".{path.name}.part")
-    try:
+    """An interrupted study leaves the old file or the new one, never half of one; a link at
+    `path` is refused and an OS error names `path` (spikesim.outputs)."""
+    def fill(tmp: Path) -> None:
         with open(tmp, "wb") as f:
             write(f)
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+
+    atomic_write_with(path, fill)
 
 
 def _write_json(path: Path, obj: Any) -> None:

@@ -1,0 +1,249 @@
+"""Where a command may write: every output path stays inside the output root the user named.
+
+Every command that writes (`generate`, `simulate`, `render`, `reconstruct`, `train`, `evaluate`,
+`compare`, `panel`, `tradeoff`, `demo`, `golden --write`, `inspect --preview`) goes through these
+functions, so that no name, `..`, absolute part or symlink found in an output folder can make it
+write, replace or delete a file outside that folder:
+
+- `inside` resolves a path under a root and refuses one that leaves it; for writes and deletes
+  (`follow=False`) it also refuses a symlink at the path or at any folder between the root and the
+  path, naming it. A link inside an output folder is never followed and never silently replaced:
+  the user (or another program) put it there, and it may be the only way to that file; the message
+  says to remove it or choose another folder. The root itself may be a link: the user named it.
+- `atomic_write*` write a temporary file beside the target (created exclusively, so a planted
+  file or link of that name is never opened) and rename it over the target: the target is whole
+  or untouched, a failure removes the temporary file, and an OS error (a full disk, a read-only
+  folder) names the target the user asked for, not the temporary file.
+- `output_folder` makes the folder a command writes in and, if the command fails, removes the
+  folders it made again when they are still empty, so a failed run leaves no new empty folder.
+- `remove` deletes a file or folder inside the root, never through a link.
+"""
+from __future__ import annotations
+
+import contextlib
+import errno
+import json
+import os
+import secrets
+import shutil
+from pathlib import Path
+from typing import Any, Callable, Iterator
+
+LINK_REFUSED = ("is a symlink; files are not written or deleted through links (remove the link, or choose "
+                "another output folder)")
+
+
+def inside(root: str | Path, *parts: str | Path, follow: bool = True, what: str = "output root") -> Path:
+    """`root` joined with `parts` and resolved, if that lies strictly inside the resolved root; a
+    ValueError naming both otherwise (`..`, an absolute part, a symlink that leads out, or the
+    root itself).
+
+    `follow=False` (every write and delete): no component from the root down to the path may be
+    a symlink either, even one that stays inside, so a link planted in the output cannot redirect
+    a write or a delete to another file; the error names the link."""
+    base = Path(os.path.realpath(root))
+    given = Path(root).joinpath(*parts)
+    path = Path(os.path.realpath(given))
+    shown = Path(*parts) if parts else Path(".")
+    if path == base:
+        raise ValueError(f"{shown}: is the root itself ({base}), not a path inside it")
+    if not path.is_relative_to(base):
+        raise ValueError(f"{shown}: resolves to {path}, outside the {what} {base}")
+    if not follow:
+        step = Path(root)
+        for part in Path(*parts).parts:
+            step = step / part
+            if step.is_symlink():
+                raise ValueError(f"{step}: {LINK_REFUSED}")
+    return path
+
+
+def writable(root: str | Path, *parts: str | Path) -> Path:
+    """The path to write or delete `parts` under `root`: `inside(..., follow=False)`."""
+    return inside(root, *parts, follow=False)
+
+
+def check_not_link(path: str | Path) -> Path:
+    """`path`, if it is not a symlink (a ValueError naming it otherwise): the last check before a
+    file is replaced, for writers handed a path rather than a root and a name."""
+    path = Path(path)
+    if path.is_symlink():
+        raise ValueError(f"{path}: {LINK_REFUSED}")
+    return path
+
+
+def naming(exc: OSError, path: str | Path) -> OSError:
+    """`exc` as an OSError of the same errno that names `path` (the file the user asked for),
+    whatever file, temporary or none, the failing call named. The CLI prints it in one line."""
+    return OSError(exc.errno, exc.strerror or str(exc) or type(exc).__name__, str(path))
+
+
+@contextlib.contextmanager
+def writing(path: str | Path, stage: str | Path | None = None) -> Iterator[None]:
+    """Inside the block, an OSError (a full disk, a read-only folder) is raised again naming
+    `path`: for writes that go to a staging folder the user never sees. With `stage` (a hidden
+    folder whose content will move to `path`'s folder), an error naming a file in the stage
+    names that file's place beside `path` instead."""
+    try:
+        yield
+    except OSError as exc:
+        shown = Path(path)
+        if stage is not None and exc.filename is not None:
+            with contextlib.suppress(ValueError):
+                shown = shown.parent / Path(os.fspath(exc.filename)).relative_to(stage)
+        raise naming(exc, shown) from exc
+
+
+def new_temp_beside(path: str | Path, suffix: str = ".part") -> Path:
+    """Create an empty `.<name>.<random><suffix>` beside `path` and return it: created
+    exclusively (O_EXCL, no link followed), mode 0666 masked by the user's umask like any file
+    the user writes. An OSError names `path`."""
+    path = Path(path)
+    while True:
+        tmp = path.with_name(f".{path.name}.{secrets.token_hex(4)}{suffix}")
+        try:
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0), 0o666)
+        except FileExistsError:
+            continue
+        except OSError as exc:
+            raise naming(exc, path) from exc
+        os.close(fd)
+        return tmp
+
+
+def atomic_write_with(path: str | Path, write: Callable[[Path], Any], suffix: str = ".part") -> Path:
+    """Call `write(tmp)`, which fills the temporary file `tmp` beside `path`, then rename it to
+    `path`. A symlink or a folder at `path` is refused; on any failure the temporary file is
+    removed and `path` is as it was; an OSError names `path`."""
+    path = check_not_link(path)
+    if path.is_dir():
+        raise IsADirectoryError(errno.EISDIR, "is a directory, expected a file name", str(path))
+    tmp = new_temp_beside(path, suffix)
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise naming(exc, path) from exc
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return path
+
+
+def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
+    """Write `data` to `path` whole (see `atomic_write_with`)."""
+    return atomic_write_with(path, lambda tmp: tmp.write_bytes(data))
+
+
+def atomic_write_text(path: str | Path, text: str) -> Path:
+    """Write `text` (UTF-8) to `path` whole (see `atomic_write_with`)."""
+    return atomic_write_bytes(path, text.encode())
+
+
+def atomic_write_json(path: str | Path, data: Any, **dumps: Any) -> Path:
+    """Write `data` as JSON (indent 2 unless given, a final newline) to `path` whole."""
+    dumps.setdefault("indent", 2)
+    return atomic_write_text(path, json.dumps(data, **dumps) + "\n")
+
+
+def append_text(path: str | Path, text: str) -> None:
+    """Append `text` to `path` (created if missing), never through a symlink (O_NOFOLLOW: a link
+    planted at a log's name is refused, naming it); an OSError names `path`."""
+    path = check_not_link(path)
+    try:
+        fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), 0o666)
+        with os.fdopen(fd, "a", newline="") as f:
+            f.write(text)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:  # a link made after the check above
+            raise ValueError(f"{path}: {LINK_REFUSED}") from None
+        raise naming(exc, path) from exc
+
+
+def make_dirs(root: str | Path, *parts: str | Path) -> Path:
+    """Make the folder `root/parts` (and those between), refusing a symlink or a file at any of
+    them; returns it. The root itself must exist (see `output_folder`)."""
+    target = writable(root, *parts)
+    step = Path(root)
+    for part in Path(*parts).parts:
+        step = step / part
+        try:
+            step.mkdir(exist_ok=True)
+        except OSError as exc:
+            raise naming(exc, step) from exc
+        if not step.is_dir() or step.is_symlink():
+            raise NotADirectoryError(errno.ENOTDIR, "exists and is not a folder", str(step))
+    return target
+
+
+def remove(root: str | Path, *parts: str | Path) -> None:
+    """Delete `root/parts` (a file or a whole folder) if it exists, guarded by `inside`: never
+    outside the root, never through a link; a link at the name is refused, not deleted (it is
+    not this command's to remove)."""
+    path = writable(root, *parts)
+    try:
+        if path.is_dir():
+            shutil.rmtree(path)
+        elif path.exists():
+            path.unlink()
+    except OSError as exc:
+        raise naming(exc, path) from exc
+
+
+def missing_folders(path: str | Path) -> list[Path]:
+    """`path` and its ancestors that do not exist yet, outermost first."""
+    path = Path(path).absolute()
+    missing = []
+    for p in (path, *path.parents):
+        if p.exists() or p.is_symlink():
+            break
+        missing.append(p)
+    return missing[::-1]
+
+
+@contextlib.contextmanager
+def output_folder(path: str | Path) -> Iterator[Path]:
+    """Make the output folder `path` (and missing parents) for the block; if the block fails,
+    remove again the folders made here that are still empty, so a failed run leaves no new empty
+    folder behind (a folder that existed before is never removed). An existing file at `path`
+    is an error naming it."""
+    path = Path(path)
+    made = missing_folders(path)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:
+        raise NotADirectoryError(errno.ENOTDIR, "exists and is not a folder", str(path)) from None
+    except OSError as exc:
+        raise naming(exc, path) from exc
+    try:
+        yield path
+    except BaseException:
+        discard_empty(made)
+        raise
+
+
+@contextlib.contextmanager
+def output_file(path: str | Path) -> Iterator[Path]:
+    """For a command whose output is one file (`simulate -o`, `panel -o`, `golden --write -o`):
+    its folder made as `output_folder` does, and `path` itself refused if it is a symlink or a
+    folder. Write it with `atomic_write_*` inside the block."""
+    path = check_not_link(path)
+    if path.is_dir():
+        raise IsADirectoryError(errno.EISDIR, "is a directory, expected a file name", str(path))
+    with output_folder(path.parent):
+        yield path
+
+
+def discard_empty(folders: list[Path]) -> None:
+    """Remove each of `folders` (made by this run, outermost first) that is empty, innermost first."""
+    for folder in reversed(folders):
+        try:
+            folder.rmdir()
+        except OSError:
+            break  # not empty (or gone): nor are the folders above it
+
+
+__all__ = ["LINK_REFUSED", "inside", "writable", "check_not_link", "naming", "writing", "new_temp_beside",
+           "atomic_write_with", "atomic_write_bytes", "atomic_write_text", "atomic_write_json", "append_text",
+           "make_dirs", "remove", "missing_folders", "output_folder", "output_file", "discard_empty"]
