@@ -30,16 +30,27 @@ def free_cores(cores: int | None = None, load_1min: float | None = None) -> int:
     return max(1, cores - int(load_1min + 0.5))
 
 
+_chosen: dict[str, object] = {}
+
+
 def set_cpu_threads(requested: int = 0) -> str:
     """Set torch's intra-op threads: `requested` if > 0, else `free_cores()`. Returns how the
-    count was chosen, for the command's log line."""
+    count was chosen (also what `describe_threads` says afterwards, for a command's log line)."""
     if requested < 0:
         raise ValueError(f"threads must be >= 0 (0: chosen from the free cores), got {requested}")
     if requested:
-        torch.set_num_threads(requested)
-        return f"{requested} thread(s), as asked"
-    n = free_cores()
+        n, reason = requested, f"{requested} thread(s), as asked"
+    else:
+        n = free_cores()
+        load = os.getloadavg()[0] if hasattr(os, "getloadavg") else 0.0
+        reason = (f"{n} thread(s) ({os.cpu_count()} cores, load average {load:.1f}: threads sharing a busy core "
+                  "stall each other; --threads N to choose)")
     torch.set_num_threads(n)
-    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else 0.0
-    return (f"{n} thread(s): {os.cpu_count()} cores, load average {load:.1f} "
-            "(threads sharing a busy core stall each other; --threads N to choose)")
+    _chosen.update(threads=n, reason=reason)
+    return reason
+
+
+def describe_threads() -> str:
+    """How many torch threads run, and why, if `set_cpu_threads` chose the count now in use."""
+    n = torch.get_num_threads()
+    return str(_chosen["reason"]) if _chosen.get("threads") == n else f"{n} thread(s)"

@@ -33,6 +33,7 @@ from .losses import build_loss
 from .metrics import psnr, psnr_aligned, ssim
 from .precision import autocast, grad_scaler, resolve_precision
 from .representations import tfp_windows
+from .threads import describe_threads
 from spikesim._optional import require
 from spikesim.outputs import (append_text, atomic_write_json, atomic_write_text, make_dirs, output_folder, remove,
                               writable)
@@ -477,7 +478,7 @@ def _train(experiment: ExperimentConfig, train_scenes: Sequence[Scene], val_scen
                          "share: more scenes or steps, or fewer processes")
     if dist.is_main:
         print(f"[train] {experiment.name}: {count_parameters(run.model):,} parameters, device {dev}"
-              f"{f', {torch.get_num_threads()} thread(s)' if dev.type == 'cpu' else ''}"
+              f"{f', {describe_threads()}' if dev.type == 'cpu' else ''}"
               f"{f' x {dist.world} processes' if dist.world > 1 else ''}, {run.precision}, {len(train_ds)} "
               f"samples/epoch from {len(train_scenes)} scenes, {len(val_ds) if val_ds else 0} validation samples",
               file=sys.stderr)

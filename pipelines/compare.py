@@ -280,8 +280,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     dev = resolve_device(args.device)
     if args.precision:
         resolve_precision(args.precision, dev)
-    threads = set_cpu_threads(args.threads)  # before any torch work
-    print(f"[compare] {threads}", file=sys.stderr)
+    set_cpu_threads(args.threads)  # before any torch work; the run log says how many and why
     seeds = list(dict.fromkeys(args.seeds))
     if len(seeds) < MIN_SEEDS:
         raise ValueError(f"--seeds: a comparison needs at least {MIN_SEEDS} distinct training seeds, got {seeds}")

@@ -11,7 +11,6 @@ The loop itself is model/training.py; this module parses arguments and prints.
 from __future__ import annotations
 
 import argparse
-import sys
 import dataclasses
 import json
 from pathlib import Path
@@ -42,8 +41,7 @@ def _apply_overrides(exp: ExperimentConfig, args: argparse.Namespace) -> Experim
 
 def cmd_train(args: argparse.Namespace) -> int:
     dev = resolve_device(args.device)  # before any work: a missing GPU is one line, not a late traceback
-    threads = set_cpu_threads(args.threads)  # before any torch work
-    print(f"[train] {threads}", file=sys.stderr)
+    set_cpu_threads(args.threads)  # before any torch work; the run log says how many and why
     exp = _apply_overrides(load_config(args.config), args)
     resolve_precision(exp.train.precision, dev)  # bf16 on a GPU without it: one line, before any work
     scenes = open_scenes(args.data)

@@ -26,6 +26,10 @@ def test_set_cpu_threads_uses_a_given_count_and_restores(monkeypatch):
         monkeypatch.setattr("model.threads.free_cores", lambda: 1)
         reason = set_cpu_threads(0)
         assert torch.get_num_threads() == 1 and "load average" in reason and "--threads" in reason
+        from model.threads import describe_threads
+        assert describe_threads() == reason
+        torch.set_num_threads(2)
+        assert describe_threads() == "2 thread(s)"  # changed behind its back: the count, no stale reason
         with pytest.raises(ValueError, match="threads must be >= 0"):
             set_cpu_threads(-1)
     finally:
