@@ -317,12 +317,13 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
                              f"{', '.join(s.name for s in scenes)})")
         scenes = [s for s in scenes if s.name in wanted]
     rows = evaluate(scenes, methods, args.window, progress=not (args.quiet or args.json))
-    csv_path, md_path = write_results(rows, names, Path(args.out or DEFAULT_OUT))
     if args.json:
         print(json.dumps(json_safe(scores_json(rows, names, {"data": str(args.data)})), indent=2))
     else:
         print(markdown_table(rows, names))
-    print(f"[evaluate] wrote {csv_path} and {md_path}", file=sys.stderr)
+    if args.out is not None or not args.json:  # --json alone only prints
+        csv_path, md_path = write_results(rows, names, Path(args.out or DEFAULT_OUT))
+        print(f"[evaluate] wrote {csv_path} and {md_path}", file=sys.stderr)
     return 0
 
 
@@ -387,7 +388,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         "paths; 'label=spec' names a column")
     p.add_argument("--json", action="store_true", help="print the scores as JSON (every metric convention)")
     p.add_argument("--scenes", nargs="+", help="only these scenes")
-    p.add_argument("-o", "--out", help=f"folder for metrics.csv and metrics.md (with --data, default {DEFAULT_OUT}; "
+    p.add_argument("-o", "--out", help=f"folder for metrics.csv and metrics.md (with --data, default {DEFAULT_OUT} unless --json; "
                                         "with --dat, written only when -o is given)")
     p.add_argument("--window", type=positive_int, default=41, help="readout steps per window")
     p.add_argument("--chunk", type=positive_int, default=8, help="windows held in memory by a network")

@@ -201,3 +201,19 @@ def test_panel_refuses_a_link_as_its_output(dat, tmp_path, outside, capsys):
                          "-o", tmp_path / "panel.png", "--device", "cpu"], capsys)
     assert code == 2 and "panel.png" in one_line(err), err
     assert snapshot(outside) == before
+
+
+def test_evaluate_json_alone_only_prints(dataset, tmp_path, capsys, monkeypatch):
+    """`evaluate --json` without -o wrote results/evaluate/ into the working folder; it only
+    prints now, and -o still writes."""
+    import json
+    monkeypatch.chdir(tmp_path)
+    argv = ["evaluate", "--data", dataset, "--methods", "tfp", "--window", 7, "--device", "cpu", "--json"]
+    capsys.readouterr()
+    assert run_cli(argv, capsys)[0] == 0
+    assert not (tmp_path / "results").exists()
+    assert run_cli([*argv, "-o", tmp_path / "ev"], capsys)[0] == 0 and (tmp_path / "ev" / "metrics.csv").exists()
+    capsys.readouterr()
+    from pipelines.cli import main
+    main([str(a) for a in argv])
+    assert json.loads(capsys.readouterr().out)["methods"]
