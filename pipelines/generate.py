@@ -121,7 +121,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"{report['skipped']} finished scene(s) were checked by file size only (quick: catches deleted and "
               f"truncated files); --check also compares every file's sha256 and rebuilds what differs, "
               f"and spikesim verify {args.out} reports it")
-    print(saturation_summary(saturation))
+    line = saturation_summary(saturation)
+    if line is not None:
+        print(line)
     return 0
 
 

@@ -374,11 +374,14 @@ def percent(fraction: float | None) -> str:
     return "n/a" if fraction is None else f"{100 * fraction:.2f} %"
 
 
-def saturation_summary(saturation: dict[str, float | None]) -> str:
-    """One line on the ground truth above the sensor's saturation, over the dataset's scenes."""
+def saturation_summary(saturation: dict[str, float | None]) -> str | None:
+    """One line on the ground truth above the sensor's saturation, over the dataset's scenes; None
+    when no pixel of any scene is above it (nothing to say)."""
     known = {k: v for k, v in saturation.items() if v is not None}
     if not known:
         return "ground truth above saturation: not recorded (scenes written before it was)"
+    if max(known.values()) == 0:
+        return None
     over = sorted((k for k, v in known.items() if v > SATURATION_WARN_FRACTION), key=lambda k: -known[k])
     worst = max(known, key=lambda k: known[k])
     text = (f"ground truth above saturation (y > {SATURATION_Y:g}): mean {percent(float(np.mean(list(known.values()))))} "
