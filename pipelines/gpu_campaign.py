@@ -36,6 +36,7 @@ import time
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
+from spikesim import outputs
 from pipelines.gpu_campaign_outputs import check_out, combined_logs, file_record, report_markdown
 from pipelines.gpu_campaign_stages import ROOT, STAGES, Campaign, SkipStage, StageFailed, check_command, complete_scenes
 
@@ -235,7 +236,7 @@ def _run_stage(c: Campaign, name: str, later: Sequence[str], catch_up: bool) -> 
     box = min(most, c.o.deadline_s - c.elapsed() - reserve)
     rec = StageRecord(name, log="logs.txt", started=_now(), part=c.o.part, time_box_s=round(box, 1))
     c.records[name] = rec
-    c.log_path(name).write_text(f"stage {name}, started {rec.started}, time box {box:.0f} s\n")
+    outputs.atomic_write_text(c.log_path(name), f"stage {name}, started {rec.started}, time box {box:.0f} s\n")
     if box < least:
         rec.note = (f"not started: {max(box, 0):.0f} s left of the deadline after the {reserve:.0f} s the later "
                     f"stages need, and it needs {least:.0f} s")
@@ -331,22 +332,16 @@ def write_outputs(c: Campaign, summary: dict[str, Any]) -> dict[str, Any]:
         path = c.log_path(s["name"])
         if path.is_file():
             sections.append((f"{s['name']} ({s['status']}, {s['seconds']:.1f} s)", path.read_text(errors="replace")))
-    _atomic_write(out / "logs.txt", combined_logs(sections))
-    _atomic_write(out / "report.md", report_markdown(summary))
+    outputs.atomic_write_text(out / "logs.txt", combined_logs(sections))
+    outputs.atomic_write_text(out / "report.md", report_markdown(summary))
     summary["files"] = [file_record(p) for p in sorted(out.iterdir()) if p.is_file() and p.name != "summary.json"]
-    _atomic_write(out / "summary.json", json.dumps(summary, indent=2, default=str) + "\n")
-    _atomic_write(c.o.work / "state.json", json.dumps(
+    outputs.atomic_write_text(out / "summary.json", json.dumps(summary, indent=2, default=str) + "\n")
+    outputs.atomic_write_text(c.o.work / "state.json", json.dumps(
         {"schema": SCHEMA_VERSION, "mode": c.p.name, "seed": c.o.seed,
          "stages": {s["name"]: s for s in summary["stages"] if s["name"] in c.records or s.get("started")}},
         indent=2, default=str))
     check_out(out)
     return summary
-
-
-def _atomic_write(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.part")
-    tmp.write_text(text)
-    os.replace(tmp, path)
 
 
 def run_campaign(options: Options, progress: Callable[[str], None] | None = None) -> dict[str, Any]:

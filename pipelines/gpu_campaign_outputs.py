@@ -20,6 +20,8 @@ import re
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
+from spikesim import outputs
+
 MAX_FILES = 8
 MAX_FILE_BYTES = 16 * 2**20
 MAX_TOTAL_BYTES = 64 * 2**20
@@ -125,7 +127,7 @@ def write_weights(checkpoint: Path, out: Path, work: Path, max_bytes: int = MAX_
     out.mkdir(parents=True, exist_ok=True)
     if fp32_path.stat().st_size <= limit:
         target = out / "weights.pt"
-        target.write_bytes(fp32_path.read_bytes())
+        outputs.atomic_write_bytes(target, fp32_path.read_bytes())  # a link there is refused, not followed
         return [{**file_record(target), "dtype": "float32", "weights_sha256": exported["weights_sha256"]}]
     doc = _torch_doc(fp32_path)
     state = doc["model_state"]
@@ -171,6 +173,7 @@ def _save_within(doc: dict[str, Any], path: Path, work: Path, max_bytes: int, wh
         staged.unlink()
         raise ValueError(f"{path.name}: {size / 2**20:.1f} MiB {what}, over the {max_bytes / 2**20:.1f} MiB a "
                          "returned file may have")
+    outputs.check_not_link(path)
     shutil.move(staged, path)  # the output folder may be on another filesystem
     return path
 

@@ -14,7 +14,6 @@ import os
 import platform
 import re
 import shlex
-import shutil
 import signal
 import subprocess
 import sys
@@ -24,6 +23,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 from pipelines.gpu_campaign_outputs import write_weights
+from spikesim import outputs
 
 if TYPE_CHECKING:
     from pipelines.gpu_campaign import Options, StageRecord
@@ -92,8 +92,7 @@ class Campaign:
     def note_log(self, text: str, stage: str | None = None) -> None:
         """Append a line to a stage's log (default: the running stage's)."""
         name = stage or (self.current.name if self.current is not None else "campaign")
-        with self.log_path(name).open("a") as f:
-            f.write(text.rstrip("\n") + "\n")
+        outputs.append_text(self.log_path(name), text.rstrip("\n") + "\n")
 
     def command(self, argv: Sequence[str], box_s: float | None = None) -> CommandResult:
         """Run `argv` from the repository root, stderr (and then stdout) into the stage's log, at most
@@ -106,6 +105,8 @@ class Campaign:
         self.note_log(f"$ {shlex.join(argv)}   (time box {box:.0f} s)")
         out_path = self.logs / f"{self.current.name}.stdout"
         t = time.monotonic()
+        outputs.check_not_link(self.log_path(self.current.name))
+        outputs.check_not_link(out_path)
         with self.log_path(self.current.name).open("ab") as err, out_path.open("wb") as out:
             proc = subprocess.Popen(argv, cwd=ROOT, env=self.env(), stdin=subprocess.DEVNULL, stdout=out,
                                     stderr=err, start_new_session=True)
@@ -440,8 +441,8 @@ def stage_train(c: Campaign) -> dict[str, Any]:
     if not scenes:
         raise SkipStage(f"no RLLR scene in {data} (stage rllr made none)")
     run = c.o.work / "run"
-    if run.exists():  # a rerun trains afresh; the folder is this campaign's scratch
-        shutil.rmtree(run)
+    if run.exists() or run.is_symlink():  # a rerun trains afresh; the folder is this campaign's scratch
+        outputs.remove(c.o.work, "run")  # never through a link
     minutes = max(c.left() - c.p.train_overhead_s, 6.0) * 0.85 / 60
     if c.p.train_max_minutes is not None:
         minutes = min(minutes, c.p.train_max_minutes)
@@ -462,6 +463,9 @@ def stage_train(c: Campaign) -> dict[str, Any]:
         figures.update(_steady_rate(run / "train_log.csv"))
     ckpt = _checkpoint(c)
     figures["checkpoint"] = None if ckpt is None else str(ckpt)
+    if ckpt is not None:  # the weights exported: best.pt's (validated several times a run), not the last step's
+        from model.checkpoint import load_checkpoint
+        figures["checkpoint_weights_sha256"] = load_checkpoint(ckpt)["weights_sha256"]
     check_command(result, "spikesim train", figures)
     return figures
 

@@ -10,16 +10,19 @@ except metadata.PackageNotFoundError:  # a checkout used without installing it
     __version__ = "0+unknown"
 
 from .camera import NOISE_TERMS, SpikeCamera  # noqa: E402
-from .stream import DatReader, DatWriter, SpikeStream, read_dat, write_dat  # noqa: E402
+
+_LAZY = {"Simulator": ".simulate", "available_backends": ".simulate", "DatReader": ".stream", "DatWriter": ".stream",
+         "SpikeStream": ".stream", "read_dat": ".stream", "write_dat": ".stream"}
 
 
 def __getattr__(name: str):
-    # The simulator imports Dr.Jit; keep `import spikesim` light for stream-only users.
-    # import_module, not `from . import simulate`: that asks this very hook for `simulate` first
-    # and recursed without end in a fresh interpreter. The function `simulate` is not exported
-    # here: once imported, `spikesim.simulate` is the submodule (spikesim.simulate.simulate).
-    if name in ("Simulator", "available_backends"):
-        return getattr(import_module(".simulate", __name__), name)
+    # Imported on first use: the simulator pulls in Dr.Jit and the stream NumPy, and the package
+    # itself must stay importable without either (spikesim.outputs serves the GPU campaign before
+    # it has installed anything). import_module, not `from . import simulate`: that asks this very
+    # hook for `simulate` first and recursed without end in a fresh interpreter. The function
+    # `simulate` is not exported here: once imported, `spikesim.simulate` is the submodule.
+    if name in _LAZY:
+        return getattr(import_module(_LAZY[name], __name__), name)
     raise AttributeError(name)
 
 

@@ -120,7 +120,7 @@ def test_the_exported_weights_load_and_match_the_trained_network(dry_run):
     out, _, summary = dry_run
     model, experiment = model_from_checkpoint(out / "weights.pt")
     train = next(s for s in summary["stages"] if s["name"] == "train")["figures"]
-    assert experiment.name == "tiny" and state_fingerprint(model.state_dict()) == train["weights_sha256"]
+    assert experiment.name == "tiny" and state_fingerprint(model.state_dict()) == train["checkpoint_weights_sha256"]
 
 
 @needs_llvm
@@ -247,3 +247,17 @@ def test_bad_input_is_one_line(args, message, tmp_path, monkeypatch, capsys):
     # the error is one line (argparse's refusals follow its usage text)
     assert err[-1].startswith("spikesim gpu-campaign: error:") and message in err[-1], err
     assert len(err) == 1 or err[0].startswith("usage:")
+
+
+def test_exported_weights_are_never_written_through_a_link(dry_run, tmp_path):
+    """gpu-campaign writes through the project's output guard too: a link planted where the
+    weights go is refused, naming it, and the file it points to is untouched."""
+    _, work, _ = dry_run
+    outside = tmp_path / "outside.txt"
+    outside.write_text("keep")
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "weights.pt").symlink_to(outside)
+    with pytest.raises(ValueError, match="weights.pt: is a symlink"):
+        write_weights(work / "run" / "best.pt", out, tmp_path / "scratch")
+    assert outside.read_text() == "keep" and (out / "weights.pt").is_symlink()
