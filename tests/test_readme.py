@@ -4,7 +4,7 @@ blocks as scripts. Sizes are cut by flags appended to some lines (REDUCED: argpa
 value of a flag); a line marked `# on a GPU` is skipped where there is none. The first block (the
 set-up and test commands themselves) is not run here.
 
-The whole README takes about 4 minutes on 2 cores, so it is `slow`; the fast suite checks that the
+The whole README takes about 2.5 minutes on 2 shared cores, so it is `slow`; the fast suite checks that the
 blocks parse and that every file a block reads is made by an earlier one or ships in the clone.
 """
 from __future__ import annotations
