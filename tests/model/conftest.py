@@ -17,3 +17,17 @@ def _small_torch():
     torch.set_num_threads(1)
     torch.manual_seed(0)
     yield
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    """Two tiny scenes (12 x 16, 28 steps) in the project's dataset layout."""
+    pytest.importorskip("OpenEXR", reason="the dataset layout stores ground truth as EXR")
+    from modeltest_fakes import make_scene
+    from spikesim.dataset import write_scene
+    from spikesim.stream import SpikeStream
+    root = tmp_path_factory.mktemp("data")
+    for i in range(2):
+        sc = make_scene(f"scene{i}", 12, 16, 7 * 4, brightness=0.3, seed=i)
+        write_scene(root, sc.name, SpikeStream.from_bool(sc.spike_array), sc.gt, meta={})
+    return root

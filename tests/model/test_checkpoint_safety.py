@@ -42,18 +42,6 @@ def hostile_checkpoint(path, marker):
 
 
 @pytest.fixture(scope="module")
-def dataset(tmp_path_factory):
-    pytest.importorskip("OpenEXR", reason="the dataset layout stores ground truth as EXR")
-    from spikesim.dataset import write_scene
-    from spikesim.stream import SpikeStream
-    root = tmp_path_factory.mktemp("data")
-    for i in range(2):
-        sc = make_scene(f"scene{i}", 12, 16, 7 * 4, brightness=0.3, seed=i)
-        write_scene(root, sc.name, SpikeStream.from_bool(sc.spike_array), sc.gt, meta={})
-    return root
-
-
-@pytest.fixture(scope="module")
 def dat(tmp_path_factory):
     from spikesim.stream import SpikeStream, write_dat
     sc = make_scene("r", 12, 16, 7 * 3, brightness=0.3)

@@ -36,18 +36,6 @@ def dat16(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def dataset(tmp_path_factory):
-    pytest.importorskip("OpenEXR", reason="the dataset layout stores ground truth as EXR")
-    from spikesim.dataset import write_scene
-    from spikesim.stream import SpikeStream
-    root = tmp_path_factory.mktemp("data")
-    for i in range(2):
-        sc = make_scene(f"scene{i}", 12, 16, 7 * 4, brightness=0.3, seed=i)
-        write_scene(root, sc.name, SpikeStream.from_bool(sc.spike_array), sc.gt, meta={})
-    return root
-
-
-@pytest.fixture(scope="module")
 def config_file(tmp_path_factory):
     exp = ExperimentConfig("tinyguard", model=TINY,
                            train=TrainConfig(num_windows=2, crop=8, batch_size=1, epochs=1, lr_milestones=(5,),
