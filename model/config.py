@@ -7,7 +7,6 @@ Defaults are the paper's (section Implementation Details) and the authors' relea
 """
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import asdict, dataclass, field, fields
 from importlib import resources
@@ -259,11 +258,9 @@ def load_config(name_or_path: str | Path) -> ExperimentConfig:
     p = Path(name_or_path)
     if not (p.suffix == ".json" and p.exists()):
         p = CONFIG_DIR / f"{name_or_path}.json"
-    if not p.is_file():
+    if not p.exists():  # a FIFO or device named *.json is refused by the reader, not called missing
         raise FileNotFoundError(f"no config {str(name_or_path)!r}: not a JSON file and not one of "
                                 f"{available_configs()} in {CONFIG_DIR}")
-    try:
-        data = json.loads(p.read_text())
-    except json.JSONDecodeError as e:
-        raise ValueError(f"{p}: invalid JSON ({e})") from None
+    from spikesim.config_io import read_json_file
+    data = read_json_file(p, "config")  # a regular file, small, valid JSON, numbers finite and sane
     return ExperimentConfig.from_dict(data, where=str(p))

@@ -27,11 +27,12 @@ def read_record(folder: Path) -> dict[str, Any] | None:
     """The render record in `folder`, or None when there is none; a ValueError naming it when it
     cannot be read."""
     path = Path(folder) / RECORD
-    if not path.is_file():
+    if not path.exists() and not path.is_symlink():
         return None
+    from spikesim.config_io import read_json_file
     try:
-        data = json.loads(path.read_text())
-    except (ValueError, UnicodeDecodeError) as exc:
+        data = read_json_file(path, "render record")
+    except ValueError as exc:
         raise ValueError(f"{path}: not a render record (invalid JSON: {exc}); remove it, with the frames beside it, "
                          "or choose another folder") from None
     if not isinstance(data, dict):

@@ -36,7 +36,8 @@ from typing import Any, Iterable
 import numpy as np
 
 from .imageio import read_exr, write_exr
-from .stream import DatReader, SpikeStream, write_dat
+from .config_io import read_json_object
+from .stream import DatReader, SpikeStream, check_stream_record, write_dat
 
 MANIFEST = "manifest.json"
 SPIKES = "spikes.dat"
@@ -141,13 +142,11 @@ class SceneRecord:
         meta_path = path / META
         if not meta_path.exists():
             raise FileNotFoundError(f"{path} is not a scene folder: {META} is missing")
-        try:
-            meta = json.loads(meta_path.read_text())
-        except ValueError as exc:
-            raise ValueError(f"{meta_path} is not valid JSON: {exc}") from exc
+        meta = read_json_object(meta_path, "scene record")
         for key in ("height", "width", "num_steps", "gt_steps", "flip"):
             if key not in meta:
                 raise ValueError(f"{meta_path}: required key {key!r} is missing")
+        check_stream_record(meta, meta_path)
         return cls(path=path, meta=meta)
 
     @property

@@ -1,0 +1,173 @@
+"""Bad inputs, round two: every small file the tools read (a stream's sidecar, a dataset's
+meta.json, camera, config, light and motion files) is read only when it is a small regular file
+and its fields have the right types and ranges; a --header-columns against the recorded geometry,
+a camera file's absurd numbers, a scene's unreadable mesh or overflowing emitter and a --gt image
+of the wrong kind are refused, each with one line naming the file and what is wrong."""
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cli_testing import one_line, run_cli
+from spikesim.config_io import read_config_file, read_json_object
+from spikesim.stream import SpikeStream, write_dat, write_sidecar
+
+H, W, N = 6, 16, 4
+pytestmark = pytest.mark.timeout(60)  # a FIFO read that blocks fails the test instead of hanging it
+
+
+def small_stream(tmp_path: Path, record: dict | None = None, dataset: bool = False) -> Path:
+    """A 6 x 16 top-down stream of 4 frames and its record (a sidecar, or a dataset's meta.json)."""
+    frames = np.random.default_rng(0).random((N, H, W)) < 0.3
+    if dataset:
+        folder = tmp_path / "ds" / "scene_normal"
+        folder.mkdir(parents=True)
+        path = write_dat(folder / "spikes.dat", SpikeStream.from_bool(frames), flip=False)
+        (folder / "meta.json").write_text(json.dumps(record if record is not None else
+                                                     {"height": H, "width": W, "flip": False, "num_steps": N}))
+        return path
+    path = write_dat(tmp_path / "s.dat", SpikeStream.from_bool(frames), flip=False)
+    write_sidecar(path, record if record is not None else {"height": H, "width": W, "flip": False})
+    return path
+
+
+# ---- a sidecar's or meta.json's fields ----------------------------------------------------------
+BAD_FIELDS = [
+    ("readout_period_s", {"readout_period_s": -5}),
+    ("camera.readout_period_s", {"camera": {"readout_period_s": -5}}),
+    ("camera.readout_period_s", {"camera": {"readout_period_s": float("inf")}}),
+    ("camera", {"camera": [1, 2]}),
+    ("height", {"height": True}),
+    ("height", {"height": 1_000_000}),
+    ("height", {"height": 6.5}),
+    ("width", {"width": "16"}),
+    ("width", {"width": 0}),
+    ("flip", {"flip": "no"}),
+    ("flip", {"flip": 0}),
+    ("header_columns", {"header_columns": -1}),
+    ("header_columns", {"header_columns": True}),
+    ("num_steps", {"num_steps": -3}),
+]
+
+
+@pytest.mark.parametrize("dataset", [False, True], ids=["sidecar", "meta.json"])
+@pytest.mark.parametrize("field, change", BAD_FIELDS, ids=[f"{f}={list(c.values())[0]!r}" for f, c in BAD_FIELDS])
+def test_a_record_field_of_the_wrong_type_or_range_is_one_line_naming_it(tmp_path, capsys, field, change, dataset):
+    record = {"height": H, "width": W, "flip": False, "num_steps": N, **change}
+    path = small_stream(tmp_path, record, dataset)
+    code, err = run_cli(["inspect", path, "--json"], capsys)
+    line = one_line(err)
+    source = "meta.json" if dataset else "s.dat.json"
+    assert code == 2 and source in line and field in line, line
+
+
+def test_a_good_record_still_reads(tmp_path, capsys):
+    path = small_stream(tmp_path, {"height": H, "width": W, "flip": False, "camera": {"readout_period_s": 5e-5}})
+    code, err = run_cli(["inspect", path, "--json"], capsys)
+    assert code == 0, err
+
+
+def test_a_dataset_scene_record_is_checked_when_opened(tmp_path):
+    from spikesim.dataset import SceneRecord
+    path = small_stream(tmp_path, {"height": H, "width": W, "flip": "no", "num_steps": N, "gt_steps": []},
+                        dataset=True)
+    with pytest.raises(ValueError, match="meta.json: flip must be true or false"):
+        SceneRecord.open(path.parent)
+
+
+# ---- small files that are not small regular files ------------------------------------------------
+def plant(path: Path, kind: str) -> None:
+    if kind == "fifo":
+        os.mkfifo(path)
+    elif kind == "dev-zero":
+        path.symlink_to("/dev/zero")
+    elif kind == "large":
+        path.write_bytes(b"{" + b" " * (1 << 20) + b"}")
+    else:
+        path.mkdir()
+
+
+WHAT = {"fifo": "FIFO", "dev-zero": "character device", "large": "larger than", "dir": "directory"}
+
+
+@pytest.mark.parametrize("kind", list(WHAT))
+def test_a_sidecar_that_is_not_a_small_regular_file_is_refused(tmp_path, capsys, kind):
+    path = write_dat(tmp_path / "s.dat", SpikeStream.from_bool(np.zeros((N, H, W), bool)))
+    plant(tmp_path / "s.dat.json", kind)
+    code, err = run_cli(["inspect", path], capsys)
+    line = one_line(err)
+    assert code == 2 and "s.dat.json" in line and WHAT[kind] in line, line
+
+
+@pytest.mark.parametrize("kind", list(WHAT))
+def test_a_planted_meta_json_is_refused(tmp_path, capsys, kind):
+    path = small_stream(tmp_path, dataset=True)
+    (path.parent / "meta.json").unlink()
+    plant(path.parent / "meta.json", kind)
+    code, err = run_cli(["inspect", path], capsys)
+    line = one_line(err)
+    assert code == 2 and "meta.json" in line and WHAT[kind] in line, line
+
+
+@pytest.mark.parametrize("kind", ["fifo", "dev-zero", "large"])
+def test_every_small_file_reader_refuses_what_is_not_a_small_regular_file(tmp_path, kind):
+    from model.config import load_config
+    from spikesim.camera import SpikeCamera
+    from spikesim.golden import load_reference
+    from spikesim.render.errors import LightError, read_json
+    from spikesim.render_settings import RenderSettings
+
+    readers = [
+        ("c.json", read_config_file, ValueError),
+        ("c.toml", read_config_file, ValueError),
+        ("cam.json", SpikeCamera.from_file, ValueError),
+        ("settings.json", RenderSettings.from_file, ValueError),
+        ("cfg.json", load_config, ValueError),
+        ("ref.json", load_reference, ValueError),
+        ("lights.json", lambda p: read_json(p, LightError, "light file"), LightError),
+        ("x.json", lambda p: read_json_object(p, "cache file"), ValueError),
+    ]
+    for name, read, error in readers:
+        path = tmp_path / name
+        plant(path, kind)
+        with pytest.raises(error, match=WHAT[kind]) as info:
+            read(path)
+        assert name in str(info.value)
+
+
+# ---- --header-columns against the record --------------------------------------------------------
+@pytest.mark.parametrize("dataset", [False, True], ids=["sidecar", "meta.json"])
+@pytest.mark.parametrize("flags", [["--header-columns", 16], ["--header-columns", 8, "--height", H],
+                                   ["--header-columns", 16, "--width", W]], ids=["alone", "with-height", "with-width"])
+def test_header_columns_that_contradict_the_record_are_refused(tmp_path, capsys, flags, dataset):
+    """48 bytes are 4 frames of 6 x 16 or 2 of 6 x 32: read with 16 header columns they were garbage."""
+    path = small_stream(tmp_path, dataset=dataset)
+    source = "meta.json" if dataset else "s.dat.json"
+    for argv in (["inspect", path, *flags], ["panel", path, "-o", tmp_path / "p.png", "--window", 1, "--methods", "tfp", *flags],
+                 ["reconstruct", path, "--out", tmp_path / "o", *flags]):
+        code, err = run_cli(argv, capsys)
+        line = one_line(err)
+        assert code == 2 and source in line and "--header-columns" in line, (argv, line)
+    assert not (tmp_path / "o").exists() and not (tmp_path / "p.png").exists()
+
+
+def test_header_columns_that_agree_with_the_record_or_a_whole_geometry_are_read(tmp_path, capsys):
+    path = small_stream(tmp_path)
+    code, err = run_cli(["inspect", path, "--header-columns", 0], capsys)
+    assert code == 0, err
+    # the whole geometry given: the user reads the file otherwise on purpose
+    code, err = run_cli(["inspect", path, "--header-columns", 16, "--height", H, "--width", W], capsys)
+    assert code == 0, err
+
+
+def test_evaluate_dat_refuses_header_columns_against_the_record(tmp_path, capsys):
+    path = small_stream(tmp_path, {"height": H, "width": W, "flip": False})
+    np.save(tmp_path / "gt.npy", np.full((H, W), 0.2, np.float32))
+    code, err = run_cli(["evaluate", "--dat", path, "--gt", tmp_path / "gt.npy", "--center", 1, "--window", 1,
+                         "--methods", "tfp", "--header-columns", 16, "-o", tmp_path / "e"], capsys)
+    line = one_line(err)
+    assert code == 2 and "s.dat.json" in line and "--header-columns" in line, line
