@@ -171,3 +171,47 @@ def test_evaluate_dat_refuses_header_columns_against_the_record(tmp_path, capsys
                          "--methods", "tfp", "--header-columns", 16, "-o", tmp_path / "e"], capsys)
     line = one_line(err)
     assert code == 2 and "s.dat.json" in line and "--header-columns" in line, line
+
+
+# ---- golden --camera: numbers a camera file may hold ---------------------------------------------
+BIG = 10 ** 400
+CAMERA_CASES = [
+    ("threshold_electrons", '{"threshold_electrons": %d}' % BIG, "json"),
+    ("gain_spread", '{"gain_spread": -%d}' % BIG, "json"),
+    ("height", '{"height": %d}' % BIG, "json"),
+    ("dark_current_hz", "dark_current_hz = %d\n" % BIG, "toml"),
+    ("readout_period_s", "readout_period_s = inf\n", "toml"),
+    ("gain_spread", '{"gain_spread": NaN}', "json"),
+    ("height", '{"height": 1000000}', "json"),
+    ("height", '{"height": true}', "json"),
+    ("width", '{"width": 400.0}', "json"),
+    ("height", '{"height": 1000, "width": 400}', "json"),  # in range, but golden would not use it
+]
+
+
+@pytest.mark.parametrize("field, text, suffix", CAMERA_CASES, ids=[f"{c[0]}-{i}" for i, c in enumerate(CAMERA_CASES)])
+def test_golden_refuses_a_camera_file_number_naming_the_field(tmp_path, capsys, field, text, suffix):
+    cam = tmp_path / f"cam.{suffix}"
+    cam.write_text(text)
+    code, err = run_cli(["golden", "--camera", cam], capsys)
+    line = one_line(err)
+    assert code == 2 and field in line and len(line) < 400, line
+
+
+def test_a_camera_refuses_huge_numbers_without_overflowing():
+    from spikesim.camera import SpikeCamera
+    for field in ("threshold_electrons", "dark_current_hz", "readout_period_s", "height"):
+        with pytest.raises(ValueError, match=f"{field} must be .*about 401 digits"):
+            SpikeCamera(**{field: BIG})
+
+
+def test_golden_accepts_a_saved_camera_and_the_test_scenes_size(tmp_path):
+    import argparse
+
+    from pipelines.golden_stats import _camera
+    from spikesim import golden
+    from spikesim.camera import SpikeCamera
+    for camera in (SpikeCamera.realistic(), golden.golden_camera()):
+        path = tmp_path / "cam.json"
+        camera.save(path)
+        assert _camera(argparse.Namespace(camera=path)) == camera
