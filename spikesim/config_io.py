@@ -25,6 +25,22 @@ _KINDS = ((stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISCHR, "a character de
           (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"), (stat.S_ISDIR, "a directory"))
 
 
+def file_problem(path: str | Path) -> str | None:
+    """None for an existing regular file (symlinks followed), else what it is instead, in words:
+    "does not exist", "is a FIFO (named pipe), not a regular file", ... A FIFO or device handed
+    to a reader blocks or never ends, so callers refuse it by this rather than call it missing."""
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError:
+        return "does not exist" + (" (a symlink to nothing)" if os.path.islink(path) else "")
+    except OSError as exc:
+        return f"cannot be read ({exc.strerror})"
+    if stat.S_ISREG(mode):
+        return None
+    kind = next((name for test, name in _KINDS if test(mode)), "not a plain file")
+    return f"is {kind}, not a regular file"
+
+
 def read_small_file(path: str | Path, what: str, limit: int = SMALL_FILE_LIMIT) -> str:
     """The UTF-8 text of a small regular file, read whole; otherwise an error naming `what` and the file.
 
@@ -133,4 +149,4 @@ def check_known_fields(cls: type, data: dict[str, Any], what: str) -> dict[str, 
 
 
 __all__ = ["read_config_file", "load_config_file", "check_known_fields", "read_small_file", "read_json_file",
-           "read_json_object", "check_numbers", "SMALL_FILE_LIMIT"]
+           "read_json_object", "check_numbers", "SMALL_FILE_LIMIT", "file_problem"]

@@ -215,3 +215,90 @@ def test_golden_accepts_a_saved_camera_and_the_test_scenes_size(tmp_path):
         path = tmp_path / "cam.json"
         camera.save(path)
         assert _camera(argparse.Namespace(camera=path)) == camera
+
+
+# ---- scene inputs --------------------------------------------------------------------------------
+SCENE = """<scene version="3.0.0">
+  <integrator type="direct"/>
+  <sensor type="perspective" id="camera">
+    <float name="fov" value="2"/><string name="fov_axis" value="x"/>
+    <transform name="to_world"><lookat origin="0, 0, 5" target="0, 0, 0" up="0, 1, 0"/></transform>
+    <film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="5"/></film>
+  </sensor>
+  {body}
+</scene>
+"""
+PLANE = """<shape type="rectangle" id="plane"><transform name="to_world"><scale value="50"/></transform>
+    <bsdf type="diffuse"><spectrum name="reflectance" value="0.5"/></bsdf></shape>"""
+LAMP = '<emitter type="point" id="lamp"><point name="position" value="0, 0, 3"/>{value}</emitter>'
+
+
+def scene_folder(tmp_path: Path, body: str) -> Path:
+    folder = tmp_path / "sc"
+    folder.mkdir(exist_ok=True)
+    (folder / "scene.xml").write_text(SCENE.format(body=body))
+    return folder / "scene.xml"
+
+
+@pytest.mark.parametrize("kind", ["fifo", "dev-zero", "dir"])
+def test_a_mesh_that_is_not_a_regular_file_is_named_as_such(tmp_path, kind):
+    """It was reported as a file that 'does not exist'."""
+    from spikesim.render.errors import SceneError
+    from spikesim.render.scene_files import referenced_files
+    xml = scene_folder(tmp_path, '<shape type="ply" id="m"><string name="filename" value="mesh.ply"/></shape>')
+    plant(xml.parent / "mesh.ply", kind)
+    with pytest.raises(SceneError, match="mesh.ply") as info:
+        referenced_files(xml)
+    assert "not a regular file" in str(info.value) and "does not exist" not in str(info.value)
+    assert str(info.value).startswith(str(xml))
+
+
+@pytest.mark.parametrize("what", ["scene.xml", "motion.json", "lights.json"])
+@pytest.mark.parametrize("kind", ["fifo", "dev-zero"])
+def test_scene_files_that_are_not_regular_files_are_refused(tmp_path, what, kind):
+    """A scene XML, or a motion or light file planted beside it: a FIFO was 'missing' (or, beside
+    the XML, silently no motion at all)."""
+    from spikesim.render.errors import SceneError
+    from spikesim.render.scene_files import SceneFiles
+    xml = scene_folder(tmp_path, PLANE)
+    target = xml.parent / what
+    if target.exists():
+        target.unlink()
+    plant(target, kind)
+    with pytest.raises(SceneError, match=WHAT[kind]) as info:
+        SceneFiles.resolve(xml)
+    assert what in str(info.value)
+
+
+def _needs_mitsuba():
+    pytest.importorskip("mitsuba")
+    from spikesim._drjit import has_llvm
+    if not has_llvm():
+        pytest.skip("Dr.Jit's LLVM backend is unavailable")
+
+
+@pytest.mark.parametrize("value", ['<spectrum name="intensity" value="1e38"/>', '<rgb name="intensity" value="1e38"/>'])
+def test_an_overflowing_emitter_is_refused_naming_the_xml_and_the_emitter(tmp_path, capsys, value):
+    """1e38 per nm rendered infinite pixels, reported without the XML (simulate) or the emitter."""
+    _needs_mitsuba()
+    xml = scene_folder(tmp_path, PLANE + LAMP.format(value=value))
+    for argv in (["simulate", "--scene", xml, "--steps", 2, "-o", tmp_path / "o.dat"],
+                 ["render", xml, "--steps", 1, "-o", tmp_path / "r"]):
+        code, err = run_cli(argv, capsys)
+        line = one_line(err)
+        assert code == 2 and str(xml) in line and "'lamp'" in line and "intensity" in line, (argv, line)
+    assert not (tmp_path / "o.dat").exists()
+
+
+def test_an_infinite_frame_names_the_xml_and_its_brightest_emitters(tmp_path, capsys, monkeypatch):
+    """Below the emission bound a render can still overflow (a lamp a hair from a surface): the
+    sensor's refusal of the frame names the XML and the emitters to look at."""
+    _needs_mitsuba()
+    from spikesim.render import scene_emitters
+    monkeypatch.setattr(scene_emitters, "MAX_EMISSION_PER_NM", float("inf"))
+    xml = scene_folder(tmp_path, PLANE + LAMP.format(value='<spectrum name="intensity" value="1e38"/>'))
+    for argv in (["simulate", "--scene", xml, "--steps", 2, "-o", tmp_path / "o.dat"],
+                 ["render", xml, "--steps", 1, "-o", tmp_path / "r"]):
+        code, err = run_cli(argv, capsys)
+        line = one_line(err)
+        assert code == 2 and str(xml) in line and "brightest first: 'lamp' (point" in line, (argv, line)
