@@ -302,3 +302,76 @@ def test_an_infinite_frame_names_the_xml_and_its_brightest_emitters(tmp_path, ca
         code, err = run_cli(argv, capsys)
         line = one_line(err)
         assert code == 2 and str(xml) in line and "brightest first: 'lamp' (point" in line, (argv, line)
+
+
+# ---- evaluate --gt: the kinds of image it takes ---------------------------------------------------
+GH, GW = 12, 16  # SSIM's window needs 11 x 11
+
+
+def gt_pair(tmp_path, capsys, gt: Path):
+    """evaluate --dat (a 12 x 16 stream, 4 steps) against `gt`, TFP over one step."""
+    frames = np.random.default_rng(0).random((N, GH, GW)) < 0.3
+    path = write_dat(tmp_path / "g.dat", SpikeStream.from_bool(frames), flip=False)
+    write_sidecar(path, {"height": GH, "width": GW, "flip": False})
+    return run_cli(["evaluate", "--dat", path, "--gt", gt, "--center", 1, "--window", 1, "--methods", "tfp",
+                    "--json"], capsys)
+
+
+@pytest.mark.parametrize("mode", ["LA", "RGBA", "P", "1", "I;16"])
+def test_evaluate_takes_grey_alpha_palette_and_16_bit_pngs(tmp_path, capsys, mode):
+    """A grey+alpha PNG failed with numpy's matmul message; alpha is dropped, a palette is read as
+    the colours it stands for (its indices are not light)."""
+    from PIL import Image
+    grey = np.full((GH, GW), 128, np.uint8)
+    if mode == "LA":
+        img = Image.fromarray(np.dstack([grey, np.full_like(grey, 7)]), "LA")
+    elif mode == "RGBA":
+        img = Image.fromarray(np.dstack([grey, grey, grey, np.full_like(grey, 7)]), "RGBA")
+    elif mode == "P":
+        img = Image.fromarray(np.zeros((GH, GW), np.uint8), "P")
+        img.putpalette([128, 128, 128] * 256)
+    elif mode == "1":
+        img = Image.fromarray(np.ones((GH, GW), bool))
+    else:
+        img = Image.fromarray(np.full((GH, GW), 32896, np.uint16))
+    img.save(tmp_path / "gt.png")
+    code, err = gt_pair(tmp_path, capsys, tmp_path / "gt.png")
+    assert code == 0, err
+    from spikesim.imageio import read_image_y
+    y = read_image_y(tmp_path / "gt.png")
+    assert y.shape == (GH, GW) and np.allclose(y, 1.0 if mode == "1" else 128 / 255, atol=1e-3), (mode, y[0, 0])
+
+
+def test_evaluate_refuses_a_picture_mode_that_is_not_grey_or_rgb(tmp_path, capsys):
+    from PIL import Image
+    Image.new("CMYK", (GW, GH), (0, 0, 0, 40)).save(tmp_path / "gt.tif")
+    code, err = gt_pair(tmp_path, capsys, tmp_path / "gt.tif")
+    line = one_line(err)
+    assert code == 2 and "gt.tif" in line and "CMYK" in line, line
+
+
+@pytest.mark.parametrize("values, words", [
+    (np.full((GH, GW), 0.3 + 0.1j), "complex"),
+    (np.ones((GH, GW), bool), "bool"),
+    (np.array([["a"] * GW] * GH), "<U1"),
+    (np.where(np.eye(GH, GW, dtype=bool), -0.5, 0.3), "negative"),
+    (np.where(np.eye(GH, GW, dtype=bool), np.nan, 0.3), "NaN or infinite"),
+])
+def test_evaluate_refuses_an_npy_of_the_wrong_kind_naming_it(tmp_path, capsys, values, words):
+    np.save(tmp_path / "gt.npy", values)
+    code, err = gt_pair(tmp_path, capsys, tmp_path / "gt.npy")
+    line = one_line(err)
+    assert code == 2 and "gt.npy" in line and words in line, line
+
+
+@pytest.mark.parametrize("bad, words", [(-0.25, "negative pixel(s) (min -0.25)"), (np.inf, "1 NaN or infinite"),
+                                        (np.nan, "1 NaN or infinite")])
+def test_evaluate_refuses_negative_or_non_finite_exr_values(tmp_path, capsys, bad, words):
+    pytest.importorskip("OpenEXR")
+    from spikesim.imageio import write_exr
+    y = np.full((GH, GW), 0.3, np.float32)
+    y[2, 3] = bad
+    write_exr(tmp_path / "gt.exr", y)
+    code, err = gt_pair(tmp_path, capsys, tmp_path / "gt.exr")
+    line = one_line(err)
+    assert code == 2 and "gt.exr" in line and words in line, line
