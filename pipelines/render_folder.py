@@ -31,7 +31,7 @@ def read_record(folder: Path) -> dict[str, Any] | None:
         return None
     from spikesim.config_io import read_json_file
     try:
-        data = read_json_file(path, "render record")
+        data = read_json_file(path, "render record", finite=False)
     except ValueError as exc:
         raise ValueError(f"{path}: not a render record (invalid JSON: {exc}); remove it, with the frames beside it, "
                          "or choose another folder") from None

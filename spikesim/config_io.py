@@ -103,10 +103,10 @@ def read_json_file(path: str | Path, what: str, limit: int = SMALL_FILE_LIMIT, f
     return data
 
 
-def read_json_object(path: str | Path, what: str, finite: bool = True) -> dict[str, Any]:
+def read_json_object(path: str | Path, what: str, finite: bool = True, limit: int = SMALL_FILE_LIMIT) -> dict[str, Any]:
     """A JSON file that must hold an object (a sidecar, a cache file, a description); otherwise a
     ValueError that names `what` and the file."""
-    data = read_json_file(path, what, finite=finite)
+    data = read_json_file(path, what, limit, finite)
     if not isinstance(data, dict):
         raise ValueError(f"{what} {path} is not a JSON object")
     return data

@@ -37,7 +37,7 @@ import numpy as np
 
 from .imageio import read_exr, write_exr
 from .config_io import read_json_object
-from .stream import DatReader, SpikeStream, check_stream_record, write_dat
+from .stream import META_LIMIT, DatReader, SpikeStream, check_stream_record, write_dat
 
 MANIFEST = "manifest.json"
 SPIKES = "spikes.dat"
@@ -142,7 +142,7 @@ class SceneRecord:
         meta_path = path / META
         if not meta_path.exists():
             raise FileNotFoundError(f"{path} is not a scene folder: {META} is missing")
-        meta = read_json_object(meta_path, "scene record")
+        meta = read_json_object(meta_path, "scene record", finite=False, limit=META_LIMIT)  # fields checked below
         for key in ("height", "width", "num_steps", "gt_steps", "flip"):
             if key not in meta:
                 raise ValueError(f"{meta_path}: required key {key!r} is missing")

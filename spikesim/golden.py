@@ -308,7 +308,7 @@ def load_reference(path: str | Path | None = None) -> dict[str, Any]:
         raise FileNotFoundError(f"golden reference {path} does not exist; write one with "
                                 "`spikesim golden --write --camera CAMERA -o REF.json`")
     from .config_io import read_json_file
-    data = read_json_file(path, "golden reference")  # a regular file, small, valid JSON, or one line
+    data = read_json_file(path, "golden reference", finite=False)  # a regular file, small, JSON; the layout is checked
     problem = _layout_problem(data)
     if problem:
         raise ValueError(f"golden reference {path}: {problem}")

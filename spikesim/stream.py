@@ -24,7 +24,7 @@ from typing import Any, Iterable, Iterator
 
 import numpy as np
 
-from .config_io import read_json_object
+from .config_io import SMALL_FILE_LIMIT, read_json_object
 
 
 def frame_bytes(height: int, width: int) -> int:
@@ -300,7 +300,7 @@ def read_sidecar(dat_path: str | Path) -> dict[str, Any] | None:
     path = sidecar_path(dat_path)
     if not path.exists() and not path.is_symlink():
         return None
-    return check_stream_record(read_json_object(path, "sidecar"), path)
+    return check_stream_record(read_json_object(path, "sidecar", finite=False), path)
 
 
 #: The largest height or width a recorded geometry may give (the PKU camera is 250 x 400; a
@@ -346,6 +346,9 @@ def check_stream_record(info: dict[str, Any], source: str | Path) -> dict[str, A
 # ---- which geometry a file was recorded with ---------------------------------------------------
 HEADER_COLUMNS = 16  # the extra columns of 416-wide recordings
 DATASET_STREAM, DATASET_META = "spikes.dat", "meta.json"  # a dataset scene folder (spikesim.dataset)
+#: A dataset scene's meta.json lists every ground-truth step (a few KiB for most scenes): it may be
+#: larger than a sidecar, never this large.
+META_LIMIT = 16 << 20
 
 
 def recorded_geometry(dat_path: str | Path) -> dict[str, Any] | None:
@@ -362,7 +365,8 @@ def recorded_geometry(dat_path: str | Path) -> dict[str, Any] | None:
         source = p.parent / DATASET_META
         if p.name != DATASET_STREAM or not (source.exists() or source.is_symlink()):
             return None
-    info = check_stream_record(read_json_object(source, "stream description"), source)
+    limit = META_LIMIT if source.name == DATASET_META else SMALL_FILE_LIMIT
+    info = check_stream_record(read_json_object(source, "stream description", finite=False, limit=limit), source)
     missing = [k for k in ("height", "width") if k not in info]
     if missing:
         raise ValueError(f"{source} does not record the stream's {' and '.join(missing)}")

@@ -66,7 +66,10 @@ def test_a_record_field_of_the_wrong_type_or_range_is_one_line_naming_it(tmp_pat
 
 
 def test_a_good_record_still_reads(tmp_path, capsys):
-    path = small_stream(tmp_path, {"height": H, "width": W, "flip": False, "camera": {"readout_period_s": 5e-5}})
+    """Fields no reader uses are not judged: a record the tools wrote may hold an infinite
+    measurement (json writes it as Infinity)."""
+    path = small_stream(tmp_path, {"height": H, "width": W, "flip": False, "camera": {"readout_period_s": 5e-5},
+                                   "irradiance": {"luminous_flux_lm": float("inf")}})
     code, err = run_cli(["inspect", path, "--json"], capsys)
     assert code == 0, err
 
@@ -80,13 +83,15 @@ def test_a_dataset_scene_record_is_checked_when_opened(tmp_path):
 
 
 # ---- small files that are not small regular files ------------------------------------------------
-def plant(path: Path, kind: str) -> None:
+def plant(path: Path, kind: str, limit: int = 1 << 20) -> None:
+    """Put a FIFO, a link to /dev/zero, a file over `limit` bytes (1 MiB, a small file's limit) or
+    a directory at `path`."""
     if kind == "fifo":
         os.mkfifo(path)
     elif kind == "dev-zero":
         path.symlink_to("/dev/zero")
     elif kind == "large":
-        path.write_bytes(b"{" + b" " * (1 << 20) + b"}")
+        path.write_bytes(b"{" + b" " * limit + b"}")
     else:
         path.mkdir()
 
@@ -107,7 +112,7 @@ def test_a_sidecar_that_is_not_a_small_regular_file_is_refused(tmp_path, capsys,
 def test_a_planted_meta_json_is_refused(tmp_path, capsys, kind):
     path = small_stream(tmp_path, dataset=True)
     (path.parent / "meta.json").unlink()
-    plant(path.parent / "meta.json", kind)
+    plant(path.parent / "meta.json", kind, limit=16 << 20)  # a meta.json lists every ground-truth step
     code, err = run_cli(["inspect", path], capsys)
     line = one_line(err)
     assert code == 2 and "meta.json" in line and WHAT[kind] in line, line
