@@ -244,6 +244,8 @@ class ExperimentConfig:
     def from_dict(cls, data: dict[str, Any], where: str = "config") -> "ExperimentConfig":
         if not isinstance(data, dict):
             raise ValueError(f"{where}: expected a JSON object, got {type(data).__name__}")
+        from spikesim.config_io import check_numbers
+        check_numbers(data, where)  # also a checkpoint's stored config: no 400-digit integer reaches math.isfinite
         unknown = sorted(set(data) - {"name", "description", "model", "train"})
         if unknown:
             raise ValueError(f"{where}: unknown top-level field(s) {unknown}")

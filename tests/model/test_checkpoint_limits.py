@@ -192,3 +192,15 @@ def test_a_refused_protocol_5_pickle_is_one_line_on_the_command_line(tmp_path, d
     code, err = run_cli(reconstruct_argv(dat, path, tmp_path / "o"), capsys)
     line = one_line(err)
     assert code == 2 and "evil.pt" in line and "global posix.system" in line, line
+
+
+@pytest.mark.parametrize("section, field", [("train", "lr"), ("model", "num_blocks"), ("train", "crop")])
+def test_a_checkpoint_config_with_a_400_digit_number_is_one_line(tmp_path, section, field):
+    """An OverflowError traceback from math.isfinite before."""
+    torch.manual_seed(0)
+    save_checkpoint(tmp_path / "big.pt", build_model(TINY), tiny_experiment())
+    state = torch.load(tmp_path / "big.pt", weights_only=True)
+    state["experiment"][section][field] = 10 ** 400
+    torch.save(state, tmp_path / "big.pt")
+    with pytest.raises(ValueError, match=f"big.pt.*{section}.{field} is an integer of about 401 digits"):
+        model_from_checkpoint(tmp_path / "big.pt")
