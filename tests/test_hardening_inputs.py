@@ -380,3 +380,13 @@ def test_evaluate_refuses_negative_or_non_finite_exr_values(tmp_path, capsys, ba
     code, err = gt_pair(tmp_path, capsys, tmp_path / "gt.exr")
     line = one_line(err)
     assert code == 2 and "gt.exr" in line and words in line, line
+
+
+def test_verify_refuses_a_manifest_that_is_a_fifo(tmp_path, capsys):
+    """It blocked (a link to /dev/zero is already refused: it leads out of the dataset root)."""
+    root = tmp_path / "data"
+    root.mkdir()
+    plant(root / "manifest.json", "fifo")
+    code, err = run_cli(["verify", root], capsys)
+    line = one_line(err)
+    assert code == 2 and "manifest.json" in line and "FIFO" in line, line
