@@ -32,8 +32,9 @@ def read_record(folder: Path) -> dict[str, Any] | None:
     from spikesim.config_io import read_json_file
     try:
         data = read_json_file(path, "render record", finite=False)
-    except ValueError as exc:
-        raise ValueError(f"{path}: not a render record (invalid JSON: {exc}); remove it, with the frames beside it, "
+    except ValueError as exc:  # not JSON, not a regular file (a FIFO), too large
+        reason = str(exc).replace(f"render record {path} ", "", 1)
+        raise ValueError(f"{path}: not a render record ({reason}); remove it, with the frames beside it, "
                          "or choose another folder") from None
     if not isinstance(data, dict):
         raise ValueError(f"{path}: not a render record (a JSON {type(data).__name__})")

@@ -64,7 +64,8 @@ def read_small_file(path: str | Path, what: str, limit: int = SMALL_FILE_LIMIT) 
     finally:
         os.close(fd)
     if len(data) > limit:
-        raise ValueError(f"{what} {path} is larger than {limit // 1024} KiB, too large for {what}: "
+        size = f"{limit / 2**20:g} MiB" if limit >= 2**20 else f"{limit / 2**10:g} KiB"
+        raise ValueError(f"{what} {path} is larger than {size}, too large for {what}: "
                          "it is not the small text file expected")
     try:
         return data.decode("utf-8")

@@ -390,3 +390,10 @@ def test_verify_refuses_a_manifest_that_is_a_fifo(tmp_path, capsys):
     code, err = run_cli(["verify", root], capsys)
     line = one_line(err)
     assert code == 2 and "manifest.json" in line and "FIFO" in line, line
+
+
+def test_a_render_record_that_is_a_fifo_is_refused_not_read(tmp_path):
+    from pipelines.render_folder import read_record
+    plant(tmp_path / "render.json", "fifo")
+    with pytest.raises(ValueError, match=r"render.json: not a render record \(is a FIFO"):
+        read_record(tmp_path)

@@ -33,7 +33,9 @@ def read_json(path: str | Path, error: type[SceneError], what: str) -> object:
         raise error(path, f"{what} does not exist")
     try:
         return read_json_file(path, what)
-    except (OSError, ValueError) as exc:  # not a regular file, too large, not JSON, a 400-digit number
+    except OSError as exc:  # a link to nothing, no permission
+        raise error(path, exc.strerror or str(exc)) from None
+    except ValueError as exc:  # not a regular file, too large, not JSON, a 400-digit number
         raise error(path, str(exc).replace(f"{what} {path} ", "", 1)) from None
 
 
