@@ -204,3 +204,21 @@ def test_a_checkpoint_config_with_a_400_digit_number_is_one_line(tmp_path, secti
     torch.save(state, tmp_path / "big.pt")
     with pytest.raises(ValueError, match=f"big.pt.*{section}.{field} is an integer of about 401 digits"):
         model_from_checkpoint(tmp_path / "big.pt")
+
+
+def test_panel_refuses_non_finite_frames(tmp_path, dat, monkeypatch, capsys):
+    import model.methods as methods
+
+    class Overflowing:
+        name, window = "overflowing", 7
+
+        def frames(self, source):
+            for i in range(source.num_windows):
+                yield i, np.full((12, 16), np.nan, np.float32)
+
+    monkeypatch.setattr(methods, "method_from_spec", lambda *a, **k: Overflowing())
+    code, err = run_cli(["panel", dat, "-o", tmp_path / "p.png", "--height", 12, "--width", 16, "--header-columns", 0,
+                         "--window", 7, "--methods", "tfp", "--device", "cpu"], capsys)
+    line = one_line(err)
+    assert code == 2 and "overflowing" in line and "NaN" in line, line
+    assert not (tmp_path / "p.png").exists()
