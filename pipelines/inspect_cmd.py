@@ -155,8 +155,8 @@ def step_range(path: Path, num_steps: int, start: int, stop: int | None) -> tupl
 
 
 def _readout_period(args: argparse.Namespace, side: dict[str, Any]) -> float:
-    cam = side.get("camera")
-    recorded = cam.get("readout_period_s") if isinstance(cam, dict) else None
+    cam = side.get("camera")  # the sidecar's fields are checked as it is read (spikesim.stream.check_stream_record)
+    recorded = (cam.get("readout_period_s") if isinstance(cam, dict) else None) or side.get("readout_period_s")
     return args.readout_period_s or recorded or 25e-6
 
 

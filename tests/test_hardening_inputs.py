@@ -397,3 +397,12 @@ def test_a_render_record_that_is_a_fifo_is_refused_not_read(tmp_path):
     plant(tmp_path / "render.json", "fifo")
     with pytest.raises(ValueError, match=r"render.json: not a render record \(is a FIFO"):
         read_record(tmp_path)
+
+
+@pytest.mark.parametrize("record", [{"readout_period_s": 5e-5}, {"camera": {"readout_period_s": 5e-5}}])
+def test_a_checked_readout_period_is_used_wherever_the_sidecar_gives_it(tmp_path, capsys, record):
+    from pipelines.cli import main
+    path = small_stream(tmp_path, {"height": H, "width": W, "flip": False, **record})
+    capsys.readouterr()
+    assert main(["inspect", str(path), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["readout_period_s"] == 5e-5
