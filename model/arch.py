@@ -137,8 +137,55 @@ def _build_recon_net(cfg: ModelConfig) -> ReconNet:
 
 
 def build_model(cfg: ModelConfig) -> nn.Module:
-    """The network a config names (ARCH_REGISTRY)."""
-    return ARCH_REGISTRY.get(cfg.arch)(cfg)
+    """The network a config names (ARCH_REGISTRY); refused, naming the fields, when its weights
+    alone would not fit in this machine's memory (check_model_size)."""
+    builder = ARCH_REGISTRY.get(cfg.arch)
+    check_model_size(cfg)
+    return builder(cfg)
+
+
+def parameter_count(cfg: ModelConfig) -> int:
+    """The network's parameters, from its config alone: built on the `meta` device (no memory)
+    with 0 and 1 residual blocks; every block stack grows linearly with num_blocks."""
+    import dataclasses
+
+    builder = ARCH_REGISTRY.get(cfg.arch)
+
+    def count(blocks: int) -> int:
+        with torch.device("meta"):
+            return sum(p.numel() for p in builder(dataclasses.replace(cfg, num_blocks=blocks)).parameters())
+    base = count(0)
+    return base + cfg.num_blocks * (count(1) - base) if cfg.num_blocks else base
+
+
+def available_memory_bytes() -> int | None:
+    """Memory this machine can still give (Linux MemAvailable), else its physical memory, else None."""
+    import os
+
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def check_model_size(cfg: ModelConfig, memory: int | None = None) -> int:
+    """The parameter count of `cfg`; a ValueError naming the size fields when its float32 weights
+    alone exceed `memory` (default: what is available now), before anything is allocated."""
+    n = parameter_count(cfg)
+    memory = available_memory_bytes() if memory is None else memory
+    need = 4 * n
+    if memory is not None and need > memory:
+        raise ValueError(f"the model config asks for {n:,} parameters ({need / 2**30:,.1f} GiB of float32 weights "
+                         f"alone), more than the {memory / 2**30:,.1f} GiB of memory available: model.num_features="
+                         f"{cfg.num_features}, model.num_blocks={cfg.num_blocks}, model.window={cfg.window}")
+    return n
 
 
 def count_parameters(model: nn.Module) -> int:

@@ -13,6 +13,7 @@ import errno
 import os
 import pickle
 import re
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -109,9 +110,11 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
     if not path.is_file():
         raise FileNotFoundError(errno.ENOENT, "checkpoint not found", str(path))
     try:
-        state = torch.load(path, map_location=map_location, weights_only=True)
+        with warnings.catch_warnings():  # a foreign pickle protocol: the refusal below says all there is
+            warnings.filterwarnings("ignore", message="Detected pickle protocol")
+            state = torch.load(path, map_location=map_location, weights_only=True)
     except pickle.UnpicklingError as exc:
-        raise ValueError(f"{path}: not a checkpoint of this project: {_refusal(exc)}") from None
+        raise ValueError(f"{path}: not a checkpoint of this project: {_refusal(exc, path)}") from None
     except (RuntimeError, EOFError, ValueError, TypeError, AttributeError, KeyError, IndexError) as exc:
         reason = "the file is empty" if path.stat().st_size == 0 else f"unreadable ({_first_line(exc)})"
         raise ValueError(f"{path}: not a checkpoint of this project: {reason}") from None
@@ -132,17 +135,67 @@ def _checked_state(path: Path, state: Any) -> dict[str, Any]:
             what = "weights" if part == "model_state" else "optimiser state"
             raise ValueError(f"{path}: its {what} do not match the content hash stored with them: the file is "
                              "damaged (restore it, or train again)")
+    _check_finite_weights(path, state["model_state"])
     return state
 
 
-def _refusal(exc: pickle.UnpicklingError) -> str:
-    """What the weights-only unpickler refused, in one line (e.g. "Unsupported global: GLOBAL
-    posix.system"): the file holds code or objects that only full unpickling would build."""
-    m = re.search(r"WeightsUnpickler error:\s*(.*?)(?: was not an allowed|\n|$)", str(exc))
-    what = m.group(1).strip() if m else ""
-    if not what or what.startswith("Unsupported operand"):
-        return "not a torch checkpoint file"
+def _check_finite_weights(path: Path, weights: dict[str, Any]) -> None:
+    """Refuse weights holding NaN or infinity, naming the first tensor: such a network gives black
+    or NaN frames (a run that diverged, or an edited file), never a reconstruction."""
+    for name, t in weights.items():
+        if isinstance(t, torch.Tensor) and (t.is_floating_point() or t.is_complex()):
+            bad = int((~torch.isfinite(t)).sum())
+            if bad:
+                raise ValueError(f"{path}: its weights hold NaN or infinite values ({bad} of {t.numel()} in "
+                                 f"{name!r}): not a usable network (the run that wrote it diverged, or the file "
+                                 "was edited)")
+
+
+def _refusal(exc: pickle.UnpicklingError, path: Path | None = None) -> str:
+    """What the weights-only unpickler refused, in one line, naming the global the file imports
+    (e.g. "Unsupported global: GLOBAL posix.system"): the file holds code or objects that only full
+    unpickling would build. torch names the global for some refusals ("unsupported GLOBAL x whose
+    module is blocked") and not for others ("Unsupported operand 149"); then the pickle's opcodes
+    are read (decoded, never run) to find it. "not a torch checkpoint file" only when neither the
+    refusal nor the bytes name one."""
+    text = str(exc)
+    m = re.search(r"WeightsUnpickler error:\s*(.*?)(?: was not an allowed|\n|$)", text.strip())
+    reason = m.group(1).strip() if m else ""
+    found = re.search(r"GLOBAL\s+([\w.]+)", text)
+    name = found.group(1) if found else (_pickle_global(path) if path is not None else None)
+    if name is None:
+        return f"weights-only loading refused it ({reason})" if reason else "not a torch checkpoint file"
+    what = reason if reason and name in reason else (f"{reason}: " if reason else "") + f"global {name}"
     return f"weights-only loading refused it ({what}); nothing in it was run"
+
+
+def _pickle_global(path: Path) -> str | None:
+    """The first global (module.name) a pickle, bare or in a torch zip's data.pkl, would import;
+    found by decoding its opcodes with pickletools (nothing is executed), None when there is none."""
+    import pickletools
+    import zipfile
+
+    try:
+        if zipfile.is_zipfile(path):
+            with zipfile.ZipFile(path) as z:
+                member = next((n for n in z.namelist() if n.endswith("data.pkl")), None)
+                data = z.read(member) if member else b""
+        else:
+            data = path.read_bytes()[: 1 << 24]
+    except (OSError, zipfile.BadZipFile, KeyError, RuntimeError, ValueError):
+        return None
+    strings: list[str] = []
+    try:
+        for op, arg, _ in pickletools.genops(data):
+            if op.name in ("GLOBAL", "INST") and isinstance(arg, str):
+                return arg.replace(" ", ".")
+            if op.name == "STACK_GLOBAL" and len(strings) >= 2:
+                return f"{strings[-2]}.{strings[-1]}"
+            if isinstance(arg, str):
+                strings.append(arg)
+    except (ValueError, EOFError, UnicodeDecodeError, TypeError, KeyError):
+        pass
+    return None
 
 
 def _first_line(exc: BaseException, limit: int = 160) -> str:
@@ -170,7 +223,10 @@ def model_from_checkpoint(path: str | Path, map_location: str | torch.device = "
         experiment = ExperimentConfig.from_dict(state["experiment"], where=f"{path} experiment")
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{path}: its config is not valid: {_first_line(exc)}") from None
-    model = build_model(experiment.model)
+    try:
+        model = build_model(experiment.model)  # its size is checked first: terabytes are refused, not allocated
+    except ValueError as exc:
+        raise ValueError(f"{path}: {exc}") from None
     try:
         model.load_state_dict(state["model_state"])
     except (RuntimeError, TypeError, KeyError) as exc:

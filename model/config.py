@@ -7,7 +7,6 @@ Defaults are the paper's (section Implementation Details) and the authors' relea
 """
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import asdict, dataclass, field, fields
 from importlib import resources
@@ -23,6 +22,17 @@ REPRESENTATIONS = ("lr_rep", "spike", "tfp", "tfi")
 INTERVALS = ("gisi", "lisi")
 LR_SCHEDULES = ("multistep", "cosine")
 DEFORM_BACKENDS = ("auto", "torch", "torchvision")
+
+
+#: Bounds on the network's size fields, far beyond any network trained here (the paper's: 64
+#: features, 16 blocks, 41-step windows): a config or checkpoint asking for 10^6 blocks is damaged
+#: or hostile, and building it would run until killed. model.arch.check_model_size also bounds the
+#: weights' memory as a whole.
+MAX_FEATURES, MAX_BLOCKS, MAX_WINDOW, MAX_PAD_MULTIPLE = 4096, 1024, 4095, 1024
+
+
+def _int_in(value: Any, low: int, high: int) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and low <= value <= high
 
 
 def _require(cond: bool, msg: str) -> None:
@@ -70,12 +80,12 @@ class ModelConfig:
     pad_multiple: int = 4
 
     def __post_init__(self) -> None:
-        _require(isinstance(self.window, int) and self.window >= 1 and self.window % 2 == 1,
-                 f"model.window must be an odd integer >= 1 (2*dt+1), got {self.window!r}")
-        _require(isinstance(self.num_features, int) and self.num_features >= 1,
-                 f"model.num_features must be a positive integer, got {self.num_features!r}")
-        _require(isinstance(self.num_blocks, int) and self.num_blocks >= 0,
-                 f"model.num_blocks must be an integer >= 0, got {self.num_blocks!r}")
+        _require(_int_in(self.window, 1, MAX_WINDOW) and self.window % 2 == 1,
+                 f"model.window must be an odd integer in 1..{MAX_WINDOW} (2*dt+1), got {self.window!r}")
+        _require(_int_in(self.num_features, 1, MAX_FEATURES),
+                 f"model.num_features must be an integer in 1..{MAX_FEATURES}, got {self.num_features!r}")
+        _require(_int_in(self.num_blocks, 0, MAX_BLOCKS),
+                 f"model.num_blocks must be an integer in 0..{MAX_BLOCKS}, got {self.num_blocks!r}")
         _require(self.representation in REPRESENTATIONS,
                  f"model.representation must be one of {REPRESENTATIONS}, got {self.representation!r}")
         _require(self.interval in INTERVALS, f"model.interval must be one of {INTERVALS}, got {self.interval!r}")
@@ -88,7 +98,7 @@ class ModelConfig:
                  f"model.deform_groups={self.deform_groups!r} must be >= 1 and divide num_features={self.num_features}")
         _require(self.deform_backend in DEFORM_BACKENDS,
                  f"model.deform_backend must be one of {DEFORM_BACKENDS}, got {self.deform_backend!r}")
-        _require(isinstance(self.pad_multiple, int) and self.pad_multiple >= 4 and self.pad_multiple % 4 == 0,
+        _require(_int_in(self.pad_multiple, 4, MAX_PAD_MULTIPLE) and self.pad_multiple % 4 == 0,
                  f"model.pad_multiple must be a multiple of 4 (two stride-2 pyramid levels), got {self.pad_multiple!r}")
 
     @property
@@ -238,6 +248,8 @@ class ExperimentConfig:
     def from_dict(cls, data: dict[str, Any], where: str = "config") -> "ExperimentConfig":
         if not isinstance(data, dict):
             raise ValueError(f"{where}: expected a JSON object, got {type(data).__name__}")
+        from spikesim.config_io import check_numbers
+        check_numbers(data, where)  # also a checkpoint's stored config: no 400-digit integer reaches math.isfinite
         unknown = sorted(set(data) - {"name", "description", "model", "train"})
         if unknown:
             raise ValueError(f"{where}: unknown top-level field(s) {unknown}")
@@ -263,11 +275,14 @@ def load_config(name_or_path: str | Path) -> ExperimentConfig:
     p = Path(name_or_path)
     if not (p.suffix == ".json" and p.exists()):
         p = CONFIG_DIR / f"{name_or_path}.json"
-    if not p.is_file():
+    if not p.exists():  # a FIFO or device named *.json is refused by the reader, not called missing
         raise FileNotFoundError(f"no config {str(name_or_path)!r}: not a JSON file and not one of "
                                 f"{available_configs()} in {CONFIG_DIR}")
-    try:
-        data = json.loads(p.read_text())
-    except json.JSONDecodeError as e:
-        raise ValueError(f"{p}: invalid JSON ({e})") from None
-    return ExperimentConfig.from_dict(data, where=str(p))
+    from spikesim.config_io import read_json_file
+    data = read_json_file(p, "config")  # a regular file, small, valid JSON, numbers finite and sane
+    experiment = ExperimentConfig.from_dict(data, where=str(p))
+    if "model" not in data:  # every named config has one: without it the default network trains silently
+        raise ValueError(f"{p}: no \"model\" section: a config names the network it trains (arch, num_features, "
+                         "num_blocks, ...; model/configs/full.json has every field); add one, \"model\": {} for "
+                         "the paper's defaults")
+    return experiment

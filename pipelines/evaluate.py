@@ -154,11 +154,14 @@ def evaluate_pair(dat: Path, gt: np.ndarray, center: int, methods: Sequence[Meth
     """Scores of each method on the window of `dat` centred on step `center` against `gt` (y);
     geometry as recorded beside the stream where not given. Returns the rows and what was read."""
     from model.streaming import StepWindows
-    from spikesim.stream import DatReader, detect_header_columns, stream_geometry
+    from spikesim.stream import DatReader, check_recorded_layout, detect_header_columns, stream_geometry
 
+    given_size = bool(height and width)
     height, width, flip = stream_geometry(dat, height, width, flip)
     if header_columns is None:
         header_columns = detect_header_columns(dat, height, width)
+    elif not given_size:  # part of the layout from the record: the rest must agree with it
+        check_recorded_layout(dat, height, width, header_columns)
     if gt.shape != (height, width):
         raise ValueError(f"--gt is {gt.shape[0]} x {gt.shape[1]} but the stream is read as {height} x {width}; "
                          "check --height/--width (or the image)")

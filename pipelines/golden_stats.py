@@ -19,7 +19,18 @@ from spikesim import golden
 
 
 def _camera(args: argparse.Namespace):
-    return load_camera(args.camera)
+    """The --camera to measure; a size other than a saved camera's (250 x 400) or the test
+    scene's is refused: golden measures every camera on its own test scene, so a camera file's
+    height and width are not used, and silently ignoring 10^6 rows would hide the mistake."""
+    from spikesim.camera import SpikeCamera
+
+    camera = load_camera(args.camera)
+    default = SpikeCamera()
+    if (camera.height, camera.width) not in ((default.height, default.width), (golden.HEIGHT, golden.WIDTH)):
+        raise ValueError(f"--camera {args.camera}: height {camera.height}, width {camera.width} would not be used: "
+                         f"golden measures every camera on its own {golden.HEIGHT} x {golden.WIDTH} test scene; "
+                         "remove height and width from the file")
+    return camera
 
 
 def _backend(name: str) -> str:

@@ -15,7 +15,8 @@ from typing import Any
 import numpy as np
 
 from pipelines.argtypes import nonnegative_int, positive_float, positive_int
-from spikesim.stream import DatReader, detect_header_columns, read_sidecar, recorded_geometry, stream_geometry
+from spikesim.stream import (DatReader, check_recorded_layout, detect_header_columns, read_sidecar, recorded_geometry,
+                             stream_geometry)
 
 CHUNK_PIXEL_STEPS = 1 << 20  # pixels x steps unpacked at a time (1 MB of bits)
 
@@ -154,8 +155,8 @@ def step_range(path: Path, num_steps: int, start: int, stop: int | None) -> tupl
 
 
 def _readout_period(args: argparse.Namespace, side: dict[str, Any]) -> float:
-    cam = side.get("camera")
-    recorded = cam.get("readout_period_s") if isinstance(cam, dict) else None
+    cam = side.get("camera")  # the sidecar's fields are checked as it is read (spikesim.stream.check_stream_record)
+    recorded = (cam.get("readout_period_s") if isinstance(cam, dict) else None) or side.get("readout_period_s")
     return args.readout_period_s or recorded or 25e-6
 
 
@@ -167,8 +168,12 @@ def open_stream(path: Path, height: int | None = None, width: int | None = None,
     A record whose size does not fit the file is named in the error: a stale sidecar or meta.json,
     not a truncated stream, is then the likely cause, and --height/--width override it."""
     h, w, flip = stream_geometry(path, height, width, flip)
-    header = (detect_header_columns(path, h, w, drop_partial) if header_columns in ("auto", None)
-              else header_columns)
+    if header_columns in ("auto", None):
+        header = detect_header_columns(path, h, w, drop_partial)
+    else:
+        header = int(header_columns)
+        if not (height and width):  # part of the layout from the record: the rest must agree with it
+            check_recorded_layout(path, h, w, header)
     try:
         return DatReader(path, h, w, flip=flip, header_columns=header, drop_partial=drop_partial), header
     except ValueError as exc:

@@ -45,6 +45,9 @@ def panel_frames(path: Path, specs: list[str], height: int | None = None, width:
     for spec in specs:
         method = method_from_spec(spec, window, device=device)
         frames[method.name] = np.asarray(next(f for i, f in method.frames(source) if i == index), dtype=np.float64)
+        bad = int(frames[method.name].size - np.count_nonzero(np.isfinite(frames[method.name])))
+        if bad:  # drawn, NaN is a black tile: no picture of the method
+            raise ValueError(f"method {method.name}: frame {index} has {bad} NaN or infinite pixel(s); no panel was written")
     reference = np.mean([source.windows(i, i + 1)[0].numpy().mean(0) for i in range(n)], axis=0)
     read = {"input": str(path), "height": reader.height, "width": reader.width, "flip": reader.flip,
             "header_columns": header, "start": start, "windows": n, "window": window, "frame": index,

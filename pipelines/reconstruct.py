@@ -154,6 +154,10 @@ def _render_frames(method, source: StepWindows, stage: Path, n: int, start: int,
     try:
         for i, frame in method.frames(source):
             y = frame.numpy() if isinstance(frame, torch.Tensor) else np.asarray(frame)
+            bad = int(y.size - np.count_nonzero(np.isfinite(y)))
+            if bad:  # a black PNG from NaN is no reconstruction: refuse before anything is moved into --out
+                raise ValueError(f"method {method.name}: frame {i} (step {start + i * window + window // 2}) has {bad} "
+                                 "NaN or infinite pixel(s); nothing was written")
             if npy is not None:
                 npy[i] = y
             img = to_image(y)

@@ -29,12 +29,14 @@ def read_record(folder: Path) -> dict[str, Any] | None:
     """The render record in `folder`, or None when there is none; a ValueError naming it when it
     cannot be read."""
     path = Path(folder) / RECORD
-    if not path.is_file():
+    if not path.exists() and not path.is_symlink():
         return None
+    from spikesim.config_io import read_json_file
     try:
-        data = json.loads(path.read_text())
-    except (ValueError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{path}: not a render record (invalid JSON: {exc}); remove it, with the frames beside it, "
+        data = read_json_file(path, "render record", finite=False)
+    except ValueError as exc:  # not JSON, not a regular file (a FIFO), too large
+        reason = str(exc).replace(f"render record {path} ", "", 1)
+        raise ValueError(f"{path}: not a render record ({reason}); remove it, with the frames beside it, "
                          "or choose another folder") from None
     if not isinstance(data, dict):
         raise ValueError(f"{path}: not a render record (a JSON {type(data).__name__})")

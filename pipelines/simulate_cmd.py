@@ -225,6 +225,13 @@ def run(args: argparse.Namespace) -> int:
             out = sim.run_to_dat(_progress(frames, args, steps), args.out, keyframe_every=args.keyframe_every,
                                  flip=not args.no_flip, extra={"irradiance": source}, max_steps=steps)
     except ValueError as exc:  # a bad frame of an .npy: name the file (EXR frames name theirs)
+        if args.scene is not None and str(exc).startswith("frame "):  # a device frame the sensor refused
+            from spikesim.render.scene_checks import brightest_emitters
+            from spikesim.render.errors import SceneError
+            emitters = brightest_emitters(source.get("light", {}).get("emitters"))
+            raise SceneError(source["files"]["xml"], f"a rendered frame cannot be simulated: {exc}; check the camera, "
+                             "the materials and the emitters" + (f"; its emitters, brightest first: {emitters}"
+                                                                 if emitters else "")) from exc
         if args.frames is None or Path(args.frames).is_dir():
             raise
         raise ValueError(f"{args.frames}: {exc}") from exc

@@ -24,6 +24,9 @@ SHOT_NOISE_MODELS = ("off", "gaussian", "poisson")
 #: the accumulator finite for renderer fireflies and absurd inputs (y = 3.4e38 gave NaN
 #: accumulators and dead pixels before it).
 Y_MAX = 1000.0
+#: The largest height or width of a camera (the PKU sensor is 250 x 400): a sensor of 10^6 rows
+#: is a typo, and its state alone would not fit in memory.
+MAX_SIDE = 1 << 16
 PRECISIONS = ("float32", "float64")
 
 #: Noise terms and the value that switches each off.
@@ -196,19 +199,40 @@ def _known_fields(cls: type, data: dict[str, Any]) -> dict[str, Any]:
     return check_known_fields(cls, data, "camera parameter(s)")
 
 
+def _shown(value: Any) -> str:
+    """A value for a message: a huge integer as its size, not its 400 digits."""
+    if isinstance(value, int) and not isinstance(value, bool) and abs(value) >= 10 ** 20:
+        return f"an integer of about {int(abs(value).bit_length() * math.log10(2)) + 1} digits"
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
 def _check_int(name: str, value: Any) -> None:
-    if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
-        raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    if isinstance(value, bool) or not isinstance(value, int) or not 0 < value <= MAX_SIDE:
+        raise ValueError(f"{name} must be an integer in 1..{MAX_SIDE}, got {_shown(value)}")
+
+
+def _finite(value: Any) -> float | None:
+    """`value` as a finite float, or None (a bool, a string, NaN, inf, an int beyond float's range)."""
+    if not isinstance(value, (int, float)) or isinstance(value, bool):
+        return None
+    try:
+        v = float(value)
+    except OverflowError:
+        return None
+    return v if math.isfinite(v) else None
 
 
 def _check_positive(name: str, value: Any) -> None:
-    if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value) or value <= 0:
-        raise ValueError(f"{name} must be a positive finite number, got {value!r}")
+    v = _finite(value)
+    if v is None or v <= 0:
+        raise ValueError(f"{name} must be a positive finite number, got {_shown(value)}")
 
 
 def _check_nonnegative(name: str, value: Any) -> None:
-    if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value) or value < 0:
-        raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
+    v = _finite(value)
+    if v is None or v < 0:
+        raise ValueError(f"{name} must be a finite number >= 0, got {_shown(value)}")
 
 
-__all__ = ["SpikeCamera", "NOISE_TERMS", "SHOT_NOISE_MODELS", "PRECISIONS", "Y_MAX"]
+__all__ = ["SpikeCamera", "NOISE_TERMS", "SHOT_NOISE_MODELS", "PRECISIONS", "Y_MAX", "MAX_SIDE"]

@@ -5,21 +5,109 @@ bare KeyError deep inside a pipeline.
 """
 from __future__ import annotations
 
+import errno
 import json
+import math
+import os
+import stat
 from pathlib import Path
 from typing import Any, Callable, TypeVar
 
 T = TypeVar("T")
 
+#: The most a small text file the tools read (a sidecar, a config, a camera, a light or motion
+#: file, a record) may hold: they are a few KiB; a larger one is not what it claims to be.
+SMALL_FILE_LIMIT = 1 << 20
+#: Integers with more digits than this in a config are refused (2**128, the widest seed, has 39).
+MAX_INT_DIGITS = 40
 
-def read_json_object(path: str | Path, what: str) -> dict[str, Any]:
-    """A JSON file that must hold an object (a sidecar, a cache file, a description); otherwise a
-    ValueError that names `what` and the file."""
+_KINDS = ((stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISCHR, "a character device"),
+          (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"), (stat.S_ISDIR, "a directory"))
+
+
+def file_problem(path: str | Path) -> str | None:
+    """None for an existing regular file (symlinks followed), else what it is instead, in words:
+    "does not exist", "is a FIFO (named pipe), not a regular file", ... A FIFO or device handed
+    to a reader blocks or never ends, so callers refuse it by this rather than call it missing."""
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError:
+        return "does not exist" + (" (a symlink to nothing)" if os.path.islink(path) else "")
+    except OSError as exc:
+        return f"cannot be read ({exc.strerror})"
+    if stat.S_ISREG(mode):
+        return None
+    kind = next((name for test, name in _KINDS if test(mode)), "not a plain file")
+    return f"is {kind}, not a regular file"
+
+
+def read_small_file(path: str | Path, what: str, limit: int = SMALL_FILE_LIMIT) -> str:
+    """The UTF-8 text of a small regular file, read whole; otherwise an error naming `what` and the file.
+
+    A FIFO, a device (/dev/zero), a socket or a directory is refused before anything is read (a
+    FIFO would block forever, /dev/zero never ends), and so is a file over `limit` bytes (checked
+    on the bytes read, so a file that grows while read cannot slip past it)."""
     path = Path(path)
     try:
-        data = json.loads(path.read_text())
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))  # a FIFO's open would block
+    except FileNotFoundError:
+        raise FileNotFoundError(errno.ENOENT, f"{what} does not exist", str(path)) from None
+    except OSError as exc:
+        raise OSError(exc.errno, f"{what}: {exc.strerror}", str(path)) from None
+    try:
+        mode = os.fstat(fd).st_mode
+        if not stat.S_ISREG(mode):
+            kind = next((name for test, name in _KINDS if test(mode)), "not a plain file")
+            raise ValueError(f"{what} {path} is {kind}, not a regular file; give a regular file")
+        with os.fdopen(fd, "rb", closefd=False) as f:
+            data = f.read(limit + 1)
+    finally:
+        os.close(fd)
+    if len(data) > limit:
+        size = f"{limit / 2**20:g} MiB" if limit >= 2**20 else f"{limit / 2**10:g} KiB"
+        raise ValueError(f"{what} {path} is larger than {size}, too large for {what}: "
+                         "it is not the small text file expected")
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError:
+        raise ValueError(f"{what} {path} is not UTF-8 text") from None
+
+
+def check_numbers(data: Any, where: str, finite: bool = True, _field: str = "") -> None:
+    """Refuse integers of more than MAX_INT_DIGITS digits and (with `finite`) NaN or infinite
+    numbers anywhere in parsed JSON/TOML, naming the field (`a.b[2]`): no setting needs them, and
+    a 400-digit integer overflows every float conversion after it."""
+    if isinstance(data, dict):
+        for k, v in data.items():
+            check_numbers(v, where, finite, f"{_field}.{k}" if _field else str(k))
+    elif isinstance(data, list):
+        for i, v in enumerate(data):
+            check_numbers(v, where, finite, f"{_field}[{i}]")
+    elif isinstance(data, int) and not isinstance(data, bool):
+        if abs(data) >= 10 ** MAX_INT_DIGITS:
+            digits = int(abs(data).bit_length() * math.log10(2)) + 1
+            raise ValueError(f"{where}: {_field or 'the value'} is an integer of about {digits} digits; "
+                             "no setting takes numbers that large")
+    elif isinstance(data, float) and finite and not math.isfinite(data):
+        raise ValueError(f"{where}: {_field or 'the value'} is {data}; numbers must be finite")
+
+
+def read_json_file(path: str | Path, what: str, limit: int = SMALL_FILE_LIMIT, finite: bool = True) -> Any:
+    """Parsed JSON of a small regular file (`read_small_file`), numbers checked (`check_numbers`);
+    errors name `what` and the file."""
+    text = read_small_file(path, what, limit)
+    try:
+        data = json.loads(text)
     except ValueError as exc:
         raise ValueError(f"{what} {path} is not valid JSON: {exc}") from None
+    check_numbers(data, f"{what} {path}", finite)
+    return data
+
+
+def read_json_object(path: str | Path, what: str, finite: bool = True, limit: int = SMALL_FILE_LIMIT) -> dict[str, Any]:
+    """A JSON file that must hold an object (a sidecar, a cache file, a description); otherwise a
+    ValueError that names `what` and the file."""
+    data = read_json_file(path, what, limit, finite)
     if not isinstance(data, dict):
         raise ValueError(f"{what} {path} is not a JSON object")
     return data
@@ -27,10 +115,7 @@ def read_json_object(path: str | Path, what: str) -> dict[str, Any]:
 
 def read_config_file(path: str | Path) -> dict[str, Any]:
     path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise FileNotFoundError(f"config {path}: {exc.strerror}") from exc
+    text = read_small_file(path, "config")
     try:
         if path.suffix == ".toml":
             import tomllib
@@ -41,6 +126,7 @@ def read_config_file(path: str | Path) -> dict[str, Any]:
         raise ValueError(f"config {path} is not valid {path.suffix.lstrip('.').upper() or 'JSON'}: {exc}") from exc
     if not isinstance(data, dict):
         raise ValueError(f"config {path}: expected a table/object at the top level, got {type(data).__name__}")
+    check_numbers(data, f"config {path}")
     return data
 
 
@@ -63,4 +149,5 @@ def check_known_fields(cls: type, data: dict[str, Any], what: str) -> dict[str, 
     return data
 
 
-__all__ = ["read_config_file", "load_config_file", "check_known_fields"]
+__all__ = ["read_config_file", "load_config_file", "check_known_fields", "read_small_file", "read_json_file",
+           "read_json_object", "check_numbers", "SMALL_FILE_LIMIT", "file_problem"]

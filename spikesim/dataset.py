@@ -37,7 +37,8 @@ import numpy as np
 
 from . import outputs
 from .imageio import read_exr, write_exr
-from .stream import DatReader, SpikeStream, write_dat
+from .config_io import read_json_object, read_small_file
+from .stream import META_LIMIT, DatReader, SpikeStream, check_stream_record, write_dat
 
 MANIFEST = "manifest.json"
 SPIKES = "spikes.dat"
@@ -125,13 +126,11 @@ class SceneRecord:
         meta_path = path / META
         if not meta_path.exists():
             raise FileNotFoundError(f"{path} is not a scene folder: {META} is missing")
-        try:
-            meta = json.loads(meta_path.read_text())
-        except ValueError as exc:
-            raise ValueError(f"{meta_path} is not valid JSON: {exc}") from exc
+        meta = read_json_object(meta_path, "scene record", finite=False, limit=META_LIMIT)  # fields checked below
         for key in ("height", "width", "num_steps", "gt_steps", "flip"):
             if key not in meta:
                 raise ValueError(f"{meta_path}: required key {key!r} is missing")
+        check_stream_record(meta, meta_path)
         return cls(path=path, meta=meta)
 
     @property
@@ -199,7 +198,7 @@ def scene_saturation(root: str | Path, name: str) -> float | None:
     """The saturated share of a scene's ground truth as its meta.json records it (None: a scene
     written before it was recorded, or a meta.json that cannot be read)."""
     try:
-        meta = json.loads(inside_root(root, name, META).read_text())
+        meta = read_json_object(inside_root(root, name, META), "scene record", finite=False, limit=META_LIMIT)
         return float(meta["gt_saturation"]["saturated_fraction"])
     except (OSError, ValueError, KeyError, TypeError):
         return None
@@ -276,12 +275,20 @@ def _entry_problem(entry: Any) -> str | None:
     return None
 
 
+#: A manifest lists every file of a dataset with its checksum: far below this for any dataset.
+RECORD_FILE_LIMIT = 256 << 20
+
+
 def _read_json_file(path: Path, shown: Path, what: str) -> Any:
-    """Parse a JSON file, or raise a ValueError naming it (`shown`, as the user gave it)."""
+    """Parse a JSON file, or raise a ValueError naming it (`shown`, as the user gave it); a FIFO
+    or device planted in its place is refused, not read (spikesim.config_io.read_small_file)."""
     try:
-        return json.loads(path.read_text(encoding="utf-8"))
-    except UnicodeDecodeError:
-        raise ValueError(f"{shown}: not {what} (not UTF-8 text)") from None
+        text = read_small_file(path, what, RECORD_FILE_LIMIT)
+    except ValueError as exc:
+        reason = str(exc).replace(f"{what} {path} ", "", 1)
+        raise ValueError(f"{shown}: not {what} ({reason})") from None
+    try:
+        return json.loads(text)
     except ValueError as exc:
         raise ValueError(f"{shown}: not {what} (invalid JSON: {exc})") from None
 

@@ -309,13 +309,11 @@ def load_reference(path: str | Path | None = None) -> dict[str, Any]:
     """A stored reference (default: the project's own), checked enough that `compare` cannot trip
     over a damaged file; errors name the file."""
     path = PACKAGED_REFERENCE if path is None else Path(path)
-    if not path.is_file():
+    if not path.exists() and not path.is_symlink():
         raise FileNotFoundError(f"golden reference {path} does not exist; write one with "
                                 "`spikesim golden --write --camera CAMERA -o REF.json`")
-    try:
-        data = json.loads(path.read_text())
-    except ValueError as exc:
-        raise ValueError(f"golden reference {path}: not valid JSON ({exc})") from None
+    from .config_io import read_json_file
+    data = read_json_file(path, "golden reference", finite=False)  # a regular file, small, JSON; the layout is checked
     problem = _layout_problem(data)
     if problem:
         raise ValueError(f"golden reference {path}: {problem}")

@@ -39,8 +39,9 @@ def read_exr(path: str | Path) -> np.ndarray:
             channels = f.channels()
             if CHANNEL in channels:
                 return np.asarray(channels[CHANNEL].pixels, dtype=np.float32)
-            if "RGB" in channels:
-                rgb = np.asarray(channels["RGB"].pixels, dtype=np.float32)
+            colour = next((c for c in ("RGB", "RGBA") if c in channels), None)
+            if colour is not None:  # alpha, if any, is coverage, not light: dropped
+                rgb = np.asarray(channels[colour].pixels, dtype=np.float32)[..., :3]
                 # Rec. 709 luminance weights.
                 return rgb @ np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
             raise ValueError(f"{path}: no 'Y' or 'RGB' channel (has {sorted(channels)})")
@@ -60,27 +61,59 @@ def read_image_y(path: str | Path, scale: float = 1.0) -> np.ndarray:
     if suffix == ".exr":
         y = read_exr(path)
     elif suffix == ".npy":
-        y = np.load(path, allow_pickle=False).astype(np.float32)
-    else:
-        from PIL import Image, UnidentifiedImageError
-
         try:
-            with Image.open(path) as im:
-                arr = np.asarray(im)
-        except (UnidentifiedImageError, OSError) as exc:
-            raise ValueError(f"{path} is not a readable image: {exc}") from None
-        full = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0}.get(arr.dtype)
-        if full is None:
-            raise ValueError(f"{path}: {arr.dtype} pixels; expected an 8- or 16-bit image")
-        arr = arr.astype(np.float32) / full
-        if arr.ndim == 3:
-            arr = arr[..., :3] @ np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
-        y = arr
+            arr = np.load(path, allow_pickle=False, mmap_mode="r")
+        except (ValueError, EOFError, OSError) as exc:
+            raise ValueError(f"{path} is not a readable .npy array: {exc}") from None
+        if arr.dtype.kind not in "fiu":  # bool, complex, strings, records: not an image of y
+            raise ValueError(f"{path}: {arr.dtype} values; expected real numbers (float or integer), the image's y")
+        y = np.asarray(arr, dtype=np.float32)
+    else:
+        y = _read_picture(path)
     if y.ndim != 2:
         raise ValueError(f"{path}: expected a single (H, W) image, got shape {y.shape}")
-    if not np.isfinite(y).all():
-        raise ValueError(f"{path} has NaN or Inf pixels")
+    bad = int(y.size - np.count_nonzero(np.isfinite(y)))
+    if bad:
+        raise ValueError(f"{path} has {bad} NaN or infinite pixel(s) of {y.size}; the image's y must be finite")
+    negative = int(np.count_nonzero(y < 0))
+    if negative:
+        raise ValueError(f"{path} has {negative} negative pixel(s) (min {float(y.min()):.3g}) of {y.size}; the image's "
+                         "y (light, in spikes per step) must be >= 0")
     return (y * np.float32(scale)).astype(np.float32)
+
+
+#: PIL image modes read as grey or colour (an alpha channel, coverage and not light, is dropped).
+_PICTURE_MODES = ("L", "LA", "RGB", "RGBA", "I;16", "I;16B", "I;16L", "1", "P", "PA")
+
+
+def _read_picture(path: Path) -> np.ndarray:
+    """An 8- or 16-bit picture (PNG, JPEG, TIFF) as value / full scale, colour as its luminance."""
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as im:
+            if im.mode not in _PICTURE_MODES:
+                raise ValueError(f"{path}: {im.mode} pixels; expected a grey or RGB image (8 or 16 bits, alpha allowed)")
+            if im.mode in ("P", "PA"):  # palette indices are not light: the colours they stand for
+                im = im.convert("RGBA")
+            elif im.mode == "1":
+                im = im.convert("L")
+            arr = np.asarray(im)
+    except (UnidentifiedImageError, OSError) as exc:
+        raise ValueError(f"{path} is not a readable image: {exc}") from None
+    full = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0}.get(arr.dtype.newbyteorder("="))
+    if full is None:
+        raise ValueError(f"{path}: {arr.dtype} pixels; expected an 8- or 16-bit image")
+    arr = arr.astype(np.float32) / full
+    if arr.ndim == 3:
+        channels = arr.shape[2]
+        if channels in (1, 2):  # grey, grey + alpha
+            arr = arr[..., 0]
+        elif channels in (3, 4):  # RGB, RGB + alpha
+            arr = arr[..., :3] @ np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
+        else:
+            raise ValueError(f"{path}: {channels} channels per pixel; expected grey or RGB (alpha allowed)")
+    return arr
 
 
 def to_display(y: np.ndarray, gamma: float = 2.2, scale: float | None = None, percentile: float | None = None) -> np.ndarray:

@@ -23,7 +23,7 @@ from typing import Any, Iterable, Iterator
 import numpy as np
 
 from . import outputs
-from .config_io import read_json_object
+from .config_io import SMALL_FILE_LIMIT, read_json_object
 
 
 def frame_bytes(height: int, width: int) -> int:
@@ -285,15 +285,59 @@ def write_sidecar(dat_path: str | Path, info: dict[str, Any]) -> Path:
 
 
 def read_sidecar(dat_path: str | Path) -> dict[str, Any] | None:
+    """The sidecar beside a stream, its fields checked (`check_stream_record`); None when there is none."""
     path = sidecar_path(dat_path)
-    if not path.exists():
+    if not path.exists() and not path.is_symlink():
         return None
-    return read_json_object(path, "sidecar")
+    return check_stream_record(read_json_object(path, "sidecar", finite=False), path)
+
+
+#: The largest height or width a recorded geometry may give (the PKU camera is 250 x 400; a
+#: record of 10^6 rows is damaged, not a sensor).
+MAX_SIDE = 1 << 16
+
+
+def _is_int(v: Any) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def check_stream_record(info: dict[str, Any], source: str | Path) -> dict[str, Any]:
+    """`info` (a sidecar or a dataset meta.json) unchanged when every field a reader uses has the
+    right type and range, else a ValueError naming `source` and the field: height and width
+    integers in 1..MAX_SIDE (a JSON `true` is not an integer), header_columns and num_steps
+    integers >= 0, flip a JSON true/false (the string "no" is not false), a readout period
+    (top level or the camera's) a positive finite number of seconds, at most 1, and the camera a
+    JSON object."""
+    def bad(field: str, value: Any, expected: str) -> ValueError:
+        shown = repr(value) if len(repr(value)) <= 40 else f"{type(value).__name__} {repr(value)[:20]}..."
+        return ValueError(f"{source}: {field} must be {expected}, got {shown}")
+
+    for key in ("height", "width"):
+        if key in info and not (_is_int(info[key]) and 1 <= info[key] <= MAX_SIDE):
+            raise bad(key, info[key], f"an integer in 1..{MAX_SIDE}")
+    for key, top in (("header_columns", MAX_SIDE), ("num_steps", None)):
+        if key in info and not (_is_int(info[key]) and 0 <= info[key] and (top is None or info[key] <= top)):
+            raise bad(key, info[key], "an integer >= 0" + (f", at most {top}" if top else ""))
+    if info.get("flip") is not None and not isinstance(info["flip"], bool):
+        raise bad("flip", info["flip"], "true or false")
+    camera = info.get("camera")
+    if camera is not None and not isinstance(camera, dict):
+        raise bad("camera", camera, "an object")
+    for field, holder in (("readout_period_s", info), ("camera.readout_period_s", camera or {})):
+        v = holder.get(field.rsplit(".", 1)[-1])
+        if v is None:
+            continue
+        if not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and 0 < v <= 1):
+            raise bad(field, v, "a positive finite number of seconds, at most 1")
+    return info
 
 
 # ---- which geometry a file was recorded with ---------------------------------------------------
 HEADER_COLUMNS = 16  # the extra columns of 416-wide recordings
 DATASET_STREAM, DATASET_META = "spikes.dat", "meta.json"  # a dataset scene folder (spikesim.dataset)
+#: A dataset scene's meta.json lists every ground-truth step (a few KiB for most scenes): it may be
+#: larger than a sidecar, never this large.
+META_LIMIT = 16 << 20
 
 
 def recorded_geometry(dat_path: str | Path) -> dict[str, Any] | None:
@@ -306,20 +350,17 @@ def recorded_geometry(dat_path: str | Path) -> dict[str, Any] | None:
     """
     p = Path(dat_path)
     source = sidecar_path(p)
-    if not source.exists():
+    if not source.exists() and not source.is_symlink():
         source = p.parent / DATASET_META
-        if p.name != DATASET_STREAM or not source.is_file():
+        if p.name != DATASET_STREAM or not (source.exists() or source.is_symlink()):
             return None
-    info = read_json_object(source, "stream description")
-    try:
-        geometry = {k: int(info[k]) for k in ("height", "width")}
-        geometry["header_columns"] = int(info.get("header_columns", 0))
-    except (KeyError, TypeError, ValueError):
-        raise ValueError(f"{source} does not record the stream's height and width as integers") from None
-    if min(geometry["height"], geometry["width"]) < 1 or geometry["header_columns"] < 0:
-        raise ValueError(f"{source} records an impossible geometry {geometry}")
-    flip = info.get("flip")
-    return {**geometry, "flip": None if flip is None else bool(flip), "source": source}
+    limit = META_LIMIT if source.name == DATASET_META else SMALL_FILE_LIMIT
+    info = check_stream_record(read_json_object(source, "stream description", finite=False, limit=limit), source)
+    missing = [k for k in ("height", "width") if k not in info]
+    if missing:
+        raise ValueError(f"{source} does not record the stream's {' and '.join(missing)}")
+    return {"height": info["height"], "width": info["width"], "header_columns": info.get("header_columns", 0),
+            "flip": info.get("flip"), "source": source}
 
 
 def stream_geometry(dat_path: str | Path, height: int | None = None, width: int | None = None,
@@ -373,6 +414,23 @@ def detect_header_columns(path: str | Path, height: int, width: int, drop_partia
     return decided
 
 
+def check_recorded_layout(path: str | Path, height: int, width: int, header_columns: int) -> None:
+    """Refuse a row layout (height, width, header columns) that contradicts the geometry recorded
+    beside the stream (`recorded_geometry`), naming the record: a `--header-columns` given against
+    a sidecar that says otherwise reads every row shifted, i.e. garbage. Callers skip the check
+    when the user gave the whole geometry (height, width and header columns) to read the file
+    otherwise on purpose."""
+    rec = recorded_geometry(path)
+    if rec is None:
+        return
+    if (rec["height"], rec["width"], rec["header_columns"]) != (height, width, header_columns):
+        raise ValueError(
+            f"{rec['source']} records {rec['width']}x{rec['height']} frames (width x height) with "
+            f"{rec['header_columns']} header column(s) per row, not {width}x{height} with {header_columns}: "
+            f"read that way every row of {path} would be misaligned; leave --header-columns to the record, or "
+            "give --height, --width and --header-columns together to read the file otherwise")
+
+
 def header_columns_from_content(path: str | Path, height: int, width: int, max_bytes: int = 32 << 20,
                                 margin: float = 3.0) -> int | None:
     """0 or 16 when one reading of the file is clearly right, else None.
@@ -415,4 +473,4 @@ def _dispersion(frames: np.ndarray, pixels: int, chunk_bits: int = 1 << 22) -> f
 __all__ = ["SpikeStream", "DatWriter", "DatReader", "write_dat", "read_dat", "pack_frames", "unpack_frames",
            "frame_bytes", "write_sidecar", "read_sidecar", "sidecar_path", "recorded_geometry",
            "stream_geometry", "detect_header_columns", "header_columns_from_content", "open_temp_beside",
-           "HEADER_COLUMNS"]
+           "HEADER_COLUMNS", "check_stream_record", "MAX_SIDE", "check_recorded_layout"]

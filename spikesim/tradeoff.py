@@ -623,7 +623,8 @@ def _save_npz(path: Path, **arrays: np.ndarray) -> None:
 
 def _read_json(path: Path) -> dict[str, Any]:
     try:
-        return read_json_object(path, "cache file")
+        # measured values may be infinite (a PSNR of a perfect match); a cache is larger than a config
+        return read_json_object(path, "cache file", finite=False, limit=64 << 20)
     except ValueError as exc:
         raise ValueError(f"{path}: damaged cache file ({exc}); delete it to measure that run again") from exc
 

@@ -95,8 +95,9 @@ class _FrameSource:
         kernel name the frame), named with the scene's XML."""
         if self._renderer is None or not str(exc).startswith("frame ") or str(self._renderer.files.xml) in str(exc):
             return exc
-        from spikesim.render import SceneError
-        return SceneError(self._renderer.files.xml, f"a rendered frame cannot be simulated: {exc}")
+        from spikesim.render.scene_checks import non_finite_frame_error
+        return non_finite_frame_error(self._renderer.files.xml, f"a rendered frame cannot be simulated: {exc}",
+                                      self._renderer.lighting)
 
     def describe(self) -> dict[str, Any]:
         """The source's record, its light as the job renders it: photometric amounts (lux, lumens,

@@ -26,15 +26,17 @@ class LightError(SceneError):
 
 def read_json(path: str | Path, error: type[SceneError], what: str) -> object:
     """Parse a scene's JSON side file (motion, lights), or raise `error` naming the file."""
-    import json
+    from ..config_io import read_json_file
 
     path = Path(path)
-    if not path.is_file():
+    if not path.exists() and not path.is_symlink():
         raise error(path, f"{what} does not exist")
     try:
-        return json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise error(path, f"not valid JSON: {exc}") from None
+        return read_json_file(path, what)
+    except OSError as exc:  # a link to nothing, no permission
+        raise error(path, exc.strerror or str(exc)) from None
+    except ValueError as exc:  # not a regular file, too large, not JSON, a 400-digit number
+        raise error(path, str(exc).replace(f"{what} {path} ", "", 1)) from None
 
 
 __all__ = ["SceneError", "MotionError", "LightError", "read_json"]

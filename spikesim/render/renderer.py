@@ -244,7 +244,7 @@ class SceneRenderer:
         if self.variant == "rgb":
             raise ValueError("the rgb variant renders previews only (preview_rgb); use 'mono' or 'spectral' for y")
         y = film[..., 0] * self._gain
-        check_frame(self.files.xml, step, y)
+        check_frame(self.files.xml, step, y, self.lighting)
         return np.maximum(y, 0.0).astype(np.float32, copy=False)
 
     @staticmethod

@@ -79,12 +79,34 @@ def check_camera(xml_path: Path, to_world: np.ndarray, x_fov_deg: float) -> None
                                    "origin equals its target, or up along the view?)")
 
 
-def check_frame(xml_path: Path, step: int, y: np.ndarray) -> None:
-    """A SceneError naming the XML and the step when a rendered frame has non-finite pixels."""
+def brightest_emitters(emitters: Any, n: int = 3) -> str:
+    """The `n` brightest of a lighting's emitters (LightingCondition.describe()["emitters"]) in
+    words, e.g. "'lamp' (point, 6.8e+42 cd)": the usual suspects of an infinite frame."""
+    rows = [e for e in (emitters or []) if isinstance(e, dict)]
+    rows.sort(key=lambda e: -float(e.get("photometric") or 0.0))
+    return ", ".join(f"{e.get('id')!r} ({e.get('type')}, {float(e.get('photometric') or 0.0):.3g} "
+                     f"{e.get('photometric_unit', '')})".replace(" )", ")") for e in rows[:n])
+
+
+def non_finite_frame_error(xml_path: Path, what: str, lighting: Any = None) -> SceneError:
+    """A SceneError naming the XML and, when `lighting` is given, its brightest emitters, for a
+    frame that is not finite (`what` says which and how many pixels)."""
+    emitters = ""
+    try:
+        emitters = brightest_emitters(lighting.describe()["emitters"]) if lighting is not None else ""
+    except (AttributeError, KeyError, TypeError, ValueError):
+        pass
+    suspects = f"; its emitters, brightest first: {emitters}" if emitters else ""
+    return SceneError(xml_path, f"{what}; check the camera, the materials and the emitters{suspects}")
+
+
+def check_frame(xml_path: Path, step: int, y: np.ndarray, lighting: Any = None) -> None:
+    """A SceneError naming the XML, the step and the brightest emitters (`lighting`) when a
+    rendered frame has non-finite pixels."""
     bad = ~np.isfinite(y)
     if bad.any():
-        raise SceneError(xml_path, f"step {step} rendered {int(bad.sum())} non-finite pixel(s) (NaN or infinite) of "
-                                   f"{y.size}; check the camera, the materials and the emitters")
+        raise non_finite_frame_error(xml_path, f"step {step} rendered {int(bad.sum())} non-finite pixel(s) (NaN or "
+                                               f"infinite) of {y.size}", lighting)
 
 
 def check_lit(xml_path: Path, max_y: float, images: int, lighting: Any = None) -> None:
@@ -103,4 +125,4 @@ def check_lit(xml_path: Path, max_y: float, images: int, lighting: Any = None) -
 
 
 __all__ = ["RADIANCE_INTEGRATORS", "BLACK_Y", "check_integrator", "check_sensor_xml", "check_camera", "check_frame",
-           "check_lit"]
+           "check_lit", "brightest_emitters", "non_finite_frame_error"]

@@ -55,6 +55,10 @@ SUPPORTED = {
     "constant": ("radiance", "W m^-2 sr^-1", "sky"),
     "directional": ("irradiance", "W m^-2", "directional"),
 }
+#: The most an emitter may give per nm (in its own unit): 10^22 times the sun's spectral radiance.
+#: Mitsuba renders in 32-bit floats (at most 3.4e38), and an emission of 1e38 per nm rendered
+#: infinite pixels; a bound far below that leaves room for the render's own factors.
+MAX_EMISSION_PER_NM = 1e30
 #: Stratified samples per axis over an area emitter's surface for its illuminance integral.
 AREA_SAMPLES_PER_AXIS = 64
 
@@ -158,6 +162,10 @@ def _read_emitter(xml_path: Path, k: int, el: ET.Element, parent: ET.Element | N
     values = _spectral_values(xml_path, where, given[0], quantity)
     if not np.all(np.isfinite(values)) or values.min() < 0:
         raise SceneError(xml_path, f"{where}: its {quantity} must be finite and non-negative")
+    if values.max() > MAX_EMISSION_PER_NM:
+        raise SceneError(xml_path, f"{where}: its {quantity} reaches {values.max():.3g} {unit} per nm, above the "
+                                   f"{MAX_EMISSION_PER_NM:g} a render can carry in 32-bit floats (it would render "
+                                   "infinite pixels); give it in Mitsuba's units")
     try:
         spectrum = spectra.register_spectrum(values)
     except ValueError:
@@ -265,4 +273,4 @@ def _area_geometry(xml_path: Path, where: str, el: ET.Element, parent: ET.Elemen
     return {"area_m2": area, "samples": (pts, nrm, 1.0 / (w * n * n))}
 
 
-__all__ = ["XmlEmitter", "read_emitters", "SUPPORTED", "AREA_SAMPLES_PER_AXIS"]
+__all__ = ["XmlEmitter", "read_emitters", "SUPPORTED", "AREA_SAMPLES_PER_AXIS", "MAX_EMISSION_PER_NM"]

@@ -13,6 +13,7 @@ import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..config_io import file_problem
 from .errors import SceneError
 
 _PARAMETER = re.compile(r"\$(\w+)")
@@ -43,14 +44,15 @@ class SceneFiles:
             p = scene_path(str(scene))
         if p.is_dir():
             p = p / "scene.xml"
-        if not p.is_file():
-            raise SceneError(p, "scene XML file does not exist")
+        if (problem := file_problem(p)) is not None:
+            raise SceneError(p, f"scene XML file {problem}")
         m = Path(motion) if motion is not None else p.parent / "motion.json"
-        if motion is not None and not m.is_file():
-            raise SceneError(m, "motion file does not exist")
         lt = Path(lights) if lights is not None else p.parent / "lights.json"
-        if lights is not None and not lt.is_file():
-            raise SceneError(lt, "light file does not exist")
+        for path, given, what in ((m, motion, "motion file"), (lt, lights, "light file")):
+            problem = file_problem(path)
+            # optional beside the XML, but one planted there that is not a regular file is refused
+            if problem is not None and (given is not None or path.exists() or path.is_symlink()):
+                raise SceneError(path, f"{what} {problem}")
         name = p.parent.name if p.name == "scene.xml" else p.stem
         return cls(name=name, xml=p.resolve(), motion=m.resolve() if m.is_file() else None,
                    lights=lt.resolve() if lt.is_file() else None)
@@ -126,10 +128,15 @@ def referenced_files(xml_path: str | Path) -> list[tuple[str, Path]]:
 
 
 def check_reference(xml_path: Path, ref: FileReference) -> None:
-    """A SceneError naming the XML and the value when the referenced file does not exist."""
-    if ref.path is not None and not ref.path.is_file():
+    """A SceneError naming the XML and the value when the referenced file does not exist or is not
+    a regular file (a FIFO or /dev/zero as a mesh would block or never end)."""
+    if ref.path is None or (problem := file_problem(ref.path)) is None:
+        return
+    if problem.startswith("does not exist"):
         raise SceneError(xml_path, f"references file {ref.given!r} (a texture, mesh or spectrum), which does "
                                    f"not exist (looked for {ref.path})")
+    raise SceneError(xml_path, f"references file {ref.given!r} (a texture, mesh or spectrum), which {problem} "
+                               f"({ref.path})")
 
 
 __all__ = ["SceneFiles", "FileReference", "file_references", "referenced_files", "check_reference", "xml_defaults",
