@@ -31,7 +31,6 @@ false-alarm rate and detection power.
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
