@@ -17,7 +17,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import os
 import sys
 import tempfile
 import time
@@ -27,6 +26,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from pipelines.argtypes import nonnegative_int, output_file, positive_float, positive_int
+from spikesim import outputs
 
 #: Illuminance at the subject of the LLR scenes' lighting conditions (docs/scenes.md, section 2).
 LLR_LOW_LUX = (3.5, 10.0)
@@ -103,6 +103,9 @@ def study_job(job: Any, steps: Sequence[int], height: int, width: int, gt_spp: i
 def run(args: argparse.Namespace) -> int:
     from spikesim.generation import PRESETS, plan_rllr
 
+    for target in (args.out, args.save_frames):  # refused before the study, not after it
+        if target is not None:
+            outputs.check_not_link(target)
     jobs = plan_rllr(PRESETS[args.preset], seed=args.seed, count=args.count)
     if args.lamps_lux is not None:  # another range for the same scenes: only their light level changes
         lo, hi = args.lamps_lux
@@ -127,20 +130,16 @@ def run(args: argparse.Namespace) -> int:
               "width": args.width, "gt_spp": args.gt_spp, "seconds": time.perf_counter() - t0,
               "summary": summary, "scenes": records}
     if args.out is not None:
-        _write_atomic(args.out, json.dumps(result, indent=1) + "\n")
+        with outputs.output_file(args.out):  # through the project's output guard, as every command
+            outputs.atomic_write_text(args.out, json.dumps(result, indent=1) + "\n")
     if args.save_frames:
-        tmp = args.save_frames.with_name(f".{args.save_frames.name}.part.npz")
-        np.savez_compressed(tmp, **frames)
-        os.replace(tmp, args.save_frames)
+        def save(tmp: Path) -> None:
+            with open(tmp, "wb") as f:  # a file object: np.savez would add .npz to a name
+                np.savez_compressed(f, **frames)
+        with outputs.output_file(args.save_frames):
+            outputs.atomic_write_with(args.save_frames, save)
     print(markdown(summary))
     return 0
-
-
-def _write_atomic(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.part")
-    tmp.write_text(text)
-    os.replace(tmp, path)
 
 
 def build_parser() -> argparse.ArgumentParser:

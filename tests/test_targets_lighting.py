@@ -77,3 +77,15 @@ def test_study_command_refuses_bad_arguments(capsys):
 def test_study_refuses_an_inverted_lamp_range(capsys):
     assert rl.main(["--count", "1", "--lamps-lux", "250", "30", "--quiet"]) == 2
     assert "--lamps-lux 250 30" in capsys.readouterr().err
+
+
+def test_study_outputs_are_not_written_through_links(tmp_path, capsys):
+    """The study's --out and --save-frames go through the project's output guard: a link there is
+    refused before anything is rendered, and the file it points to is untouched."""
+    outside = tmp_path / "keep.json"
+    outside.write_text("keep")
+    for flag in ("--out", "--save-frames"):
+        link = tmp_path / f"link{flag}"
+        link.symlink_to(outside)
+        assert rl.main(["--count", "1", flag, str(link), "--quiet"]) == 2
+        assert "is a symlink" in capsys.readouterr().err and outside.read_text() == "keep"
