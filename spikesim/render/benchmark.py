@@ -19,6 +19,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from ..outputs import atomic_write_text, atomic_write_with, check_not_link, output_file, output_folder
 from .renderer import SceneRenderer
 
 MID_STEP = 430  # the centre of the 861-step LLR sequence (21 windows x 41 steps)
@@ -134,7 +135,7 @@ def doc_images(out: Path, scene: str = "fan", low_gain: float = 30.0) -> dict[st
     for i, name in enumerate(SCENES):
         gt = SceneRenderer(name, light="normal", gt_spp=32).ground_truth(MID_STEP)
         strip.paste(Image.fromarray(to_display(gt)).resize((200, 125), Image.BOX), (200 * i, 0))
-    strip.save(out / "llr_scenes_normal_gt.png", optimize=True)
+    atomic_write_with(out / "llr_scenes_normal_gt.png", lambda tmp: strip.save(tmp, format="PNG", optimize=True))
     return stats
 
 
@@ -148,6 +149,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--images", type=Path, default=Path("docs/images"), help="folder for --only images")
     ap.add_argument("--out", type=Path, default=None, help="write the results as JSON here")
     args = ap.parse_args(argv)
+    if args.out:
+        check_not_link(args.out)  # refused before minutes of measuring, not after
     results: dict[str, Any] = {}
 
     def report(key: str, value: Any) -> None:
@@ -169,10 +172,11 @@ def main(argv: list[str] | None = None) -> int:
         if "share" in args.only:
             report("render_vs_simulate", {"scene": scene, **render_vs_simulate(scene)})
     if "images" in args.only:
-        args.images.mkdir(parents=True, exist_ok=True)
-        report("images", doc_images(args.images))
+        with output_folder(args.images):  # the project's output guard: no write through a link
+            report("images", doc_images(args.images))
     if args.out:
-        args.out.write_text(json.dumps(results, indent=2))
+        with output_file(args.out):
+            atomic_write_text(args.out, json.dumps(results, indent=2))
     return 0
 
 

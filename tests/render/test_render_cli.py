@@ -52,3 +52,15 @@ def test_render_frames_and_bad_scene_exit_code(make_scene, tmp_path, capsys):
     assert main(["render", str(tmp_path / "missing.xml"), "--out", str(tmp_path)]) == 2
     err = capsys.readouterr().err
     assert err.startswith("spikesim render: error: ") and "missing.xml" in err and len(err.splitlines()) == 1
+
+
+def test_the_render_benchmark_never_writes_through_a_link(tmp_path):
+    """python -m spikesim.render.benchmark --out goes through the output guard: a link there is
+    refused before any measurement, and the file it points to is untouched."""
+    from spikesim.render.benchmark import main as benchmark_main
+    outside = tmp_path / "keep.json"
+    outside.write_text("keep")
+    (tmp_path / "results.json").symlink_to(outside)
+    with pytest.raises(ValueError, match="is a symlink"):
+        benchmark_main(["--only", "timing", "--out", str(tmp_path / "results.json")])
+    assert outside.read_text() == "keep"
