@@ -291,10 +291,33 @@ class _Run:
     precision: str
 
 
-def _build_run(experiment: ExperimentConfig, dev: torch.device, dist: _Distributed) -> _Run:
+def initial_weights(spec: str, experiment: ExperimentConfig) -> tuple[dict[str, Any], dict[str, str]]:
+    """The weights a fine-tuning run starts from: a shipped network by name (model.pretrained,
+    its file checked against the registry) or a checkpoint of this project. Its model section
+    must equal the run's (the same network); returns the state and a record of where it came from."""
+    from .checkpoint import load_checkpoint
+    from .config import ExperimentConfig as _Exp
+    from .pretrained import PRETRAINED, pretrained_path
+
+    path = pretrained_path(spec) if spec in PRETRAINED else Path(spec)
+    state = load_checkpoint(path)
+    source = _Exp.from_dict(state["experiment"], where=f"{path} experiment").model
+    if source != experiment.model:
+        differ = [f"{k} {getattr(source, k)!r} -> {getattr(experiment.model, k)!r}"
+                  for k in source.to_dict() if getattr(source, k) != getattr(experiment.model, k)]
+        raise ValueError(f"--init {spec}: its network is not the config's ({', '.join(differ)}); fine-tuning needs "
+                         "the same model section")
+    return state["model_state"], {"spec": spec, "path": str(path), "weights_sha256": state_fingerprint(state["model_state"])}
+
+
+def _build_run(experiment: ExperimentConfig, dev: torch.device, dist: _Distributed,
+               init: dict[str, Any] | None = None) -> _Run:
     tc, mc = experiment.train, experiment.model
     seed_everything(tc.seed)
-    model = build_model(mc).to(dev)
+    model = build_model(mc)
+    if init is not None:  # every rank loads the same weights, so DDP's first broadcast changes nothing
+        model.load_state_dict(init)
+    model = model.to(dev)
     if tc.channels_last:
         model = model.to(memory_format=torch.channels_last)
     forward = model
@@ -444,17 +467,21 @@ def _train_step(run: _Run, batch: dict, dev: torch.device, tc: Any, step: int, d
 
 def run_training(experiment: ExperimentConfig, train_scenes: Sequence[Scene], val_scenes: Sequence[Scene],
                  out_dir: str | Path, device: str = "auto", resume: bool = False,
-                 progress: bool = True, overwrite: bool = False) -> dict[str, Any]:
+                 progress: bool = True, overwrite: bool = False, init: str | None = None) -> dict[str, Any]:
     """Train; returns a summary (steps, last loss, best validation PSNR, samples/s, data-wait share).
     Under `torchrun` each process trains its share of every batch (DDP); rank 0 writes. Every file
     is written inside `out_dir`, never through a link there; a run that fails before writing
-    anything leaves no new empty folder (spikesim.outputs)."""
+    anything leaves no new empty folder (spikesim.outputs). `init` (a shipped network's name or a
+    checkpoint) starts a new run from those weights instead of a random draw: fine-tuning."""
+    if init is not None and resume:
+        raise ValueError("--init starts a run from other weights; --resume continues one from its own last.pt")
     with output_folder(out_dir):
-        return _train(experiment, train_scenes, val_scenes, out_dir, device, resume, progress, overwrite)
+        return _train(experiment, train_scenes, val_scenes, out_dir, device, resume, progress, overwrite, init)
 
 
 def _train(experiment: ExperimentConfig, train_scenes: Sequence[Scene], val_scenes: Sequence[Scene],
-           out_dir: str | Path, device: str, resume: bool, progress: bool, overwrite: bool) -> dict[str, Any]:
+           out_dir: str | Path, device: str, resume: bool, progress: bool, overwrite: bool,
+           init: str | None = None) -> dict[str, Any]:
     from spikesim.progress import progress_bar
 
     out = Path(out_dir)
@@ -463,9 +490,14 @@ def _train(experiment: ExperimentConfig, train_scenes: Sequence[Scene], val_scen
     if tc.batch_size % dist.world:
         raise ValueError(f"batch size {tc.batch_size} does not split over {dist.world} processes")
     out.mkdir(parents=True, exist_ok=True)
-    run = _build_run(experiment, dev, dist)
+    init_state, init_record = initial_weights(init, experiment) if init is not None else (None, None)
+    run = _build_run(experiment, dev, dist, init_state)
     train_ds, val_ds = _datasets(experiment, train_scenes, val_scenes)
     epoch, batch_in_epoch, step, best, saved = _start_or_resume(out, resume, experiment, run, dev, dist, overwrite)
+    init_record = init_record or saved.get("init_weights")  # a resumed fine-tuning run keeps saying where it began
+    if init_record and dist.is_main and not resume:
+        print(f"[train] starting from the weights of {init_record['spec']} ({init_record['weights_sha256'][:16]}...)",
+              file=sys.stderr)
     budget = None
     if tc.budget_minutes is not None:
         budget = _BudgetPlan(60.0 * tc.budget_minutes, tc.calibration_steps,
@@ -496,7 +528,8 @@ def _train(experiment: ExperimentConfig, train_scenes: Sequence[Scene], val_scen
             record = {} if budget is None else {**budget.record(),
                                                 "budget_elapsed_s": budget.elapsed_s + time.perf_counter() - started}
             save_checkpoint(path, run.model, experiment, run.opt, run.sched, run.scaler, epoch, step,
-                            extra={"batch_in_epoch": batch_in_epoch, "best_val_psnr": best, **record})
+                            extra={"batch_in_epoch": batch_in_epoch, "best_val_psnr": best, **record,
+                                   **({"init_weights": init_record} if init_record else {})})
 
     def last_step() -> int:
         """The step the run ends at: the budget's plan (until it is made, the cap), else max_steps or
@@ -547,8 +580,9 @@ def _train(experiment: ExperimentConfig, train_scenes: Sequence[Scene], val_scen
                     per_step = dist.slowest(_budget_seconds_per_step(timer, step - first_step, spent))
                     budget.plan(step, budget.elapsed_s + dist.slowest(spent), tc.max_steps, per_step)
                     bar.total = last_step()
-                    bar.write(f"[train] budget {tc.budget_minutes:g} min: {budget.planned_steps} steps planned "
-                              f"({per_step:.3f} s per step measured)", file=sys.stderr)
+                    if dist.is_main:  # every rank plans alike; one says so
+                        bar.write(f"[train] budget {tc.budget_minutes:g} min: {budget.planned_steps} steps planned "
+                                  f"({per_step:.3f} s per step measured)", file=sys.stderr)
                 if tc.ckpt_every_steps is not None and step % tc.ckpt_every_steps == 0:
                     checkpoint(out / "last.pt")
                 if step >= last_step() or _signalled(stop, dist):

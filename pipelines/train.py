@@ -52,7 +52,7 @@ def cmd_train(args: argparse.Namespace) -> int:
                                                 window=exp.model.window, num_windows=exp.train.num_windows)
     out = Path(args.out) if args.out else Path("runs") / exp.name
     summary = run_training(exp, train_scenes, val_scenes, out, args.device, args.resume, progress=not args.quiet,
-                           overwrite=args.overwrite)
+                           overwrite=args.overwrite, init=args.init)
     if summary.get("rank", 0) == 0:  # under torchrun one summary, rank 0's (the others hold no validation)
         print(json.dumps({k: v for k, v in summary.items() if k != "rank"}, indent=2, default=str))
     # stopped by a signal: last.pt is written; the status says which (128 + its number), as a shell does
@@ -73,6 +73,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     resume.add_argument("--overwrite", action="store_true",
                         help="replace the run in --out (its checkpoints, logs and config); without it a folder "
                              "holding a run is refused")
+    p.add_argument("--init", metavar="WEIGHTS",
+                   help="start from these weights instead of a random draw (fine-tuning): a shipped network "
+                        "(lrrep) or a checkpoint; its model section must equal the config's (not with --resume)")
     p.add_argument("--device", default="auto", help="auto (CUDA when present), cpu, cuda, cuda:N or mps")
     add_threads_argument(p)
     p.add_argument("--quiet", action="store_true", help="no progress bars")

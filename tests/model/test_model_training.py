@@ -245,3 +245,28 @@ def test_validation_cadence_fits_the_run(scenes, tmp_path):
     run_training(exp, scenes[:1], scenes[1:2], tmp_path, device="cpu", progress=False)
     rows = list(csv.DictReader((tmp_path / "val_log.csv").open()))
     assert [int(r["step"]) for r in rows] == list(range(2, 21, 2))
+
+
+def test_init_starts_a_run_from_other_weights_of_the_same_network(scenes, tmp_path, capsys):
+    """--init (fine-tuning): the run's first weights are the given checkpoint's, the source is
+    recorded in its checkpoints, and a different network or --resume is refused, naming why."""
+    from model.checkpoint import state_fingerprint
+    from model.training import initial_weights
+    exp = tiny_experiment(max_steps=2, samples_per_epoch=2)
+    run_training(exp, scenes[:1], [], tmp_path / "a", device="cpu", progress=False)
+    source = tmp_path / "a" / "last.pt"
+    state, record = initial_weights(str(source), exp)
+    assert record["weights_sha256"] == state_fingerprint(load_checkpoint(source)["model_state"])
+    # zero steps of training: the weights stay the initial ones, so the run starts exactly there
+    summary = run_training(tiny_experiment(max_steps=1, samples_per_epoch=2, lr=1e-12), scenes[:1], [],
+                           tmp_path / "b", device="cpu", progress=False, init=str(source))
+    assert "starting from the weights of" in capsys.readouterr().err and summary["steps"] == 1
+    after = load_checkpoint(tmp_path / "b" / "last.pt")
+    assert after["extra"]["init_weights"]["weights_sha256"] == record["weights_sha256"]
+    assert all(torch.allclose(after["model_state"][k], v, atol=1e-6) for k, v in state.items())
+    other = ExperimentConfig("test", model=ModelConfig(window=7, num_features=12, num_blocks=1, deform_groups=2),
+                             train=exp.train)
+    with pytest.raises(ValueError, match="num_features 8 -> 12"):
+        run_training(other, scenes[:1], [], tmp_path / "c", device="cpu", progress=False, init=str(source))
+    with pytest.raises(ValueError, match="--resume continues"):
+        run_training(exp, scenes[:1], [], tmp_path / "a", device="cpu", progress=False, init=str(source), resume=True)
