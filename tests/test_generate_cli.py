@@ -1,7 +1,6 @@
 """`generate` and `verify` on the command line: bad values refused by the parser, expected failures
 as one line (exit status 2), `verify`'s exit statuses, and per-scene seeds that do not depend on
 which other scenes are listed."""
-import json
 import os
 import sys
 import types

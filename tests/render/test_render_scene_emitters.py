@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import math
-import shutil
 from pathlib import Path
 
 import numpy as np
@@ -344,7 +343,6 @@ def test_the_readmes_plain_scene_renders_to_the_inverse_square_law() -> None:
     """tests/data/plain_scene (the README's first job): a flat 0.001 W/sr/nm point lamp 1 m above a
     0.5 grey floor gives E = K_m integral(V) 0.001 / 1^2 lux there, and y through the exposure model."""
     from spikesim.render import SceneRenderer
-    from spikesim.render import spectra
 
     plain = Path(__file__).resolve().parents[1] / "data" / "plain_scene" / "scene.xml"
     r = SceneRenderer(plain, spp=4)
