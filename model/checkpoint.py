@@ -15,11 +15,11 @@ import pickle
 import re
 import warnings
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import torch
 
-from spikesim.outputs import atomic_write_with, writing
+from spikesim.outputs import atomic_write_file, writing
 
 from .arch import build_model
 from .config import ExperimentConfig
@@ -68,13 +68,12 @@ def atomic_torch_save(obj: Any, path: str | Path) -> None:
     with writing(path.parent):
         path.parent.mkdir(parents=True, exist_ok=True)
 
-    def write(tmp: Path) -> None:
-        with open(tmp, "wb") as f:
-            torch.save(obj, f)
-            f.flush()
-            os.fsync(f.fileno())
+    def write(f: BinaryIO) -> None:
+        torch.save(obj, f)
+        f.flush()
+        os.fsync(f.fileno())
 
-    atomic_write_with(path, write, suffix=".tmp")
+    atomic_write_file(path, write)
 
 
 def save_checkpoint(path: str | Path, model: torch.nn.Module, experiment: ExperimentConfig,

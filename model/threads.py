@@ -15,16 +15,22 @@ import os
 import torch
 
 
+def _cores() -> int:
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
+def _load_1min() -> float:
+    try:
+        return os.getloadavg()[0]
+    except (OSError, AttributeError):  # no load average on this platform: assume a quiet machine
+        return 0.0
+
+
 def free_cores(cores: int | None = None, load_1min: float | None = None) -> int:
     """Cores not busy with other work: `cores` minus the load average rounded to the nearest
-    whole process, at least 1."""
-    cores = cores if cores is not None else (len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
-                                             else os.cpu_count() or 1)
-    if load_1min is None:
-        try:
-            load_1min = os.getloadavg()[0]
-        except OSError:  # no load average on this platform: assume a quiet machine
-            load_1min = 0.0
+    whole process, at least 1 (both read from the machine when not given)."""
+    cores = _cores() if cores is None else cores
+    load_1min = _load_1min() if load_1min is None else load_1min
     if not math.isfinite(load_1min) or load_1min < 0:
         load_1min = 0.0
     return max(1, cores - int(load_1min + 0.5))
@@ -41,9 +47,9 @@ def set_cpu_threads(requested: int = 0) -> str:
     if requested:
         n, reason = requested, f"{requested} thread(s), as asked"
     else:
-        n = free_cores()
-        load = os.getloadavg()[0] if hasattr(os, "getloadavg") else 0.0
-        reason = (f"{n} thread(s) ({os.cpu_count()} cores, load average {load:.1f}: threads sharing a busy core "
+        cores, load = _cores(), _load_1min()  # read once: the count and the message agree
+        n = free_cores(cores, load)
+        reason = (f"{n} thread(s) ({cores} cores, load average {load:.1f}: threads sharing a busy core "
                   "stall each other; --threads N to choose)")
     torch.set_num_threads(n)
     _chosen.update(threads=n, reason=reason)

@@ -295,13 +295,11 @@ def initial_weights(spec: str, experiment: ExperimentConfig) -> tuple[dict[str, 
     """The weights a fine-tuning run starts from: a shipped network by name (model.pretrained,
     its file checked against the registry) or a checkpoint of this project. Its model section
     must equal the run's (the same network); returns the state and a record of where it came from."""
-    from .checkpoint import load_checkpoint
-    from .config import ExperimentConfig as _Exp
     from .pretrained import PRETRAINED, pretrained_path
 
     path = pretrained_path(spec) if spec in PRETRAINED else Path(spec)
     state = load_checkpoint(path)
-    source = _Exp.from_dict(state["experiment"], where=f"{path} experiment").model
+    source = ExperimentConfig.from_dict(state["experiment"], where=f"{path} experiment").model
     if source != experiment.model:
         differ = [f"{k} {getattr(source, k)!r} -> {getattr(experiment.model, k)!r}"
                   for k in source.to_dict() if getattr(source, k) != getattr(experiment.model, k)]

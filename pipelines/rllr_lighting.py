@@ -133,11 +133,8 @@ def run(args: argparse.Namespace) -> int:
         with outputs.output_file(args.out):  # through the project's output guard, as every command
             outputs.atomic_write_text(args.out, json.dumps(result, indent=1) + "\n")
     if args.save_frames:
-        def save(tmp: Path) -> None:
-            with open(tmp, "wb") as f:  # a file object: np.savez would add .npz to a name
-                np.savez_compressed(f, **frames)
-        with outputs.output_file(args.save_frames):
-            outputs.atomic_write_with(args.save_frames, save)
+        with outputs.output_file(args.save_frames):  # a file object: np.savez would add .npz to a name
+            outputs.atomic_write_file(args.save_frames, lambda f: np.savez_compressed(f, **frames))
     print(markdown(summary))
     return 0
 

@@ -105,11 +105,8 @@ def sha256_file(path: Path, block: int = 1 << 20) -> str:
 
 
 def _write_json(path: Path, data: Any) -> None:
-    """Write JSON atomically: a temporary file beside `path`, then a rename. Both paths must
-    already have passed `inside_root`; the temporary one is checked here."""
-    tmp = inside_root(path.parent, f".{path.name}.part", follow=False)
-    tmp.write_text(json.dumps(data, indent=2, sort_keys=True) + "\n")
-    os.replace(tmp, path)
+    """Write JSON atomically (spikesim.outputs); `path` must already have passed `inside_root`."""
+    outputs.atomic_write_json(path, data, sort_keys=True)
 
 
 @dataclass

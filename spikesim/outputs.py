@@ -27,7 +27,7 @@ import os
 import secrets
 import shutil
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any, BinaryIO, Callable, Iterator
 
 LINK_REFUSED = ("is a symlink; files are not written or deleted through links (remove the link, or choose "
                 "another output folder)")
@@ -129,6 +129,16 @@ def atomic_write_with(path: str | Path, write: Callable[[Path], Any], suffix: st
         tmp.unlink(missing_ok=True)
         raise
     return path
+
+
+def atomic_write_file(path: str | Path, write: Callable[[BinaryIO], Any]) -> Path:
+    """`atomic_write_with` for writers that take an open binary file (np.savez, torch.save,
+    PIL, csv over a buffer): `write(f)` fills the temporary file, which is then renamed."""
+    def fill(tmp: Path) -> None:
+        with open(tmp, "wb") as f:
+            write(f)
+
+    return atomic_write_with(path, fill)
 
 
 def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
@@ -245,5 +255,5 @@ def discard_empty(folders: list[Path]) -> None:
 
 
 __all__ = ["LINK_REFUSED", "inside", "writable", "check_not_link", "naming", "writing", "new_temp_beside",
-           "atomic_write_with", "atomic_write_bytes", "atomic_write_text", "atomic_write_json", "append_text",
+           "atomic_write_with", "atomic_write_file", "atomic_write_bytes", "atomic_write_text", "atomic_write_json", "append_text",
            "make_dirs", "remove", "missing_folders", "output_folder", "output_file", "discard_empty"]

@@ -32,13 +32,13 @@ import time
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, BinaryIO, Callable, Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
 from spikesim._optional import require
 from spikesim.config_io import read_json_object
-from spikesim.outputs import atomic_write_with, make_dirs, output_folder, writable
+from spikesim.outputs import atomic_write_file, make_dirs, output_folder, writable
 from spikesim.render_settings import RenderSettings, render_knob
 
 log = logging.getLogger(__name__)
@@ -509,7 +509,7 @@ def write_csv(rows: Sequence[dict[str, Any]], path: Path) -> None:
     wr = csv.DictWriter(text, fieldnames=COLUMNS, extrasaction="ignore")
     wr.writeheader()
     wr.writerows(rows)
-    _write_atomic(path, lambda f: f.write(text.getvalue().encode()))
+    atomic_write_file(path, lambda f: f.write(text.getvalue().encode()))
 
 
 def markdown_table(rows: Sequence[dict[str, Any]]) -> str:
@@ -579,7 +579,7 @@ def plot(rows: Sequence[dict[str, Any]], path: Path) -> None:
     plt.close(fig)
     from PIL import Image  # a 64-colour palette keeps the figure small for the docs
     image = Image.open(buf).convert("RGB").quantize(64)
-    _write_atomic(path, lambda f: image.save(f, format="PNG", optimize=True))
+    atomic_write_file(path, lambda f: image.save(f, format="PNG", optimize=True))
 
 
 REPORT_FILES = ("tradeoff.csv", "tradeoff.md", "tradeoff.png")
@@ -594,7 +594,7 @@ def write_report(rows: Sequence[dict[str, Any]], out: Path, images: Path | None 
         writable(images, "tradeoff_pareto.png")
     with output_folder(out):
         write_csv(rows, out / "tradeoff.csv")
-        _write_atomic(out / "tradeoff.md", lambda f: f.write(markdown_table(rows).encode()))
+        atomic_write_file(out / "tradeoff.md", lambda f: f.write(markdown_table(rows).encode()))
         if rows:
             plot(rows, out / "tradeoff.png")
     if rows and images is not None:
@@ -602,23 +602,14 @@ def write_report(rows: Sequence[dict[str, Any]], out: Path, images: Path | None 
             plot(rows, images / "tradeoff_pareto.png")
 
 
-# ---- cache files: written whole (temporary file, then rename), read with errors naming the file ----
-def _write_atomic(path: Path, write: Callable[[BinaryIO], Any]) -> None:
-    """An interrupted study leaves the old file or the new one, never half of one; a link at
-    `path` is refused and an OS error names `path` (spikesim.outputs)."""
-    def fill(tmp: Path) -> None:
-        with open(tmp, "wb") as f:
-            write(f)
-
-    atomic_write_with(path, fill)
-
-
+# ---- cache files: written whole (spikesim.outputs: temporary file, then rename; an interrupted study
+# leaves the old file or the new one), read with errors naming the file ----
 def _write_json(path: Path, obj: Any) -> None:
-    _write_atomic(path, lambda f: f.write((json.dumps(_jsonable(obj), indent=2) + "\n").encode()))
+    atomic_write_file(path, lambda f: f.write((json.dumps(_jsonable(obj), indent=2) + "\n").encode()))
 
 
 def _save_npz(path: Path, **arrays: np.ndarray) -> None:
-    _write_atomic(path, lambda f: np.savez_compressed(f, **arrays))
+    atomic_write_file(path, lambda f: np.savez_compressed(f, **arrays))
 
 
 def _read_json(path: Path) -> dict[str, Any]:

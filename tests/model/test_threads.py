@@ -23,9 +23,10 @@ def test_set_cpu_threads_uses_a_given_count_and_restores(monkeypatch):
     try:
         assert set_cpu_threads(1).startswith("1 thread(s), as asked")
         assert torch.get_num_threads() == 1
-        monkeypatch.setattr("model.threads.free_cores", lambda: 1)
+        monkeypatch.setattr("model.threads._cores", lambda: 2)
+        monkeypatch.setattr("model.threads._load_1min", lambda: 1.3)  # one other busy process
         reason = set_cpu_threads(0)
-        assert torch.get_num_threads() == 1 and "load average" in reason and "--threads" in reason
+        assert torch.get_num_threads() == 1 and "2 cores, load average 1.3" in reason and "--threads" in reason
         from model.threads import describe_threads
         assert describe_threads() == reason
         torch.set_num_threads(2)
