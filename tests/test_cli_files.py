@@ -46,7 +46,7 @@ def test_cache_files_are_replaced_whole(tmp_path):
         raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
-        tradeoff._write_atomic(path, interrupted)
+        tradeoff.atomic_write_file(path, interrupted)  # the writer the study's caches use (spikesim.outputs)
     assert json.loads(path.read_text()) == {"render_s": 1.0}
     assert [p.name for p in tmp_path.iterdir()] == ["reference.json"]  # no .part left behind
 
