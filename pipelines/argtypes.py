@@ -11,6 +11,8 @@ import math
 import os
 from pathlib import Path
 
+from spikesim.camera import CAMERA_PRESETS
+
 
 def _number(text: str, kind: type) -> float | int:
     try:
@@ -76,11 +78,8 @@ def config_file(text: str) -> Path:
     return p
 
 
-CAMERA_PRESETS = ("realistic", "noiseless")
-
-
 def camera_spec(text: str) -> str | Path:
-    """--camera: a built-in camera (realistic, noiseless) or a JSON/TOML camera config file."""
+    """--camera: a built-in camera (realistic, measured, noiseless) or a JSON/TOML camera config file."""
     return text if text in CAMERA_PRESETS else config_file(text)
 
 
@@ -88,10 +87,10 @@ def load_camera(spec: str | Path | None):
     """The SpikeCamera a --camera value names (None: the realistic one)."""
     from spikesim.camera import SpikeCamera
 
-    if spec is None or spec == "realistic":
+    if spec is None:
         return SpikeCamera.realistic()
-    if spec == "noiseless":
-        return SpikeCamera.noiseless()
+    if spec in CAMERA_PRESETS:
+        return SpikeCamera.preset(spec)
     return SpikeCamera.from_file(spec)
 
 

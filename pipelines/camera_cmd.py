@@ -2,6 +2,7 @@
 
     spikesim camera --write mine.toml                  # every field, its unit and the published default
     spikesim camera --write mine.toml --preset noiseless
+    spikesim camera --write real.toml --preset measured  # plus the terms measured on a real recording
     spikesim camera mine.toml                          # check a camera file: the camera it describes
 
 Edit the written file and pass it as `--camera mine.toml` to simulate, generate, demo or golden.
@@ -14,6 +15,8 @@ import sys
 from pathlib import Path
 
 from pipelines.argtypes import camera_spec, load_camera, output_file
+from spikesim.camera import CAMERA_PRESETS
+from spikesim.camera import CAMERA_PRESETS
 from spikesim import outputs
 
 
@@ -40,10 +43,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("camera", help="write a commented camera file to start from, or check one",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("file", nargs="?", type=camera_spec, default="realistic",
-                   help="a camera file to check (or realistic / noiseless): prints the camera it describes")
+                   help="a camera file to check (or realistic / measured / noiseless): prints the camera it describes")
     p.add_argument("--write", type=output_file, metavar="FILE.toml",
                    help="write every field with its unit, meaning and published default")
-    p.add_argument("--preset", choices=["realistic", "noiseless"], default="realistic",
+    p.add_argument("--preset", choices=list(CAMERA_PRESETS), default="realistic",
                    help="with --write: the values to write (default: realistic, the published magnitudes)")
     p.add_argument("--overwrite", action="store_true", help="with --write: replace an existing file")
     p.set_defaults(func=run)

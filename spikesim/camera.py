@@ -17,6 +17,9 @@ from pathlib import Path
 from typing import Any
 
 SHOT_NOISE_MODELS = ("off", "gaussian", "poisson")
+#: The built-in cameras: the published magnitudes, the published plus the terms measured on a
+#: real recording, and the ideal pixel.
+CAMERA_PRESETS = ("realistic", "measured", "noiseless")
 
 #: Irradiance above this many expected spikes per step is bounded to it at the sensor's input.
 #: A pixel saturates at one spike per step, so any y above ~2 already fires at every step (the
@@ -40,6 +43,30 @@ NOISE_TERMS: dict[str, Any] = {
     "shot_noise": "off",
     "reset_loss": 0.0,
     "random_initial_state": False,
+    "row_gain_spread": 0.0,
+    "column_gain_spread": 0.0,
+    "outlier_pixel_fraction": 0.0,
+    "outlier_gain_spread": 0.0,
+}
+
+#: Terms added after the first camera (measured on a real recording, docs/sensor.md "A camera
+#: like the real one"). A camera records them only when they are on, so every camera made
+#: without them keeps the dictionary, and the dataset identity, it had before they existed.
+LATER_TERMS = ("row_gain_spread", "column_gain_spread", "outlier_pixel_fraction", "outlier_gain_spread")
+
+#: The terms measured on the UHSR recording of a real PKU spike camera (250 x 250, 200 steps,
+#: 0.031 spikes per step; docs/sensor.md "A camera like the real one"): the same no-reference
+#: statistics (flat-region per-pixel rate spread, robust and plain, its tail beyond 30 %, the spread
+#: of row and column medians) measured on the recording and on a simulated twin of it (the realistic
+#: camera under the recording's own smoothed rate map), and these values chosen so the twin matches
+#: the recording within the statistics' seed-to-seed noise. Hot and dead pixels (2 and 1 of 62,500)
+#: and the inter-spike-interval shape (CV 0.037, as the realistic camera) needed no new term.
+MEASURED_TERMS: dict[str, float] = {
+    "gain_spread": 0.077,
+    "row_gain_spread": 0.015,
+    "column_gain_spread": 0.010,
+    "outlier_pixel_fraction": 0.12,
+    "outlier_gain_spread": 0.40,
 }
 
 
@@ -95,6 +122,18 @@ class SpikeCamera:
     """Start each accumulator uniform in [0, threshold) instead of empty."""
     precision: str = "float32"
     """Accumulator precision: "float32" (fast) or "float64"."""
+    row_gain_spread: float = 0.0
+    """Fixed-pattern gain of each row (shared readout line), standard deviation; 0 in the published
+    camera, 0.015 measured on a real recording (the `measured` preset)."""
+    column_gain_spread: float = 0.0
+    """Fixed-pattern gain of each column (column amplifier), standard deviation; 0 in the published
+    camera, 0.010 measured on a real recording (the `measured` preset)."""
+    outlier_pixel_fraction: float = 0.0
+    """Fraction of pixels whose gain is an outlier (the heavy tail of a real sensor's rate spread:
+    4 % of flat-region pixels 30 % off their neighbours, against 0.3 % simulated); 0.12 measured."""
+    outlier_gain_spread: float = 0.0
+    """Standard deviation of an outlier pixel's extra gain factor (a normal around 1, clipped at
+    0); 0.40 measured on a real recording (the `measured` preset)."""
 
     def __post_init__(self) -> None:
         _check_int("height", self.height)
@@ -104,14 +143,20 @@ class SpikeCamera:
             raise ValueError(f"readout_period_s={self.readout_period_s} s is not a sensor readout period (> 1 s)")
         _check_positive("threshold_electrons", self.threshold_electrons)
         for name in ("dark_current_hz", "dark_current_spread", "gain_spread", "threshold_mismatch",
-                     "threshold_offset", "comparator_noise", "reset_loss"):
+                     "threshold_offset", "comparator_noise", "reset_loss", *LATER_TERMS):
             _check_nonnegative(name, getattr(self, name))
         # Spreads above these make the drawn pixel parameters meaningless (negative gains or
         # thresholds many sigma away); reject rather than clip silently.
         for name, limit in (("gain_spread", 0.3), ("threshold_mismatch", 0.2), ("threshold_offset", 0.2),
-                            ("comparator_noise", 0.5), ("dark_current_spread", 5.0)):
+                            ("comparator_noise", 0.5), ("dark_current_spread", 5.0),
+                            ("row_gain_spread", 0.3), ("column_gain_spread", 0.3), ("outlier_gain_spread", 1.0)):
             if getattr(self, name) > limit:
                 raise ValueError(f"{name}={getattr(self, name)} is above the supported maximum {limit}")
+        if self.outlier_pixel_fraction > 1.0:
+            raise ValueError(f"outlier_pixel_fraction={self.outlier_pixel_fraction} is a fraction of the pixels (0..1)")
+        if (self.outlier_pixel_fraction > 0) != (self.outlier_gain_spread > 0):
+            raise ValueError("outlier_pixel_fraction and outlier_gain_spread go together: both 0 (off) or both > 0, got "
+                             f"{self.outlier_pixel_fraction} and {self.outlier_gain_spread}")
         if self.reset_loss >= 1.0:
             raise ValueError(f"reset_loss={self.reset_loss} must be below 1 (it is a fraction of one step)")
         if self.dark_current_hz * self.readout_period_s >= 1.0:
@@ -155,6 +200,12 @@ class SpikeCamera:
         return cls(**overrides)
 
     @classmethod
+    def measured(cls, **overrides: Any) -> "SpikeCamera":
+        """The realistic camera plus the fixed-pattern terms measured on a real recording
+        (MEASURED_TERMS)."""
+        return cls(**{**MEASURED_TERMS, **overrides})
+
+    @classmethod
     def noiseless(cls, **overrides: Any) -> "SpikeCamera":
         """The ideal integrate-and-fire pixel: no noise, empty accumulators at step 0."""
         return cls(**{**NOISE_TERMS, **overrides})
@@ -164,25 +215,40 @@ class SpikeCamera:
         unknown = [t for t in terms if t not in NOISE_TERMS]
         if unknown:
             raise ValueError(f"unknown noise term(s) {unknown}; known: {sorted(NOISE_TERMS)}")
-        return dataclasses.replace(self, **{t: NOISE_TERMS[t] for t in terms})
+        off = {t: NOISE_TERMS[t] for t in terms}
+        for pair in (("outlier_pixel_fraction", "outlier_gain_spread"),):  # one term, two numbers
+            if off.keys() & set(pair):
+                off.update({t: NOISE_TERMS[t] for t in pair})
+        return dataclasses.replace(self, **off)
 
     def replace(self, **changes: Any) -> "SpikeCamera":
         return dataclasses.replace(self, **changes)
 
     # ---- files --------------------------------------------------------------------------------
     def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
+        out = dataclasses.asdict(self)
+        for name in LATER_TERMS:  # recorded only when on (LATER_TERMS)
+            if out[name] == NOISE_TERMS[name]:
+                del out[name]
+        return out
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> "SpikeCamera":
         if "preset" in data:
             data = dict(data)
             preset = data.pop("preset")
-            if preset not in ("realistic", "noiseless"):
-                raise ValueError(f"unknown camera preset {preset!r}; expected 'realistic' or 'noiseless'")
-            base = cls.noiseless() if preset == "noiseless" else cls.realistic()
+            if preset not in CAMERA_PRESETS:
+                raise ValueError(f"unknown camera preset {preset!r}; expected one of {CAMERA_PRESETS}")
+            base = cls.preset(preset)
             return base.replace(**_known_fields(cls, data))
         return cls(**_known_fields(cls, data))
+
+    @classmethod
+    def preset(cls, name: str) -> "SpikeCamera":
+        """A built-in camera by name (CAMERA_PRESETS)."""
+        if name not in CAMERA_PRESETS:
+            raise ValueError(f"unknown camera preset {name!r}; expected one of {CAMERA_PRESETS}")
+        return getattr(cls, name)()
 
     @classmethod
     def from_file(cls, path: str | Path) -> "SpikeCamera":
@@ -235,4 +301,4 @@ def _check_nonnegative(name: str, value: Any) -> None:
         raise ValueError(f"{name} must be a finite number >= 0, got {_shown(value)}")
 
 
-__all__ = ["SpikeCamera", "NOISE_TERMS", "SHOT_NOISE_MODELS", "PRECISIONS", "Y_MAX", "MAX_SIDE"]
+__all__ = ["SpikeCamera", "NOISE_TERMS", "LATER_TERMS", "MEASURED_TERMS", "CAMERA_PRESETS", "SHOT_NOISE_MODELS", "PRECISIONS", "Y_MAX", "MAX_SIDE"]

@@ -44,7 +44,7 @@ def _toml_value(value: Any) -> str:
 
 def camera_toml(camera: SpikeCamera | None = None, preset: str = "realistic") -> str:
     """The commented TOML text of `camera` (default: the `preset`'s), every field present."""
-    camera = camera or (SpikeCamera.noiseless() if preset == "noiseless" else SpikeCamera.realistic())
+    camera = camera or SpikeCamera.preset(preset)
     default = SpikeCamera()
     docs = field_docs()
     lines = ["# A spike camera for spikesim (SpikeCamera fields; docs/sensor.md explains each term).",

@@ -64,6 +64,23 @@ def draw_pixel_parameters(camera: SpikeCamera, seed: int) -> PixelParameters:
         thr = 1.0 + rng.normal(0.0, 1.0, n) * camera.threshold_mismatch + rng.normal(0.0, 1.0, n) * camera.threshold_offset
         threshold = np.clip(thr, *_THRESHOLD_RANGE).astype(dtype)
 
+    # Terms measured on a real recording (SpikeCamera.measured), drawn after every earlier term so a
+    # camera without them draws exactly the maps it drew before they existed. They multiply the
+    # pixel gain: a row's readout line, a column's amplifier, and a heavy tail of outlier pixels.
+    extra = np.ones(n)
+    if camera.row_gain_spread > 0:
+        rows = rng.normal(1.0, camera.row_gain_spread, camera.height)
+        extra *= np.repeat(rows, camera.width)
+    if camera.column_gain_spread > 0:
+        cols = rng.normal(1.0, camera.column_gain_spread, camera.width)
+        extra *= np.tile(cols, camera.height)
+    if camera.outlier_pixel_fraction > 0:
+        outlier = rng.random(n) < camera.outlier_pixel_fraction
+        extra *= np.where(outlier, rng.normal(1.0, camera.outlier_gain_spread, n), 1.0)
+    if camera.row_gain_spread > 0 or camera.column_gain_spread > 0 or camera.outlier_pixel_fraction > 0:
+        base = gain.astype(np.float64) if gain is not None else 1.0
+        gain = np.clip(base * extra, 0.0, None).astype(dtype)
+
     if camera.random_initial_state:
         init_rng = np.random.Generator(np.random.Philox(np.random.SeedSequence([int(seed), _STREAM_INITIAL_STATE])))
         upper = threshold if threshold is not None else 1.0

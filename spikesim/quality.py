@@ -50,6 +50,9 @@ def noise_effect(camera: SpikeCamera, term: str, y: float, window: int = 41) -> 
     - dark_current_hz: d W of c (additive dark charge)            -> d / (y + d)
     - dark_current_spread: its pixel-to-pixel CV times that       -> cv d / (y + d)
     - gain_spread (PRNU): rate g y + d, g ~ 1 +- sigma_g          -> sigma_g y / (y + d)
+    - row_gain_spread / column_gain_spread: the same, per row or column
+    - outlier_pixel_fraction / _gain_spread: a fraction f of pixels with gain 1 +- sigma_o
+                                                                  -> sqrt(f) sigma_o y / (y + d)
     - threshold_mismatch / _offset: rate scales as 1 / theta      -> sigma
     - comparator_noise: each comparison moves by sigma_c thresholds, so a window's count moves by
       about sigma_c spikes at each of its two edges               -> sqrt(2) sigma_c / c
@@ -73,8 +76,10 @@ def noise_effect(camera: SpikeCamera, term: str, y: float, window: int = 41) -> 
         return d / (y + d)
     if term == "dark_current_spread":
         return camera.dark_current_spread * d / (y + d)
-    if term == "gain_spread":
-        return camera.gain_spread * y / (y + d) if y + d > 0 else 0.0
+    if term in ("gain_spread", "row_gain_spread", "column_gain_spread"):
+        return float(getattr(camera, term)) * y / (y + d)
+    if term in ("outlier_pixel_fraction", "outlier_gain_spread"):  # rms over pixels: sqrt(f) sigma_o
+        return math.sqrt(camera.outlier_pixel_fraction) * camera.outlier_gain_spread * y / (y + d)
     if term in ("threshold_mismatch", "threshold_offset"):
         return float(getattr(camera, term))
     if term == "comparator_noise":

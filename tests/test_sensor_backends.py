@@ -23,6 +23,7 @@ DETERMINISTIC = {
     "dark+fixed-patterns": SpikeCamera.realistic(height=H, width=W, shot_noise="off", comparator_noise=0.0),
     "reset-loss": SpikeCamera.noiseless(height=H, width=W, reset_loss=0.05, random_initial_state=True),
     "float64": SpikeCamera.realistic(height=H, width=W, shot_noise="off", comparator_noise=0.0, precision="float64"),
+    "measured-fixed-patterns": SpikeCamera.measured(height=H, width=W, shot_noise="off", comparator_noise=0.0),
 }
 
 
