@@ -11,10 +11,10 @@ import sys
 from pathlib import Path
 
 from pipelines.argtypes import (add_device_argument, add_light_power_factor_argument, camera_spec, existing_file,
-                                load_camera, nonnegative_int, positive_int)
+                                load_camera, nonnegative_int, positive_float, positive_int)
 from spikesim._drjit import resolve_device
 from spikesim.dataset import check_scene_name
-from spikesim.generation.plan import DARKENINGS, LOG_DARKENING_MIN
+from spikesim.generation.plan import CONTENTS, DARKENINGS, LOG_DARKENING_MIN
 from spikesim.generation import (PRESETS, bundled_scene, generate, percent, plan_llr, plan_rllr, plan_user,
                                  saturation_summary)
 from spikesim.generation.run import Terminated
@@ -32,6 +32,17 @@ def _llr_scene(text: str) -> str:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
+def _pixel_scale(text: str) -> float:
+    """argparse type: a pixel scale in (0, 1]."""
+    try:
+        v = float(text)
+    except ValueError:
+        v = float("nan")
+    if not 0 < v <= 1:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a pixel scale in (0, 1]")
+    return v
+
+
 def _plain_name(text: str) -> str:
     """argparse type: a plain name (a light, a scene folder), never a path."""
     try:
@@ -43,7 +54,7 @@ def _plain_name(text: str) -> str:
 
 # Options that only some kinds take: given to another kind, they would be silently ignored.
 _ONLY_FOR = {
-    "scenes": ("llr",), "count": ("rllr",), "pattern": ("rllr",), "darkening": ("rllr",), "steps": ("rllr", "scene"), "gt_stride": ("rllr", "scene"),
+    "scenes": ("llr",), "count": ("rllr",), "pattern": ("rllr",), "darkening": ("rllr",), "content": ("rllr",), "scales": ("rllr",), "lamps_lux": ("rllr",), "steps": ("rllr", "scene"), "gt_stride": ("rllr", "scene"),
     "windows": ("llr", "scene"), "xml": ("scene",), "motion": ("scene",), "lights": ("scene",),
     "light": ("scene",), "light_power_factor": ("scene",), "name": ("scene",),
 }
@@ -86,7 +97,9 @@ def run(args: argparse.Namespace) -> int:
     elif args.kind == "rllr":
         jobs = plan_rllr(preset, seed=args.seed, camera=camera, count=args.count,
                          source="pattern" if args.pattern else "random", quality=args.quality,
-                         darkening=args.darkening or "uniform")
+                         darkening=args.darkening or "uniform", content=args.content or "procedural",
+                         scales=tuple(args.scales) if args.scales else (1.0,),
+                         lamps_lux=None if args.lamps_lux is None else tuple(args.lamps_lux))
     else:
         jobs = plan_user(str(args.xml), args.light or "normal", preset, seed=args.seed,
                          motion=None if args.motion is None else str(args.motion),
@@ -170,6 +183,16 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--darkening", choices=DARKENINGS,
                    help="how each RLLR scene's light power factor is drawn: uniform in (0, 1) (the paper's, the "
                         f"default) or log-uniform in [{LOG_DARKENING_MIN}, 1) (as many scenes per decade of light)")
+    p.add_argument("--content", choices=CONTENTS,
+                   help="what RLLR's random scenes are made of: procedural (value noise, stripes, checkers, discs; "
+                        "30-250 lx lamps; the default, the first shipped model's data) or natural (dead-leaves "
+                        "textures, package photographs, image-textured cards, camera pans and shake; 20-1000 lx lamps)")
+    p.add_argument("--scales", type=_pixel_scale, nargs="+", metavar="S",
+                   help="RLLR pixel scales: each scene is rendered at one of them, drawn at random, times the preset's "
+                        "height and width with the same field of view (e.g. 1 0.5 0.25; default 1)")
+    p.add_argument("--lamps-lux", type=positive_float, nargs=2, metavar=("LOW", "HIGH"),
+                   help="RLLR lamps' illuminance at the subject before darkening, lux, drawn log-uniformly (default: "
+                        "the content's, 30-250 procedural, 20-1000 natural)")
     p.add_argument("--pattern", action="store_true", help="RLLR from the built-in pattern instead of random 3D scenes")
     p.add_argument("--xml", type=existing_file, help="scene XML (generate scene)")
     p.add_argument("--motion", type=existing_file, help="motion file (default: motion.json beside the XML)")
@@ -188,7 +211,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "the preset's RLLR stride)")
     p.add_argument("--gt-spp", type=positive_int, help="samples per pixel of ground-truth renders")
     p.add_argument("--camera", type=camera_spec,
-                   help="realistic, noiseless or a JSON/TOML camera file (default: realistic); a file's height and "
+                   help="realistic, measured (with the terms measured on a real recording), noiseless or a JSON/TOML camera file (default: realistic); a file's height and "
                         "width are used above the preset and a scene's film, below --render-settings and the flags")
     p.add_argument("--render-settings", type=existing_file, metavar="FILE",
                    help="JSON/TOML file of render settings (spp, gt_spp, variant, keyframe_every, resolution); "

@@ -192,7 +192,17 @@ def build_random_scene(seed: int, folder: str | Path, resolution: tuple[int, int
     (folder / "scene.xml").write_text(xml)
     (folder / "motion.json").write_text(json.dumps({"version": 1, "description": f"random motions, seed {seed}",
                                                     "start_time_s": 0.0, "objects": objects}, indent=1))
-    subject = [0.0, 0.0, 1.0]
+    lights = random_lamps(rng, lo_lux, hi_lux)
+    (folder / "lights.json").write_text(json.dumps(lights, indent=1))
+    return folder / "scene.xml", folder / "motion.json", folder / "lights.json", "normal"
+
+
+def random_lamps(rng: np.random.Generator, lo_lux: float, hi_lux: float,
+                 subject: tuple[float, float, float] = (0.0, 0.0, 1.0)) -> dict:
+    """The lights file of a random scene: 1-2 lamps (rectangle panel, point or spot) of random
+    spectra (SPECTRA), together giving an illuminance at `subject` drawn log-uniformly from
+    [lo_lux, hi_lux] with one draw."""
+    subject = [float(v) for v in subject]
     lux = float(np.exp(rng.uniform(np.log(lo_lux), np.log(hi_lux))))
     n_lamps = int(rng.integers(1, 3))
     emitters = []
@@ -214,8 +224,7 @@ def build_random_scene(seed: int, folder: str | Path, resolution: tuple[int, int
                          "reference": f"log-uniform {lo_lux:g}-{hi_lux:g} lx at the subject (dim to ordinary indoor "
                                       "light, kept below the sensor's saturation: scenes/random_scene.py)",
                          "subject": {"at": subject, "normal": [0, -1, 0]}, "emitters": emitters}}
-    (folder / "lights.json").write_text(json.dumps(lights, indent=1))
-    return folder / "scene.xml", folder / "motion.json", folder / "lights.json", "normal"
+    return lights
 
 
-__all__ = ["build_random_scene", "SPECTRA", "LAMPS_LUX", "LAMPS_LUX_BEFORE_STUDY", "GENERATOR_VERSION"]
+__all__ = ["build_random_scene", "random_lamps", "SPECTRA", "LAMPS_LUX", "LAMPS_LUX_BEFORE_STUDY", "GENERATOR_VERSION"]

@@ -87,6 +87,11 @@ def job_inputs(source: dict[str, Any]) -> list[JobInput]:
     kind = source.get("type")
     if kind == "scene":
         out = scene_file_inputs(source["scene"], source.get("motion"), source.get("lights"))
+    elif kind == "random" and source.get("content", "procedural") == "natural":
+        from scenes.natural_scene import NATURAL_GENERATOR_VERSION
+        from scenes.natural_textures import photo_version
+        out = [JobInput("scenes/natural_scene.py", "generator",
+                        f"version {NATURAL_GENERATOR_VERSION}, scikit-image {photo_version()}")]
     elif kind == "random":
         from scenes.random_scene import GENERATOR_VERSION
         out = [JobInput("scenes/random_scene.py", "generator", f"version {GENERATOR_VERSION}")]

@@ -42,7 +42,15 @@ class _FrameSource:
         else:
             from spikesim.camera import SpikeCamera
             from spikesim.render import SceneRenderer
-            if src["type"] == "random":
+            self._content = None
+            if src["type"] == "random" and src.get("content", "procedural") == "natural":
+                from scenes.natural_scene import NATURAL_LAMPS_LUX, build_natural_scene
+                scene, motion, lights, light = build_natural_scene(
+                    int(src["scene_seed"]), workdir / "random_scene", resolution=(h, w),
+                    lamps_lux=tuple(src.get("lamps_lux", NATURAL_LAMPS_LUX)),
+                    readout_period_s=float(job.camera["readout_period_s"]))
+                self._content = workdir / "random_scene" / "content.json"
+            elif src["type"] == "random":
                 from scenes.random_scene import LAMPS_LUX_BEFORE_STUDY, build_random_scene
                 scene, motion, lights, light = build_random_scene(
                     int(src["scene_seed"]), workdir / "random_scene",
@@ -105,6 +113,9 @@ class _FrameSource:
         if self._renderer is None:
             return {"pattern": dataclasses.asdict(self._pattern)}
         out = self._renderer.describe()
+        if getattr(self, "_content", None) is not None:  # a natural scene: its textures' sources and licences
+            import json
+            out["content"] = json.loads(self._content.read_text())
         if self.scale != 1.0 and "light" in out:
             out["light"] = {**scale_light_amounts(out["light"], self.scale), "light_power_factor": self.scale}
         return out

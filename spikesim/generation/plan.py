@@ -5,6 +5,8 @@ folder (spikesim/dataset.py documents the layout); spikesim.generation.run runs 
 """
 from __future__ import annotations
 
+import math
+
 import dataclasses
 import hashlib
 import json
@@ -247,16 +249,58 @@ def rllr_gt_steps(num_steps: int, stride: int) -> tuple[int, ...]:
     return tuple(range((WINDOW // 2) % stride, num_steps, stride))
 
 
+#: What RLLR's random scenes are made of: "procedural" (scenes/random_scene.py, value noise,
+#: stripes, checkers and discs at 30-250 lx; the content of the first shipped model) or "natural"
+#: (scenes/natural_scene.py: dead leaves and package photographs, camera motion, 20-1000 lx).
+CONTENTS = ("procedural", "natural")
+#: The smallest side of a scene at a reduced pixel scale: the training crop (32) must fit.
+MIN_SCALED_SIDE = 32
+
+
+def scaled_size(height: int, width: int, scale: float) -> tuple[int, int]:
+    """The frame of a scene rendered at `scale` times the preset's pixels along each side, with the
+    same field of view: the same scene seen by a sensor with fewer, larger pixels."""
+    if not (isinstance(scale, (int, float)) and 0 < scale <= 1):
+        raise ValueError(f"pixel scale {scale!r}: expected a number in (0, 1]")
+    h, w = round(height * scale), round(width * scale)
+    if min(h, w) < MIN_SCALED_SIDE:
+        raise ValueError(f"pixel scale {scale:g} makes {height} x {width} into {h} x {w}: below {MIN_SCALED_SIDE} "
+                         "pixels a side, smaller than a training crop")
+    return h, w
+
+
 def plan_rllr(preset: Preset, seed: int = 0, camera: Any | None = None, count: int | None = None,
-              source: str = "random", quality: str | None = None, darkening: str = "uniform") -> list[SceneJob]:
+              source: str = "random", quality: str | None = None, darkening: str = "uniform",
+              content: str = "procedural", scales: tuple[float, ...] = (1.0,),
+              lamps_lux: tuple[float, float] | None = None) -> list[SceneJob]:
     """RLLR: random scenes, each darkened by a random factor (paper, "RLLR": uniform in (0, 1);
     DARKENINGS for the other choice). A random scene's job records its lamps' range
     (scenes.random_scene.LAMPS_LUX), so scenes built with another range are not taken for finished
-    ones; the factor is part of each job, so a dataset drawn another way is never taken for this one."""
+    ones; the factor is part of each job, so a dataset drawn another way is never taken for this one.
+    `content` picks the scene builder (CONTENTS); with more than one of `scales` each scene draws
+    its pixel scale from them (scaled_size), from a random stream of its own so the darkening
+    factors and scenes of a one-scale plan are unchanged. `lamps_lux` replaces the content's lamp
+    range (lux at the subject, before darkening)."""
     from scenes.random_scene import LAMPS_LUX
     if darkening not in DARKENINGS:
         raise ValueError(f"darkening={darkening!r}; expected one of {DARKENINGS}")
+    if content not in CONTENTS:
+        raise ValueError(f"content={content!r}; expected one of {CONTENTS}")
+    if source != "random" and content != "procedural":
+        raise ValueError("content applies to random scenes, not the built-in pattern")
+    if lamps_lux is not None:
+        lo, hi = (float(v) for v in lamps_lux)
+        if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo <= hi):
+            raise ValueError(f"lamps_lux={lamps_lux!r}: expected 0 < low <= high, finite (lux at the subject)")
+        if source != "random":
+            raise ValueError("lamps_lux applies to random scenes, not the built-in pattern")
+    scales = tuple(float(v) for v in scales)
+    if not scales:
+        raise ValueError("scales: give at least one pixel scale")
+    for v in scales:
+        scaled_size(preset.height, preset.width, v)  # validates
     rng = np.random.default_rng(np.random.SeedSequence([seed, 7]))
+    scale_rng = np.random.default_rng(np.random.SeedSequence([seed, 11]))
     n = preset.rllr_scenes if count is None else count
     gt = rllr_gt_steps(preset.rllr_steps, preset.rllr_gt_stride)
     jobs = []
@@ -264,10 +308,24 @@ def plan_rllr(preset: Preset, seed: int = 0, camera: Any | None = None, count: i
         factor = darkening_factor(rng, darkening)
         name = f"rllr_{i:04d}"
         s = scene_seed(seed, name, source)
-        src = ({"type": "random", "index": i, "scene_seed": s, "lamps_lux": list(LAMPS_LUX)} if source == "random"
-               else {"type": "pattern", "peak_y": 0.3, "pattern_seed": s})
-        jobs.append(SceneJob(name=name, source=src, camera=_camera_dict(preset, camera),
-                             render=_render_dict(preset, s), num_steps=preset.rllr_steps, gt_steps=gt,
+        if source != "random":
+            src = {"type": "pattern", "peak_y": 0.3, "pattern_seed": s}
+        elif content == "natural":
+            from scenes.natural_scene import NATURAL_LAMPS_LUX
+            src = {"type": "random", "index": i, "scene_seed": s, "lamps_lux": list(NATURAL_LAMPS_LUX),
+                   "content": "natural"}
+        else:
+            src = {"type": "random", "index": i, "scene_seed": s, "lamps_lux": list(LAMPS_LUX)}
+        if lamps_lux is not None:
+            src["lamps_lux"] = [float(v) for v in lamps_lux]
+        scale = scales[0] if len(scales) == 1 else float(scale_rng.choice(scales))
+        h, w = scaled_size(preset.height, preset.width, scale)
+        cam = _camera_dict(preset, camera)
+        cam.update(height=h, width=w)
+        render = _render_dict(preset, s)
+        render["resolution"] = [h, w]
+        jobs.append(SceneJob(name=name, source=src, camera=cam,
+                             render=render, num_steps=preset.rllr_steps, gt_steps=gt,
                              light_power_factor=factor, seed=s, keyframe_every=preset.keyframe_every,
                              quality=quality if source == "random" else None))
     return jobs
