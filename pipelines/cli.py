@@ -25,6 +25,7 @@ _SUBCOMMANDS = (
     "pipelines.reconstruct",
     "pipelines.panel",
     "pipelines.tradeoff",
+    "pipelines.sweep",
     "pipelines.gpu_campaign_cmd",
 )
 
@@ -36,7 +37,7 @@ _COMMAND_MODULE = {
     "bench": "pipelines.bench", "golden": "pipelines.golden_stats", "camera": "pipelines.camera_cmd", "generate": "pipelines.generate",
     "verify": "pipelines.generate", "render": "pipelines.render_cmd", "train": "pipelines.train",
     "evaluate": "pipelines.evaluate", "compare": "pipelines.compare", "reconstruct": "pipelines.reconstruct", "tradeoff": "pipelines.tradeoff",
-    "panel": "pipelines.panel", "gpu-campaign": "pipelines.gpu_campaign_cmd",
+    "panel": "pipelines.panel", "sweep": "pipelines.sweep", "gpu-campaign": "pipelines.gpu_campaign_cmd",
 }
 
 

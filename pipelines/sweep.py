@@ -1,0 +1,314 @@
+"""`spikesim sweep`: reconstruction quality against light level, from 0.1 lx to past saturation.
+
+    spikesim sweep --methods tfp tfi tfp:205 lrrep -o out/sweep                 # the LLR five, 64 x 100
+    spikesim sweep --xml my/scene.xml --light normal --methods tfp lrrep -o out/mine
+    spikesim sweep --height 250 --width 400 --levels 13 --methods tfp lrrep -o out/sweep_full
+
+Each scene is rendered once under its light (`normal` by default), and the light is then set to
+each level: light transport is linear in the lamps' power, so the frames and the ground truth scale
+by level / (the light's illuminance at the subject), with no re-render. Each level is simulated
+with the same camera (one seed: the same fixed pattern at every level, as one sensor), every method
+reconstructs every window, and each is scored against the ground truth clipped at the sensor's
+saturation (model/data.py), as `evaluate` scores.
+
+Writes <out>/sweep.csv (scene, lux, method, every metric), <out>/sweep.md (aligned PSNR and SSIM
+by level, mean over scenes) and, with matplotlib, <out>/sweep.png: one line per method, the
+saturation edge marked. The saturation edge of a scene is the level at which the 99th percentile of
+its ground truth reaches one spike per step, the brightest light at which the stream still tells
+99 % of the pixels apart; the plot marks the median over the scenes.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import io
+import json
+import math
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from pipelines.argtypes import add_threads_argument, camera_spec, load_camera, nonnegative_int, positive_float, positive_int
+from spikesim.dataset import SATURATION_Y
+
+RESULT_FILES = ("sweep.csv", "sweep.md", "sweep.png", "sweep.json")
+#: The reported metrics, in the order of the tables (model.metrics.METRICS keys).
+HEADLINE = ("psnr_aligned", "ssim")
+WINDOW = 41
+#: Saturation is reached where this percentile of the ground truth reaches y = 1.
+SATURATION_PERCENTILE = 99.0
+
+
+@dataclass
+class RenderedScene:
+    """One scene rendered once at its light: y frames for every step, ground truth at the window
+    centres, and the light's illuminance at the subject (lx)."""
+
+    name: str
+    frames: np.ndarray
+    ground_truth: dict[int, np.ndarray]
+    subject_lux: float
+
+    @property
+    def saturation_lux(self) -> float:
+        """The level (lx at the subject) where the SATURATION_PERCENTILE of the ground truth
+        reaches y = 1 (linear in the light: level / subject_lux scales y)."""
+        p = float(np.percentile(np.concatenate([g.ravel() for g in self.ground_truth.values()]), SATURATION_PERCENTILE))
+        return self.subject_lux * SATURATION_Y / p if p > 0 else math.inf
+
+
+@dataclass
+class LevelScene:
+    """A RenderedScene simulated at one light level, as the model's Scene protocol (model/data.py)."""
+
+    name: str
+    spikes_all: np.ndarray
+    gt: dict[int, np.ndarray]
+    num_steps: int = 0
+    height: int = 0
+    width: int = 0
+    gt_steps: list[int] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        self.num_steps, self.height, self.width = self.spikes_all.shape
+        self.gt_steps = sorted(self.gt)
+
+    def spikes(self, start: int, stop: int) -> np.ndarray:
+        return self.spikes_all[start:stop]
+
+    def ground_truth(self, step: int) -> np.ndarray:
+        return self.gt[step]
+
+
+def light_levels(lux_min: float, lux_max: float, levels: int) -> np.ndarray:
+    """`levels` log-spaced illuminances (lx) from lux_min to lux_max."""
+    if not (0 < lux_min < lux_max and math.isfinite(lux_max)):
+        raise ValueError(f"light levels: expected 0 < --lux-min < --lux-max, got {lux_min} and {lux_max}")
+    if levels < 2:
+        raise ValueError(f"--levels {levels}: a sweep needs at least 2 light levels")
+    return np.geomspace(lux_min, lux_max, levels)
+
+
+def render_scene(scene: str, light: str, camera: Any, num_windows: int, spp: int, gt_spp: int, seed: int,
+                 motion: str | None = None, lights: str | None = None, name: str | None = None,
+                 progress: bool = False) -> RenderedScene:
+    """Render every step of `num_windows` windows and the ground truth at their centres, once."""
+    from spikesim.render import SceneRenderer
+    from spikesim.render_settings import RenderSettings
+
+    renderer = SceneRenderer(scene, light=light, motion=motion, lights=lights, camera=camera,
+                             settings=RenderSettings(spp=spp, gt_spp=gt_spp, seed=seed))
+    lux = renderer.lighting.subject_illuminance_lux()
+    if lux is None or not lux > 0:
+        raise ValueError(f"{scene}: light {light!r} has no subject to meter (a lights.json with a 'subject'), so its "
+                         "illuminance, and the sweep's light levels, are not defined")
+    n = num_windows * WINDOW
+    frames = np.empty((n, camera.height, camera.width), dtype=np.float32)
+    it = renderer.frames(0, n)
+    if progress:
+        from tqdm import tqdm
+        it = tqdm(it, total=n, desc=f"render {name or Path(scene).stem}", unit="step", leave=False)
+    for i, f in enumerate(it):
+        frames[i] = f
+    gts = {c: np.asarray(renderer.ground_truth(c), dtype=np.float32)
+           for c in (i * WINDOW + WINDOW // 2 for i in range(num_windows))}
+    return RenderedScene(name or Path(scene).stem, frames, gts, float(lux))
+
+
+def simulate_level(rendered: RenderedScene, lux: float, camera: Any, seed: int, backend: str = "auto") -> LevelScene:
+    """The scene's stream at `lux` at the subject: frames and ground truth scaled by lux /
+    subject_lux (linear light transport), simulated by `camera` with `seed`."""
+    from spikesim.simulate import Simulator
+
+    factor = np.float32(lux / rendered.subject_lux)
+    stream = Simulator(camera, backend=backend, seed=seed).run(f * factor for f in rendered.frames)
+    gts = {c: np.clip(g * factor, 0.0, None) for c, g in rendered.ground_truth.items()}
+    return LevelScene(f"{rendered.name}@{lux:.4g}lx", stream.unpack(), gts)
+
+
+def sweep(rendered: Sequence[RenderedScene], levels: Sequence[float], methods: Sequence[Any], camera: Any,
+          seed: int = 0, backend: str = "auto", progress: bool = False) -> list[dict[str, Any]]:
+    """Every method at every level on every scene: one row per (scene, lux, method) with every
+    metric of model.metrics.METRICS (mean over the scene's windows)."""
+    from pipelines.evaluate import evaluate_scene
+
+    rows = []
+    total = len(rendered) * len(levels)
+    for k, (sc, lux) in enumerate((sc, lux) for sc in rendered for lux in levels):
+        level = simulate_level(sc, float(lux), camera, seed, backend)
+        for score in evaluate_scene(level, methods, WINDOW):
+            rows.append({"scene": sc.name, "lux": float(lux), "method": score.method, "frames": score.frames,
+                         "mean_y": float(np.mean([g.mean() for g in level.gt.values()])),
+                         "saturated": bool(lux >= sc.saturation_lux),
+                         **{m: score.value(m) for m in ("psnr_aligned", "ssim", "psnr", "psnr_8bit", "ssim_8bit",
+                                                       "psnr_norm", "ssim_norm")}})
+        if progress:
+            best = max(rows[-len(methods):], key=lambda r: r["psnr_aligned"])
+            print(f"[sweep] {k + 1}/{total} {sc.name} at {lux:.3g} lx: best {best['method']} "
+                  f"{best['psnr_aligned']:.2f} dB aligned", file=sys.stderr)
+    return rows
+
+
+def summary(rows: Sequence[dict[str, Any]], metric: str) -> dict[str, dict[float, float]]:
+    """{method: {lux: mean of `metric` over the scenes}}."""
+    out: dict[str, dict[float, list[float]]] = {}
+    for r in rows:
+        out.setdefault(r["method"], {}).setdefault(r["lux"], []).append(r[metric])
+    return {m: {lux: float(np.mean(v)) for lux, v in sorted(d.items())} for m, d in out.items()}
+
+
+def losing_levels(rows: Sequence[dict[str, Any]], method: str, saturation_lux: float) -> list[float]:
+    """The levels below saturation where `method`'s mean aligned PSNR is not the best of all methods."""
+    table = summary(rows, "psnr_aligned")
+    if method not in table:
+        return []
+    out = []
+    for lux, value in table[method].items():
+        if lux < saturation_lux and any(t[lux] > value for m, t in table.items() if m != method):
+            out.append(lux)
+    return out
+
+
+def markdown(rows: Sequence[dict[str, Any]], methods: Sequence[str], saturation_lux: float) -> str:
+    lines = [f"Mean over {len({r['scene'] for r in rows})} scene(s); saturation edge (median over scenes, where "
+             f"the {SATURATION_PERCENTILE:g}th percentile of y reaches 1): {saturation_lux:.4g} lx.", ""]
+    for metric, label, fmt in (("psnr_aligned", "aligned PSNR (dB)", "{:.2f}"), ("ssim", "SSIM", "{:.4f}")):
+        table = summary(rows, metric)
+        luxes = sorted(next(iter(table.values())))
+        lines += [f"**{label}**", "", "| lux | " + " | ".join(methods) + " |",
+                  "|---|" + "---|" * len(methods)]
+        for lux in luxes:
+            vals = [table[m][lux] for m in methods]
+            best = max(vals)
+            cells = [("**" + fmt.format(v) + "**") if v == best else fmt.format(v) for v in vals]
+            mark = " (saturated)" if lux >= saturation_lux else ""
+            lines.append(f"| {lux:.3g}{mark} | " + " | ".join(cells) + " |")
+        lines.append("")
+    return "\n".join(lines)
+
+
+def plot(rows: Sequence[dict[str, Any]], methods: Sequence[str], saturation_lux: float, path: Path,
+         title: str) -> Path:
+    """Aligned PSNR and SSIM against lux (log axis), a line per method, the saturation edge marked."""
+    from spikesim._optional import require
+    require("matplotlib", "plot", "the sweep plot")
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from spikesim.outputs import atomic_write_with
+
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
+    for ax, (metric, label) in zip(axes, (("psnr_aligned", "aligned PSNR (dB)"), ("ssim", "SSIM"))):
+        table = summary(rows, metric)
+        for m in methods:
+            luxes = sorted(table[m])
+            ax.plot(luxes, [table[m][x] for x in luxes], marker="o", ms=3, label=m)
+        if math.isfinite(saturation_lux):
+            ax.axvline(saturation_lux, color="k", ls="--", lw=1)
+            ax.text(saturation_lux, ax.get_ylim()[0], " saturation", rotation=90, va="bottom", ha="right", fontsize=8)
+        ax.set_xscale("log")
+        ax.set_xlabel("illuminance at the subject (lx)")
+        ax.set_ylabel(label)
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0].legend(fontsize=8)
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    atomic_write_with(path, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
+    plt.close(fig)
+    return path
+
+
+def run(args: argparse.Namespace) -> int:
+    from model.methods import method_from_spec
+    from model.threads import set_cpu_threads
+    from spikesim.generation import bundled_scene
+    from spikesim.outputs import atomic_write_json, atomic_write_text, output_folder, writable
+    from spikesim.render.scene_files import SceneFiles
+
+    set_cpu_threads(args.threads)
+    levels = light_levels(args.lux_min, args.lux_max, args.levels)
+    if args.xml is not None and args.scenes:
+        raise ValueError("give --scenes (bundled scenes) or --xml (your own), not both")
+    methods = [method_from_spec(s, WINDOW) for s in args.methods]
+    names = [m.name for m in methods]
+    if len(set(names)) != len(names):
+        raise ValueError(f"method names must be unique, got {names}; name them with label=spec")
+    camera = load_camera(args.camera).replace(height=args.height, width=args.width)
+    out = Path(args.out)
+    for name in RESULT_FILES:
+        writable(out, name)  # a link where results go: refused before the work
+    if args.xml is not None:
+        SceneFiles.resolve(str(args.xml))  # a missing file is named before rendering
+        sources = [(str(args.xml), args.xml.parent.name)]
+    else:
+        sources = [(bundled_scene(s), s) for s in (args.scenes or ["ball", "car", "cook", "fan", "rotate"])]
+    progress = not args.quiet and sys.stderr.isatty()
+    rendered = []
+    for i, (scene, name) in enumerate(sources):
+        rendered.append(render_scene(scene, args.light, camera, args.windows, args.spp, args.gt_spp,
+                                     args.seed + i, name=name, progress=progress))
+        if not args.quiet:
+            r = rendered[-1]
+            print(f"[sweep] rendered {name}: {r.subject_lux:.4g} lx at the subject under {args.light!r}, "
+                  f"saturation edge {r.saturation_lux:.4g} lx", file=sys.stderr)
+    rows = sweep(rendered, levels, methods, camera, seed=args.seed, backend=args.backend, progress=not args.quiet)
+    saturation = float(np.median([r.saturation_lux for r in rendered]))
+    md = markdown(rows, names, saturation)
+    record = {"levels_lux": levels.tolist(), "saturation_lux": saturation,
+              "scenes": {r.name: {"subject_lux": r.subject_lux, "saturation_lux": r.saturation_lux} for r in rendered},
+              "methods": names, "camera": camera.to_dict(), "windows": args.windows, "spp": args.spp,
+              "gt_spp": args.gt_spp, "seed": args.seed, "light": args.light,
+              "not_best_below_saturation": {m: losing_levels(rows, m, saturation) for m in names}}
+    buf = io.StringIO(newline="")
+    w = csv.DictWriter(buf, fieldnames=list(rows[0]))
+    w.writeheader()
+    w.writerows(rows)
+    with output_folder(out):
+        atomic_write_text(writable(out, "sweep.csv"), buf.getvalue())
+        atomic_write_text(writable(out, "sweep.md"), md)
+        atomic_write_json(writable(out, "sweep.json"), record, indent=1)
+        if not args.no_plot:
+            plot(rows, names, saturation, writable(out, "sweep.png"),
+                 f"{', '.join(r.name for r in rendered)} at {args.height} x {args.width}, {args.windows} windows")
+    if args.json:
+        print(json.dumps({**record, "rows": rows}, indent=1))
+    else:
+        print(md)
+        print(f"[sweep] wrote {out}/sweep.csv, sweep.md, sweep.json" + ("" if args.no_plot else ", sweep.png"),
+              file=sys.stderr)
+    return 0
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    from spikesim.simulate import BACKENDS
+
+    p = sub.add_parser("sweep", help="reconstruction quality against light level (0.1 lx to past saturation)",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--scenes", nargs="+", help="bundled scenes (default: the LLR five, ball car cook fan rotate)")
+    p.add_argument("--xml", type=Path, help="your own scene XML instead (with its lights.json and motion.json)")
+    p.add_argument("--light", default="normal", help="the lighting condition the levels scale (default: normal)")
+    p.add_argument("--methods", nargs="+", default=["tfp", "tfi", "tfp:205", "lrrep"],
+                   help="methods as in evaluate (default: tfp tfi tfp:205 lrrep)")
+    p.add_argument("--lux-min", type=positive_float, default=0.1, help="dimmest level, lx at the subject (0.1)")
+    p.add_argument("--lux-max", type=positive_float, default=3000.0,
+                   help="brightest level, lx at the subject (3000: past the saturation of the LLR scenes)")
+    p.add_argument("--levels", type=positive_int, default=9, help="log-spaced light levels (9)")
+    p.add_argument("--height", type=positive_int, default=64, help="frame rows (64, the demo's)")
+    p.add_argument("--width", type=positive_int, default=100, help="frame columns (100)")
+    p.add_argument("--windows", type=positive_int, default=5, help="41-step windows per scene (5)")
+    p.add_argument("--spp", type=positive_int, default=2, help="samples per pixel of each step's render (2)")
+    p.add_argument("--gt-spp", type=positive_int, default=32, help="samples per pixel of the ground truth (32)")
+    p.add_argument("--camera", type=camera_spec, default="realistic",
+                   help="realistic, measured, noiseless or a camera file (default: realistic)")
+    p.add_argument("--backend", choices=BACKENDS, default="auto", help="sensor implementation (default: auto)")
+    p.add_argument("--seed", type=nonnegative_int, default=0, help="seed of the renders and the sensor")
+    p.add_argument("-o", "--out", type=Path, required=True, help="folder for sweep.csv, sweep.md, sweep.json, sweep.png")
+    p.add_argument("--no-plot", action="store_true", help="no sweep.png (no matplotlib needed)")
+    add_threads_argument(p)
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.add_argument("--json", action="store_true", help="print the record and every row as JSON")
+    p.set_defaults(func=run)

@@ -1,0 +1,97 @@
+"""`spikesim sweep`: light levels, linear scaling of one render, the saturation edge, the outputs."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from pipelines.sweep import (RenderedScene, light_levels, losing_levels, render_scene, simulate_level, summary,
+                             sweep)
+from spikesim.camera import SpikeCamera
+
+from sensor_testing import requires_drjit
+
+pytestmark = requires_drjit
+
+
+def test_light_levels_are_log_spaced_and_checked():
+    lv = light_levels(0.1, 1000.0, 5)
+    assert np.allclose(lv, [0.1, 1.0, 10.0, 100.0, 1000.0])
+    for lo, hi, n in ((1.0, 0.5, 3), (0.0, 1.0, 3), (0.1, float("inf"), 3), (0.1, 1.0, 1)):
+        with pytest.raises(ValueError):
+            light_levels(lo, hi, n)
+
+
+def _toy(subject_lux=10.0) -> RenderedScene:
+    rng = np.random.default_rng(0)
+    frames = rng.uniform(0.0, 0.2, (82, 12, 16)).astype(np.float32)
+    gt = {20: frames[:41].mean(0), 61: frames[41:].mean(0)}
+    return RenderedScene("toy", frames, gt, subject_lux)
+
+
+def test_saturation_edge_is_where_p99_of_y_reaches_one():
+    sc = _toy()
+    p99 = np.percentile(np.concatenate([g.ravel() for g in sc.ground_truth.values()]), 99)
+    assert sc.saturation_lux == pytest.approx(10.0 / p99)
+    level = simulate_level(sc, sc.saturation_lux, SpikeCamera.noiseless(height=12, width=16), seed=0, backend="numpy")
+    assert np.percentile(np.concatenate([g.ravel() for g in level.gt.values()]), 99) == pytest.approx(1.0, rel=1e-5)
+
+
+def test_a_level_scales_frames_and_truth_linearly():
+    """Light transport is linear: at k times the subject's lux, the stream is the camera's at k y."""
+    sc = _toy()
+    cam = SpikeCamera.noiseless(height=12, width=16)
+    level = simulate_level(sc, 30.0, cam, seed=0, backend="numpy")
+    from spikesim.simulate import Simulator
+    direct = Simulator(cam, backend="numpy", seed=0).run(sc.frames * np.float32(3.0)).unpack()
+    assert np.array_equal(level.spikes_all, direct)
+    assert np.allclose(level.gt[20], sc.ground_truth[20] * 3.0)
+
+
+def test_sweep_rows_and_losing_levels():
+    from model.methods import method_from_spec
+
+    sc = _toy()
+    cam = SpikeCamera.realistic(height=12, width=16)
+    methods = [method_from_spec(s) for s in ("tfp", "black")]
+    rows = sweep([sc], [1.0, 10.0, 100.0], methods, cam, seed=1, backend="numpy")
+    assert len(rows) == 3 * 2 and {r["method"] for r in rows} == {"TFP", "black"}
+    table = summary(rows, "psnr_aligned")
+    assert set(table["TFP"]) == {1.0, 10.0, 100.0}
+    # TFP beats a black image once there is light; where it does not, the level is named
+    assert table["TFP"][100.0] > table["black"][100.0]
+    assert 100.0 not in losing_levels(rows, "TFP", sc.saturation_lux)
+    assert losing_levels(rows, "black", 1e9) != []
+
+
+def test_render_scene_meters_the_subject():
+    cam = SpikeCamera.realistic(height=16, width=24)
+    sc = render_scene("fan", "normal", cam, num_windows=1, spp=1, gt_spp=2, seed=0)
+    assert sc.frames.shape == (41, 16, 24) and list(sc.ground_truth) == [20]
+    assert sc.subject_lux == pytest.approx(110.0, rel=0.05)  # the Fan scene's normal light (docs/scenes.md)
+
+
+def test_sweep_command_writes_its_tables(tmp_path):
+    out = tmp_path / "sw"
+    r = subprocess.run([sys.executable, "-m", "pipelines.cli", "sweep", "--scenes", "fan", "--levels", "2",
+                        "--windows", "1", "--height", "16", "--width", "24", "--spp", "1", "--gt-spp", "2",
+                        "--methods", "tfp", "mean", "--threads", "1", "--quiet", "-o", str(out)],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert "aligned PSNR" in (out / "sweep.md").read_text()
+    rec = json.loads((out / "sweep.json").read_text())
+    assert len(rec["levels_lux"]) == 2 and rec["scenes"]["fan"]["saturation_lux"] > 0
+    assert (out / "sweep.csv").read_text().count("\n") == 1 + 2 * 2
+    assert (out / "sweep.png").stat().st_size > 1000
+
+
+def test_sweep_command_refuses_bad_input(tmp_path):
+    r = subprocess.run([sys.executable, "-m", "pipelines.cli", "sweep", "--lux-min", "10", "--lux-max", "1",
+                        "-o", str(tmp_path / "x")], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and "--lux-min" in r.stderr
+    r = subprocess.run([sys.executable, "-m", "pipelines.cli", "sweep", "--scenes", "fan", "--methods", "tfp", "tfp",
+                        "-o", str(tmp_path / "x")], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and "unique" in r.stderr
