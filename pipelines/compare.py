@@ -9,6 +9,12 @@ says "within spread": a reordering by another seed would be no surprise.
     spikesim compare --data rllr --test-data llr --configs E=tiny A=tiny_ablation_a \\
         --seeds 0 1 2 --max-steps 150 --out runs/compare
 
+Or compare training data: one config, several datasets, each labelled (equal steps of one network
+are equal compute), optionally all fine-tuned from the same weights:
+
+    spikesim compare --data OLD=rllr_procedural NEW=rllr_natural --test-data llr --configs lrrep_cpu \\
+        --init lrrep --seeds 0 1 2 --max-steps 300 --out runs/data_study
+
 Writes <out>/runs/<label>/seed<k>/ (training runs, resumable: a finished run is kept, an
 unfinished one continued), <out>/metrics.csv (every run on every scene, evaluate's rows),
 <out>/compare.csv, <out>/compare.json and <out>/compare.md.
@@ -85,6 +91,17 @@ def config_spec(text: str) -> tuple[str, Any]:
     return label, exp
 
 
+def data_spec(text: str) -> tuple[str, Path]:
+    """argparse type: LABEL=ROOT or ROOT (a dataset root; label: its folder's name)."""
+    label, _, root = text.rpartition("=") if "=" in text else ("", "", text)
+    path = Path(root)
+    label = label or path.resolve().name
+    if not label or any(c in label for c in "/\\#") or label.startswith(".") or label.upper().startswith("ALL"):
+        raise argparse.ArgumentTypeError(f"{text!r}: a label is a plain name (no /, \\ or #, not starting "
+                                         "with a dot or ALL)")
+    return label, path
+
+
 def run_dir(out: Path, label: str, seed: int) -> Path:
     """A run's folder: inside `out`, with no link on the way (refused, naming it)."""
     writable(out, "runs", label, f"seed{seed}")
@@ -101,13 +118,15 @@ def _steps_done(last: Path) -> tuple[int | None, int | None]:
     return int(state["step"]), None if planned is None else int(planned)
 
 
-def train_seeds(configs: Sequence[tuple[str, Any]], seeds: Sequence[int], steps: int | None, train_scenes: Sequence[Any],
-                out: Path, device: str = "auto", precision: str | None = None, progress: bool = False,
-                budget_minutes: float | None = None) -> dict[tuple[str, int], Path]:
+def train_seeds(configs: Sequence[tuple[str, Any]], seeds: Sequence[int], steps: int | None,
+                train_scenes: Sequence[Any] | dict[str, Sequence[Any]], out: Path, device: str = "auto",
+                precision: str | None = None, progress: bool = False, budget_minutes: float | None = None,
+                init: str | None = None) -> dict[tuple[str, int], Path]:
     """Train every (config, seed) for exactly `steps` steps, or for `budget_minutes` of wall time
     each (equal time: the steps are what each config's speed allows); returns each run's last
     checkpoint. A finished run is kept; an unfinished one is continued (--resume); one past
-    `steps` is refused."""
+    `steps` is refused. `train_scenes` is one dataset for every label, or {label: scenes} (a
+    comparison of data); `init` starts every new run from those weights (fine-tuning)."""
     from model.training import run_training
 
     if (steps is None) == (budget_minutes is None):
@@ -128,7 +147,9 @@ def train_seeds(configs: Sequence[tuple[str, Any]], seeds: Sequence[int], steps:
             what = f"{steps} steps" if steps is not None else f"{budget_minutes:g} minutes"
             print(f"[compare] training {label} seed {seed} for {what}"
                   + (f" (continuing from step {have})" if have else ""), file=sys.stderr)
-            summary = run_training(run, train_scenes, [], folder, device, resume=have is not None, progress=progress)
+            scenes = train_scenes[label] if isinstance(train_scenes, dict) else train_scenes
+            summary = run_training(run, scenes, [], folder, device, resume=have is not None, progress=progress,
+                                   init=None if have is not None else init)
             if steps is not None and summary["steps"] != steps:
                 raise ValueError(f"config {label}: its {exp.train.epochs} epochs end after {summary['steps']} steps, "
                                  f"before --steps {steps}; raise its epochs or lower --steps")
@@ -284,6 +305,14 @@ def cmd_compare(args: argparse.Namespace) -> int:
     seeds = list(dict.fromkeys(args.seeds))
     if len(seeds) < MIN_SEEDS:
         raise ValueError(f"--seeds: a comparison needs at least {MIN_SEEDS} distinct training seeds, got {seeds}")
+    data = dict(args.data)
+    if len(data) != len(args.data):
+        raise ValueError(f"--data: labels must be unique, got {[label for label, _ in args.data]}")
+    if len(data) > 1 and len(args.configs) > 1:
+        raise ValueError("--data with several datasets compares data: give one config (its runs are labelled by the "
+                         "datasets' labels)")
+    if len(data) > 1:
+        args.configs = [(label, args.configs[0][1]) for label in data]
     labels = [label for label, _ in args.configs]
     if len(set(labels)) != len(labels):
         raise ValueError(f"--configs: labels must be unique, got {labels}; name them with LABEL=CONFIG")
@@ -294,16 +323,23 @@ def cmd_compare(args: argparse.Namespace) -> int:
     if len(windows) != 1:
         raise ValueError(f"--configs: all configs must use one window length to be compared, got {sorted(windows)}")
     window = windows.pop()
-    train_scenes, test_scenes = open_scenes(args.data), open_scenes(args.test_data)
-    check_samples(args.configs, train_scenes)
+    test_scenes = open_scenes(args.test_data)
+    if len(data) > 1:
+        train_scenes: Any = {label: open_scenes(root) for label, root in data.items()}
+        for label, exp in args.configs:
+            check_samples([(label, exp)], train_scenes[label])
+    else:
+        train_scenes = open_scenes(next(iter(data.values())))
+        check_samples(args.configs, train_scenes)
     out = Path(args.out)
     checkpoints = train_seeds(args.configs, seeds, args.max_steps, train_scenes, out, str(dev), args.precision,
-                              progress=not args.quiet, budget_minutes=args.budget_minutes)
+                              progress=not args.quiet, budget_minutes=args.budget_minutes, init=args.init)
     rows = evaluate_runs(checkpoints, test_scenes, window, args.baselines, str(dev), progress=not args.quiet)
     stats = aggregate(rows, labels, args.baselines)
     length = f"{args.max_steps} steps" if args.max_steps else f"{args.budget_minutes:g} minutes of wall time"
     text = markdown(stats, labels, args.baselines, seeds, length, _steps_per_run(checkpoints))
-    meta = {"command": "spikesim " + shlex.join(sys.argv[1:]), "data": str(args.data),
+    meta = {"command": "spikesim " + shlex.join(sys.argv[1:]), "data": {k: str(v) for k, v in data.items()},
+            "init": args.init,
             "test_data": str(args.test_data), "seeds": seeds, "steps": args.max_steps,
             "budget_minutes": args.budget_minutes, "steps_per_run": {f"{k[0]}#{k[1]}": v for k, v in
                                                                     _steps_per_run(checkpoints).items()},
@@ -323,7 +359,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     """Register `compare` on the CLI's subparsers."""
     p = subparsers.add_parser("compare", help="train configs with several seeds for equal steps; mean ± std",
                               description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--data", required=True, help="training dataset root (every scene trains)")
+    p.add_argument("--data", required=True, nargs="+", type=data_spec, metavar="[LABEL=]ROOT",
+                   help="training dataset root (every scene trains); several, each LABEL=ROOT, with one config: "
+                        "a comparison of training data")
+    p.add_argument("--init", metavar="WEIGHTS",
+                   help="start every run from these weights (a shipped network, lrrep, or a checkpoint): a "
+                        "comparison of fine-tuning")
     p.add_argument("--test-data", required=True, help="test dataset root (evaluate's frames)")
     p.add_argument("--configs", nargs="+", required=True, type=config_spec, metavar="[LABEL=]CONFIG",
                    help="named configs or JSON files, each labelled (default label: the config's name)")

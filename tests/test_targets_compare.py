@@ -89,6 +89,34 @@ def test_compare_end_to_end(tmp_path, capsys):
     assert (out / "runs" / "E" / "seed0" / "last.pt").stat().st_mtime_ns == before
 
 
+def test_compare_training_data_with_one_config_and_init(tmp_path, capsys):
+    """Several labelled datasets and one config: one run per dataset and seed, labelled by the data;
+    --init starts each from the same weights (recorded in the checkpoint)."""
+    _write_dataset(tmp_path / "one", ["a_normal", "b_low"], 0)
+    _write_dataset(tmp_path / "two", ["d_normal", "e_low"], 5)
+    _write_dataset(tmp_path / "test", ["c_low", "c_normal"], 10)
+    e = _config(tmp_path / "e.json", "e")
+    base = tmp_path / "base"
+    assert main(["train", "--config", str(e), "--data", str(tmp_path / "one"), "--val-data", str(tmp_path / "test"),
+                 "--max-steps", "1", "--device", "cpu", "--quiet", "-o", str(base)]) == 0
+    out = tmp_path / "cmp"
+    assert main(["compare", "--data", f"ONE={tmp_path / 'one'}", f"TWO={tmp_path / 'two'}", "--test-data",
+                 str(tmp_path / "test"), "--configs", str(e), "--init", str(base / "last.pt"), "--seeds", "0", "1", "2",
+                 "--max-steps", "2", "--device", "cpu", "--quiet", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    from model.checkpoint import load_checkpoint
+    for label in ("ONE", "TWO"):
+        state = load_checkpoint(out / "runs" / label / "seed1" / "last.pt")
+        assert int(state["step"]) == 2 and state["extra"].get("init_weights")
+    assert "| Groups | Metric | ONE - TWO |" in text
+    meta = json.loads((out / "compare.json").read_text())
+    assert set(meta["data"]) == {"ONE", "TWO"} and meta["init"] == str(base / "last.pt")
+    assert main(["compare", "--data", f"ONE={tmp_path / 'one'}", f"TWO={tmp_path / 'two'}", "--test-data",
+                 str(tmp_path / "test"), "--configs", str(e), "tiny", "--max-steps", "1", "--device", "cpu",
+                 "--out", str(tmp_path / "o2")]) == 2
+    assert "give one config" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize("flags,msg", [
     (["--seeds", "0", "1"], "at least 3"),
     (["--seeds", "0", "0", "1"], "at least 3"),
