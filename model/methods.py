@@ -135,8 +135,15 @@ class ModelMethod:
 PRETRAINED_METHOD = "lrrep"
 
 
+def pretrained_label(name: str) -> str:
+    """The table label of shipped weights: LR-Rep for the shipped network, LR-Rep (suffix) for
+    earlier ones kept for comparison (lrrep_v1 -> LR-Rep v1)."""
+    return "LR-Rep" if name == PRETRAINED_METHOD else "LR-Rep " + name.removeprefix(PRETRAINED_METHOD + "_")
+
+
 def method_from_spec(spec: str, window: int = 41, chunk: int = 8, device: str = "cpu") -> Method:
-    """"tfp", "tfi", "black", "mean", "tfp:N" (TFP over N steps), "lrrep" (the shipped weights) or
+    """"tfp", "tfi", "black", "mean", "tfp:N" (TFP over N steps), "lrrep" (the shipped weights; any
+    name of model.pretrained.PRETRAINED, e.g. the earlier lrrep_v1) or
     a checkpoint path; "label=..." names the method in tables."""
     label, _, body = spec.rpartition("=") if "=" in spec else ("", "", spec)
     if body in MAP_METHODS:
@@ -144,10 +151,11 @@ def method_from_spec(spec: str, window: int = 41, chunk: int = 8, device: str = 
     span = span_method_spec(body, window)
     if span is not None:
         return SpanTFPMethod(label or f"TFP-{span}", span, window)
-    if body == PRETRAINED_METHOD:
-        return ModelMethod(label or "LR-Rep", None, chunk, device, pretrained=PRETRAINED_METHOD)
+    from .pretrained import PRETRAINED
+    if body in PRETRAINED:
+        return ModelMethod(label or pretrained_label(body), None, chunk, device, pretrained=body)
     path = Path(body.removeprefix("ckpt:"))
     if not path.is_file():
-        raise ValueError(f"method {spec!r}: expected one of {', '.join(MAP_METHODS)}, tfp:N, {PRETRAINED_METHOD} or an "
-                         "existing checkpoint file")
+        raise ValueError(f"method {spec!r}: expected one of {', '.join(MAP_METHODS)}, tfp:N, shipped weights "
+                         f"({', '.join(PRETRAINED)}) or an existing checkpoint file")
     return ModelMethod(label or path.parent.name or path.stem, path, chunk, device)
