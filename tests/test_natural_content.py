@@ -148,3 +148,28 @@ def test_plan_refuses_bad_options(kwargs, message):
 def test_scaled_size():
     assert scaled_size(250, 400, 1.0) == (250, 400)
     assert scaled_size(250, 400, 0.25) == (62, 100)
+
+
+def test_generate_natural_records_licences_and_scales(tmp_path):
+    """`generate rllr --content natural`: the scene's meta.json carries its textures' sources and
+    licences, and a scene drawn at scale 0.5 has half the preset's pixels a side."""
+    import subprocess
+    import sys
+
+    out = tmp_path / "nat"
+    r = subprocess.run([sys.executable, "-m", "pipelines.cli", "generate", "rllr", "--preset", "small", "--content",
+                        "natural", "--count", "2", "--scales", "1", "0.5", "--steps", "82", "--gt-stride", "41",
+                        "--camera", "measured", "--workers", "1", "--quiet", "-o", str(out)],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    metas = [json.loads((out / f"rllr_{i:04d}" / "meta.json").read_text()) for i in range(2)]
+    sizes = {(m["height"], m["width"]) for m in metas}
+    assert sizes <= {(64, 100), (32, 50)}
+    for m in metas:
+        content = m["source"]["content"]
+        assert content["generator"] == "scenes/natural_scene.py" and content["textures"]
+        assert all(t["licence"] for t in content["textures"])
+        assert m["camera"]["row_gain_spread"] == 0.015
+    r = subprocess.run([sys.executable, "-m", "pipelines.cli", "generate", "llr", "--content", "natural", "-o",
+                        str(tmp_path / "x")], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and "--content applies to generate rllr" in r.stderr
