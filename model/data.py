@@ -177,7 +177,7 @@ class SequenceDataset(Dataset):
         self.epoch = 0
         refs: list[SampleRef] = []
         for i, sc in enumerate(self.scenes):
-            if crop is not None and (crop > sc.height or crop > sc.width):
+            if random_crop and crop is not None and (crop > sc.height or crop > sc.width):
                 raise ValueError(f"crop {crop} is larger than scene {sc.name!r} ({sc.height}x{sc.width})")
             starts = sequence_starts(sc, window, num_windows, start_stride)
             if max_per_scene is not None and len(starts) > max_per_scene:
@@ -201,7 +201,9 @@ class SequenceDataset(Dataset):
         sc = self.scenes[ref.scene]
         t, k, half = self.window, self.num_windows, self.window // 2
         h, w = sc.height, sc.width
-        ch, cw = (h, w) if self.crop is None else (self.crop, self.crop)
+        # validation's centre crop is cut to a scene smaller than it (a dataset of several pixel
+        # scales); its samples are scored one at a time, so their sizes may differ
+        ch, cw = (h, w) if self.crop is None else (min(self.crop, h), min(self.crop, w))
         if self.random_crop:
             y0, x0 = int(rng.integers(h - ch + 1)), int(rng.integers(w - cw + 1))
         else:

@@ -71,6 +71,17 @@ def test_dataset_samples_are_reproducible_and_aligned(scenes):
         SequenceDataset(scenes, 7, 3, crop=64)
 
 
+def test_validation_crop_is_cut_to_a_smaller_scene(scenes):
+    """A dataset of several pixel scales: validation's centre crop is cut to each smaller scene
+    (its samples are scored one at a time), where a training crop that does not fit is refused."""
+    small = make_scene("small", 6, 10, 7 * 4, seed=3)
+    ds = SequenceDataset([*scenes, small], 7, 3, crop=8, random_crop=False)
+    shapes = {ds[i]["scene"]: tuple(ds[i]["gt"].shape) for i in range(len(ds))}
+    assert shapes["small"] == (3, 6, 8) and all(v == (3, 8, 8) for k, v in shapes.items() if k != "small")
+    with pytest.raises(ValueError, match="larger than scene"):
+        SequenceDataset([*scenes, small], 7, 3, crop=8, random_crop=True)
+
+
 def test_split_by_scene(scenes):
     train, val = split_scenes(scenes, 0.34, seed=0)
     assert len(val) == 2 and len(train) == 1 and not {s.name for s in train} & {s.name for s in val}
