@@ -262,6 +262,8 @@ def scaled_size(height: int, width: int, scale: float) -> tuple[int, int]:
     same field of view: the same scene seen by a sensor with fewer, larger pixels."""
     if not (isinstance(scale, (int, float)) and 0 < scale <= 1):
         raise ValueError(f"pixel scale {scale!r}: expected a number in (0, 1]")
+    if scale == 1:
+        return height, width  # the preset's own frame, whatever its size
     h, w = round(height * scale), round(width * scale)
     if min(h, w) < MIN_SCALED_SIDE:
         raise ValueError(f"pixel scale {scale:g} makes {height} x {width} into {h} x {w}: below {MIN_SCALED_SIDE} "
