@@ -31,6 +31,8 @@ REDUCED: list[tuple[str, list[str]]] = [
     (r"generate rllr +--preset paper", ["--count", "2", "--steps", "164", "--gt-stride", "41", *SMALL,
                                         "--spp", "1", "--gt-spp", "2"]),
     (r"generate rllr +--preset small", ["--count", "2", *SMALL]),
+    (r"generate rllr .*--scales", ["--scales", "1"]),
+    (r"sweep ", ["--scenes", "fan", "--levels", "2", "--windows", "1", *SMALL, "--spp", "1", "--gt-spp", "2"]),
     (r"generate scene .*--windows 21", ["--windows", "2"]),
     (r"train --config full", ["--max-steps", "2", "--num-windows", "3", "--crop", "16", "--batch-size", "1"]),
     (r"train --config tiny", ["--max-steps", "4"]),
