@@ -40,6 +40,8 @@ HEADLINE = ("psnr_aligned", "ssim")
 WINDOW = 41
 #: Saturation is reached where this percentile of the ground truth reaches y = 1.
 SATURATION_PERCENTILE = 99.0
+#: A scene's rendered frames are held in memory (one render, every level scales it): at most this.
+MAX_FRAMES_BYTES = 4 << 30
 
 
 @dataclass
@@ -106,6 +108,11 @@ def render_scene(scene: str, light: str, camera: Any, num_windows: int, spp: int
         raise ValueError(f"{scene}: light {light!r} has no subject to meter (a lights.json with a 'subject'), so its "
                          "illuminance, and the sweep's light levels, are not defined")
     n = num_windows * WINDOW
+    need = n * camera.height * camera.width * 4
+    if need > MAX_FRAMES_BYTES:
+        raise ValueError(f"--windows {num_windows} at {camera.height} x {camera.width}: the rendered frames would take "
+                         f"{need / 2**30:.1f} GiB of memory (at most {MAX_FRAMES_BYTES / 2**30:.0f}); use fewer windows or "
+                         "a smaller frame")
     frames = np.empty((n, camera.height, camera.width), dtype=np.float32)
     it = renderer.frames(0, n)
     if progress:

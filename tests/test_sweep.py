@@ -88,6 +88,12 @@ def test_sweep_command_writes_its_tables(tmp_path):
     assert (out / "sweep.png").stat().st_size > 1000
 
 
+def test_render_scene_refuses_frames_beyond_memory():
+    with pytest.raises(ValueError, match="GiB of memory"):
+        render_scene("fan", "normal", SpikeCamera.realistic(height=2000, width=4000), num_windows=100, spp=1,
+                     gt_spp=1, seed=0)
+
+
 def test_sweep_command_refuses_bad_input(tmp_path):
     r = subprocess.run([sys.executable, "-m", "pipelines.cli", "sweep", "--lux-min", "10", "--lux-max", "1",
                         "-o", str(tmp_path / "x")], capture_output=True, text=True, timeout=120)
