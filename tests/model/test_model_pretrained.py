@@ -22,15 +22,17 @@ from model.streaming import TensorWindows
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def test_the_model_card_names_the_shipped_fingerprints():
-    """docs/model.md's card and the registry agree, and the file on disk is the one they name."""
+@pytest.mark.parametrize("name", sorted(PRETRAINED))
+def test_the_model_card_names_the_shipped_fingerprints(name):
+    """docs/model.md's card and the registry agree, and the file on disk is the one they name, for
+    the shipped network and every earlier one kept for comparison."""
     card = (ROOT / "docs" / "model.md").read_text()
-    entry = PRETRAINED["lrrep"]
+    entry = PRETRAINED[name]
     assert re.search(rf"weights fingerprint[^\n]*`{entry.weights_sha256}`", card)
     assert re.search(rf"file sha256[^\n]*`{entry.file_sha256}`", card)
-    path = pretrained_path("lrrep")
+    path = pretrained_path(name)
     assert path.stat().st_size < 16 * 2**20
-    model, experiment = load_pretrained("lrrep")
+    model, experiment = load_pretrained(name)
     assert state_fingerprint(model.state_dict()) == entry.weights_sha256
     assert not model.training and model.max_interval == experiment.train.num_windows * experiment.model.window + 1
 
