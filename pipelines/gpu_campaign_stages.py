@@ -105,9 +105,8 @@ class Campaign:
         self.note_log(f"$ {shlex.join(argv)}   (time box {box:.0f} s)")
         out_path = self.logs / f"{self.current.name}.stdout"
         t = time.monotonic()
-        outputs.check_not_link(self.log_path(self.current.name))
-        outputs.check_not_link(out_path)
-        with self.log_path(self.current.name).open("ab") as err, out_path.open("wb") as out:
+        with outputs.open_in_place(self.log_path(self.current.name), "ab") as err, \
+                outputs.open_in_place(out_path, "wb") as out:
             proc = subprocess.Popen(argv, cwd=ROOT, env=self.env(), stdin=subprocess.DEVNULL, stdout=out,
                                     stderr=err, start_new_session=True)
             timed_out = False

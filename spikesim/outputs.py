@@ -17,6 +17,9 @@ write, replace or delete a file outside that folder:
 - `output_folder` makes the folder a command writes in and, if the command fails, removes the
   folders it made again when they are still empty, so a failed run leaves no new empty folder.
 - `remove` deletes a file or folder inside the root, never through a link.
+- `open_in_place` (and `in_place_fd`) open a file written in place (a log, a lock, an appended
+  CSV) never through a symlink and never when the file has another name: writing through a hard
+  link planted at its name would change a file outside the output (docs/CONTRACTS.md).
 """
 from __future__ import annotations
 
@@ -157,18 +160,50 @@ def atomic_write_json(path: str | Path, data: Any, **dumps: Any) -> Path:
     return atomic_write_text(path, json.dumps(data, **dumps) + "\n")
 
 
-def append_text(path: str | Path, text: str) -> None:
-    """Append `text` to `path` (created if missing), never through a symlink (O_NOFOLLOW: a link
-    planted at a log's name is refused, naming it); an OSError names `path`."""
+HARD_LINK_REFUSED = ("names a file that has {n} names (hard links); writing it in place would change the file "
+                     "under its other names too, which may be outside the output: remove it, or choose another "
+                     "output folder")
+
+
+def in_place_fd(path: str | Path, flags: int) -> int:
+    """A descriptor of `path` opened with `flags` (os.O_CREAT creates it), for writing in place:
+    never through a symlink (O_NOFOLLOW) and never a file with more than one name (a hard link
+    planted at a log's or lock's name), each refused with a ValueError naming `path`; an OSError
+    names `path`. Call it before truncating or writing anything."""
     path = check_not_link(path)
     try:
-        fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), 0o666)
-        with os.fdopen(fd, "a", newline="") as f:
-            f.write(text)
+        fd = os.open(path, flags | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0), 0o666)
     except OSError as exc:
         if exc.errno == errno.ELOOP:  # a link made after the check above
             raise ValueError(f"{path}: {LINK_REFUSED}") from None
         raise naming(exc, path) from exc
+    links = os.fstat(fd).st_nlink
+    if links > 1:
+        os.close(fd)
+        raise ValueError(f"{path}: {HARD_LINK_REFUSED.format(n=links)}")
+    return fd
+
+
+def open_in_place(path: str | Path, mode: str) -> BinaryIO:
+    """`path` opened for writing in place, as in_place_fd checks it: "ab" appends, "wb" truncates
+    (after the checks, so a refused file is untouched); binary."""
+    flags = {"ab": os.O_WRONLY | os.O_APPEND | os.O_CREAT, "wb": os.O_WRONLY | os.O_CREAT}
+    if mode not in flags:
+        raise ValueError(f"open_in_place: mode {mode!r}; expected 'ab' or 'wb'")
+    fd = in_place_fd(path, flags[mode])
+    if mode == "wb":
+        os.ftruncate(fd, 0)
+    return os.fdopen(fd, mode)
+
+
+def append_text(path: str | Path, text: str) -> None:
+    """Append `text` to `path` (created if missing), as open_in_place checks it (no symlink, no
+    second name); an OSError names `path`."""
+    with open_in_place(path, "ab") as f:
+        try:
+            f.write(text.encode())
+        except OSError as exc:
+            raise naming(exc, path) from exc
 
 
 def make_dirs(root: str | Path, *parts: str | Path) -> Path:
@@ -254,6 +289,6 @@ def discard_empty(folders: list[Path]) -> None:
             break  # not empty (or gone): nor are the folders above it
 
 
-__all__ = ["LINK_REFUSED", "inside", "writable", "check_not_link", "naming", "writing", "new_temp_beside",
+__all__ = ["in_place_fd", "open_in_place", "HARD_LINK_REFUSED", "LINK_REFUSED", "inside", "writable", "check_not_link", "naming", "writing", "new_temp_beside",
            "atomic_write_with", "atomic_write_file", "atomic_write_bytes", "atomic_write_text", "atomic_write_json", "append_text",
            "make_dirs", "remove", "missing_folders", "output_folder", "output_file", "discard_empty"]

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Iterator
 
 from spikesim.dataset import LOCK_FILE, inside_root
+from spikesim.outputs import in_place_fd
 
 
 class OutputLockedError(OSError):
@@ -51,7 +52,9 @@ def output_lock(root: str | Path, command: str) -> Iterator[Path]:
 def _lock(root: Path, path: Path) -> int:
     """A descriptor of the lock file at `path`, flocked, that is still the file at `path`."""
     while True:
-        fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC, 0o666)  # the umask applies
+        # no symlink and no second name (a hard link planted at the lock's name would be truncated
+        # below: spikesim.outputs.in_place_fd); the umask applies
+        fd = in_place_fd(path, os.O_RDWR | os.O_CREAT)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
