@@ -39,9 +39,17 @@ def _backend(name: str) -> str:
     return resolve_backend(name)  # before measuring: a missing GPU is one line
 
 
+#: Why a statistic has no value: what the golden statistics need and a camera may not give.
+UNDEFINED = "cannot be computed: too few spikes or intervals in this band"
+
+
 def _table(rows: list[golden.Row], z_crit: float) -> str:
     lines = [f"{'band':8} {'statistic':17} {'value':>12} {'reference':>12} {'z':>8}  verdict (|z| <= {z_crit:.2f})"]
     for r in rows:
+        if not math.isfinite(r.value):  # said in words, not "nan" and "z inf"
+            lines.append(f"{r.band:8} {r.statistic:17} {'undefined':>12} {r.reference:12.6g} {'n/a':>8}  "
+                         f"FAIL ({UNDEFINED})")
+            continue
         lines.append(f"{r.band:8} {r.statistic:17} {r.value:12.6g} {r.reference:12.6g} {r.z:8.2f}  "
                      f"{'pass' if r.passed else 'FAIL'}")
     return "\n".join(lines)
@@ -62,7 +70,8 @@ def _check(args: argparse.Namespace) -> int:
                           "seed": args.seed, "z_critical": z_crit, "family_false_alarm": golden.FAMILY_FALSE_ALARM,
                           "passed": not failed,
                           "statistics": [{"band": r.band, "statistic": r.statistic, "value": _num(r.value),
-                                          "reference": r.reference, "z": _num(r.z), "passed": r.passed}
+                                          "reference": r.reference, "z": _num(r.z), "passed": r.passed,
+                                          **({} if math.isfinite(r.value) else {"note": UNDEFINED})}
                                          for r in rows]}, indent=2))
     else:
         print(_table(rows, z_crit))

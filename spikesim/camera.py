@@ -17,6 +17,14 @@ from pathlib import Path
 from typing import Any
 
 SHOT_NOISE_MODELS = ("off", "gaussian", "poisson")
+#: Physical ranges of the camera's scales (checked at construction). Threshold: a spike camera's
+#: threshold is a fraction of its pixel's full well, and CMOS full-well capacities run 1e3-1e6
+#: photo-electrons (Janesick, "Photon Transfer", 2007); below 10 e- one step's shot noise is no
+#: longer near Gaussian (shot_noise="gaussian"), and a value like 1e-300 made every pixel fire
+#: once and stop. Readout: 10 MHz to 1 Hz, around the 20-40 kHz of real spike cameras.
+THRESHOLD_ELECTRONS_RANGE = (10.0, 1e8)
+READOUT_PERIOD_RANGE_S = (1e-7, 1.0)
+
 #: The built-in cameras: the published magnitudes, the published plus the terms measured on a
 #: real recording, and the ideal pixel.
 CAMERA_PRESETS = ("realistic", "measured", "noiseless")
@@ -139,9 +147,16 @@ class SpikeCamera:
         _check_int("height", self.height)
         _check_int("width", self.width)
         _check_positive("readout_period_s", self.readout_period_s)
-        if self.readout_period_s > 1.0:
-            raise ValueError(f"readout_period_s={self.readout_period_s} s is not a sensor readout period (> 1 s)")
+        if not READOUT_PERIOD_RANGE_S[0] <= self.readout_period_s <= READOUT_PERIOD_RANGE_S[1]:
+            raise ValueError(f"readout_period_s={_shown(self.readout_period_s)} s is not a sensor readout period: expected "
+                             f"{READOUT_PERIOD_RANGE_S[0]:g} to {READOUT_PERIOD_RANGE_S[1]:g} s (10 MHz to 1 Hz; spike "
+                             "cameras read at 20-40 kHz)")
         _check_positive("threshold_electrons", self.threshold_electrons)
+        if not THRESHOLD_ELECTRONS_RANGE[0] <= self.threshold_electrons <= THRESHOLD_ELECTRONS_RANGE[1]:
+            raise ValueError(f"threshold_electrons={_shown(self.threshold_electrons)} is not a pixel's threshold: expected "
+                             f"{THRESHOLD_ELECTRONS_RANGE[0]:g} to {THRESHOLD_ELECTRONS_RANGE[1]:g} photo-electrons "
+                             "(CMOS full-well capacities are 1e3-1e6 e-; below 10 e- per spike the Gaussian shot "
+                             "noise of one step is not a valid model)")
         for name in ("dark_current_hz", "dark_current_spread", "gain_spread", "threshold_mismatch",
                      "threshold_offset", "comparator_noise", "reset_loss", *LATER_TERMS):
             _check_nonnegative(name, getattr(self, name))

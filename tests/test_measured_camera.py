@@ -107,3 +107,25 @@ def test_noise_effect_of_the_new_terms():
     assert noise_effect(m, "row_gain_spread", y) == pytest.approx(0.015 * y / (y + d))
     assert noise_effect(m, "outlier_pixel_fraction", y) == pytest.approx(math.sqrt(0.12) * 0.4 * y / (y + d))
     assert noise_effect(SpikeCamera.realistic(), "row_gain_spread", y) == 0.0
+
+
+@pytest.mark.parametrize("fields, message", [
+    ({"threshold_electrons": 1e-300}, "not a pixel's threshold"),
+    ({"threshold_electrons": 5.0}, "10 to 1e\\+08"),
+    ({"threshold_electrons": 1e9}, "not a pixel's threshold"),
+    ({"readout_period_s": 1e-9}, "not a sensor readout period"),
+    ({"readout_period_s": 2.0}, "not a sensor readout period"),
+])
+def test_physical_ranges_of_the_cameras_scales(fields, message):
+    """A threshold of 1e-300 electrons passed and made every pixel fire once and stop (rc 0)."""
+    with pytest.raises(ValueError, match=message):
+        SpikeCamera(**fields)
+    SpikeCamera(threshold_electrons=10.0, readout_period_s=1e-7)  # the ends are physical
+
+
+def test_golden_says_an_undefined_statistic_in_words():
+    from pipelines.golden_stats import UNDEFINED, _table
+    from spikesim.golden import Row
+
+    text = _table([Row("dark", "isi_cv", math.nan, 0.5, math.inf, False)], 3.0)
+    assert "undefined" in text and UNDEFINED in text and "nan" not in text and "inf" not in text
