@@ -92,13 +92,48 @@ def check_numbers(data: Any, where: str, finite: bool = True, _field: str = "") 
         raise ValueError(f"{where}: {_field or 'the value'} is {data}; numbers must be finite")
 
 
+#: The deepest nesting of objects and arrays a small file may have: no setting nests more than a
+#: few levels, and a file nested ~1000 deep made the parsers raise RecursionError (a traceback).
+MAX_NESTING = 64
+
+
+def nesting_depth(data: Any) -> int:
+    """How deeply lists and dicts nest in parsed data (0 for a scalar), without recursion."""
+    depth, stack = 0, [(data, 1)]
+    while stack:
+        item, d = stack.pop()
+        if isinstance(item, (dict, list)):
+            depth = max(depth, d)
+            stack.extend((v, d + 1) for v in (item.values() if isinstance(item, dict) else item))
+    return depth
+
+
+def parse_text(text: str, where: str, toml: bool = False) -> Any:
+    """JSON (or TOML) text parsed, nesting bounded by MAX_NESTING: the one parser of every small
+    file (configs, records, sidecars, manifests, meta.json), so none can crash a command with a
+    RecursionError. Syntax errors stay ValueErrors for the caller to word."""
+    try:
+        if toml:
+            import tomllib
+            data = tomllib.loads(text)
+        else:
+            data = json.loads(text)
+    except RecursionError:
+        raise ValueError(f"{where}: nested deeper than {MAX_NESTING} levels (no setting needs that)") from None
+    if nesting_depth(data) > MAX_NESTING:
+        raise ValueError(f"{where}: nested deeper than {MAX_NESTING} levels (no setting needs that)")
+    return data
+
+
 def read_json_file(path: str | Path, what: str, limit: int = SMALL_FILE_LIMIT, finite: bool = True) -> Any:
     """Parsed JSON of a small regular file (`read_small_file`), numbers checked (`check_numbers`);
     errors name `what` and the file."""
     text = read_small_file(path, what, limit)
     try:
-        data = json.loads(text)
+        data = parse_text(text, f"{what} {path}")
     except ValueError as exc:
+        if str(exc).startswith(f"{what} {path}:"):
+            raise
         raise ValueError(f"{what} {path} is not valid JSON: {exc}") from None
     check_numbers(data, f"{what} {path}", finite)
     return data
@@ -117,12 +152,10 @@ def read_config_file(path: str | Path) -> dict[str, Any]:
     path = Path(path)
     text = read_small_file(path, "config")
     try:
-        if path.suffix == ".toml":
-            import tomllib
-            data = tomllib.loads(text)
-        else:
-            data = json.loads(text)
+        data = parse_text(text, f"config {path}", toml=path.suffix == ".toml")
     except ValueError as exc:
+        if str(exc).startswith(f"config {path}:"):
+            raise
         raise ValueError(f"config {path} is not valid {path.suffix.lstrip('.').upper() or 'JSON'}: {exc}") from exc
     if not isinstance(data, dict):
         raise ValueError(f"config {path}: expected a table/object at the top level, got {type(data).__name__}")

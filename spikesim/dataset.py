@@ -37,7 +37,7 @@ import numpy as np
 
 from . import outputs
 from .imageio import read_exr, write_exr
-from .config_io import read_json_object, read_small_file
+from .config_io import parse_text, read_json_object, read_small_file
 from .stream import META_LIMIT, DatReader, SpikeStream, check_stream_record, write_dat
 
 MANIFEST = "manifest.json"
@@ -285,8 +285,10 @@ def _read_json_file(path: Path, shown: Path, what: str) -> Any:
         reason = str(exc).replace(f"{what} {path} ", "", 1)
         raise ValueError(f"{shown}: not {what} ({reason})") from None
     try:
-        return json.loads(text)
+        return parse_text(text, f"{shown}: not {what}")
     except ValueError as exc:
+        if str(exc).startswith(f"{shown}: not {what}:"):
+            raise
         raise ValueError(f"{shown}: not {what} (invalid JSON: {exc})") from None
 
 

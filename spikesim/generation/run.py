@@ -26,6 +26,7 @@ from typing import Any, Iterator
 import numpy as np
 
 from spikesim._drjit import resolve_device
+from spikesim.config_io import parse_text
 from spikesim.dataset import (MANIFEST, META, SATURATION_WARN_FRACTION, SATURATION_Y, check_scene,
                               drop_from_manifest, holds_only_scene_files, inside_root, manifest_disagreement,
                               read_manifest, remove_inside, scene_folders, scene_saturation, write_manifest)
@@ -59,7 +60,7 @@ def scene_state(job: SceneJob, root: Path, full: bool = False,
     if given.is_symlink() or not folder.is_dir() or not holds_only_scene_files(folder):
         return "foreign", []
     try:
-        meta = json.loads((folder / META).read_text())
+        meta = parse_text((folder / META).read_text(), str(folder / META))
         digest = meta.get("job_digest")
     except (OSError, ValueError, AttributeError):
         meta, digest = {}, None  # missing or unreadable: the checksum record says which
@@ -185,7 +186,7 @@ def _scene_identity(job: dict[str, Any]) -> tuple[dict[str, Any], float] | None:
 def _recorded_scene(folder: Path) -> tuple[dict[str, Any], float] | None:
     """The scene a folder's meta.json records (`_scene_identity`), or None when unreadable."""
     try:
-        job = json.loads((folder / META).read_text())["job"]
+        job = parse_text((folder / META).read_text(), str(folder / META))["job"]
     except (OSError, ValueError, KeyError, TypeError):
         return None
     return _scene_identity(job) if isinstance(job, dict) else None
@@ -227,7 +228,7 @@ def _passing_scenes(root: Path, planned: list[str], full: bool, listed: dict[str
 def _copy_hint(root: Path, name: str) -> str:
     """" (a copy of X?)" when the folder's meta.json names another scene."""
     try:
-        recorded = json.loads(inside_root(root, name, META).read_text()).get("name")
+        recorded = parse_text(inside_root(root, name, META).read_text(), META).get("name")
     except (OSError, ValueError, AttributeError):
         return ""
     return f" (its {META} names {recorded}: a copy?)" if isinstance(recorded, str) and recorded != name else ""

@@ -1,0 +1,52 @@
+"""One parser bounds the nesting of every small file: a JSON or TOML file nested ~1000 deep gave a
+RecursionError traceback in camera, inspect, train --config, verify and generate."""
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+from spikesim.config_io import MAX_NESTING, nesting_depth, parse_text
+
+DEEP_JSON = '{"a":' * 1000 + "1" + "}" * 1000
+DEEP_TOML = "a = " + "[" * 1000 + "]" * 1000 + "\n"
+
+
+def run(*args):
+    return subprocess.run([sys.executable, "-m", "pipelines.cli", *args], capture_output=True, text=True, timeout=300)
+
+
+def test_parse_text_bounds_nesting():
+    assert nesting_depth({"a": [1, {"b": 2}]}) == 3 and nesting_depth(5) == 0
+    for text, toml in ((DEEP_JSON, False), (DEEP_TOML, True), ("[" * (MAX_NESTING + 1) + "]" * (MAX_NESTING + 1), False)):
+        with pytest.raises(ValueError, match="nested deeper than"):
+            parse_text(text, "x", toml=toml)
+    assert parse_text("[" * MAX_NESTING + "]" * MAX_NESTING, "x") is not None
+
+
+@pytest.mark.parametrize("suffix, text", [(".json", DEEP_JSON), (".toml", DEEP_TOML)])
+def test_camera_and_train_name_a_deep_config(tmp_path, suffix, text):
+    f = tmp_path / f"deep{suffix}"
+    f.write_text(text)
+    r = run("camera", str(f))
+    assert r.returncode == 2 and "nested deeper than" in r.stderr and "Traceback" not in r.stderr
+    if suffix == ".json":
+        r = run("train", "--config", str(f), "--data", str(tmp_path), "-o", str(tmp_path / "r"))
+        assert r.returncode == 2 and "nested deeper than" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_inspect_verify_and_generate_name_deep_records(tmp_path):
+    ds = tmp_path / "ds"
+    assert run("generate", "rllr", "--pattern", "--count", "1", "--quiet", "-o", str(ds)).returncode == 0
+    dat = tmp_path / "s.dat"
+    assert run("simulate", "--steps", "41", "--height", "8", "--width", "16", "-o", str(dat)).returncode == 0
+    (tmp_path / "s.dat.json").write_text(DEEP_JSON)
+    r = run("inspect", str(dat))
+    assert r.returncode == 2 and "nested deeper than" in r.stderr and "Traceback" not in r.stderr
+    (ds / "manifest.json").write_text(DEEP_JSON)
+    r = run("verify", str(ds))
+    assert r.returncode in (1, 2) and "Traceback" not in r.stderr
+    (ds / "rllr_0000" / "meta.json").write_text(DEEP_JSON)
+    r = run("generate", "rllr", "--pattern", "--count", "1", "--quiet", "-o", str(ds))
+    assert "Traceback" not in r.stderr and "RecursionError" not in r.stderr
