@@ -12,7 +12,6 @@ scene, where that long average is sharp; say so where it is not.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -22,6 +21,7 @@ from model.threads import set_cpu_threads
 from pipelines.argtypes import add_threads_argument, nonnegative_int, output_file, positive_int
 from pipelines.inspect_cmd import header_columns_arg, open_stream
 from spikesim import outputs
+from spikesim.config_io import standard_json
 
 
 def panel_frames(path: Path, specs: list[str], height: int | None = None, width: int | None = None,
@@ -98,7 +98,7 @@ def run(args: argparse.Namespace) -> int:
                         "edge_to_noise": "edge_sharpness / flat_noise",
                         "reference": f"TFP over all {read['windows']} windows read"}}
     if args.json:
-        print(json.dumps(doc, indent=2))
+        print(standard_json(doc, indent=2))
     else:
         print(f"{read['input']}: {read['height']} x {read['width']}, frame {read['frame']} of {read['windows']} windows "
               f"(centre step {read['frame_centre_step']}), mean rate {read['mean_rate']:.4f} spikes/step")

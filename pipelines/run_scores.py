@@ -22,7 +22,6 @@ import numpy as np
 
 
 def pair_scores(methods: Sequence[Any], dat: Path, gt_path: Path, center: int, scale: float) -> dict[str, dict]:
-    from model.metrics import METRICS  # noqa: F401  (the metric names of the rows)
     from pipelines.evaluate import ALL, evaluate_pair
     from spikesim.imageio import read_image_y
 

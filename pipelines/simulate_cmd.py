@@ -16,6 +16,7 @@ from pipelines.argtypes import (add_device_argument, add_light_power_factor_argu
                                 output_file, positive_int)
 from spikesim import outputs
 from spikesim.camera import SpikeCamera
+from spikesim.config_io import standard_json
 from spikesim.keyframes import keyframe_count, steps_covered
 from spikesim.patterns import MovingPattern
 
@@ -242,8 +243,7 @@ def run(args: argparse.Namespace) -> int:
              len(reader) * cam.num_pixels / max(dt, 1e-9))
     s = summarize(reader, 0, len(reader), cam.readout_period_s, window=41)  # chunked: bounded memory
     if args.json:
-        import json
-        print(json.dumps({"out": str(out), "seconds": dt, **s}, indent=2, default=float))
+        print(standard_json({"out": str(out), "seconds": dt, **s}, indent=2, default=float))
         return 0
     print(f"{out}: {s['num_steps']} steps of {s['width']}x{s['height']} ({s['duration_s'] * 1e3:.2f} ms), "
           f"mean rate {s['mean_rate_per_step']:.4f} spikes/step ({s['mean_rate_hz']:.0f} Hz), "

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 from pathlib import Path
 
 from model.config import LR_SCHEDULES, ExperimentConfig, available_configs, load_config
@@ -21,6 +20,7 @@ from model.precision import PRECISIONS, resolve_precision
 from model.training import resolve_device, run_training
 from model.threads import set_cpu_threads
 from pipelines.argtypes import add_threads_argument, nonnegative_int, positive_float, positive_int
+from spikesim.config_io import standard_json
 
 __all__ = ["add_parser", "cmd_train", "resolve_device", "run_training"]
 
@@ -54,7 +54,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     summary = run_training(exp, train_scenes, val_scenes, out, args.device, args.resume, progress=not args.quiet,
                            overwrite=args.overwrite, init=args.init)
     if summary.get("rank", 0) == 0:  # under torchrun one summary, rank 0's (the others hold no validation)
-        print(json.dumps({k: v for k, v in summary.items() if k != "rank"}, indent=2, default=str))
+        print(standard_json({k: v for k, v in summary.items() if k != "rank"}, indent=2, default=str))
     # stopped by a signal: last.pt is written; the status says which (128 + its number), as a shell does
     return {"SIGINT": 130, "SIGTERM": 143}.get(summary["stopped_by"], 0)
 

@@ -125,6 +125,28 @@ def parse_text(text: str, where: str, toml: bool = False) -> Any:
     return data
 
 
+def standard_json(doc: Any, **dumps: Any) -> str:
+    """`doc` as standard JSON text: a NaN or infinite number (a perfect frame's PSNR, an undefined
+    statistic) becomes null, and a top-level "non_finite" object says what each was
+    ({"scores.TFP.psnr": "inf"}), since JSON has no NaN or Infinity and strict readers refuse them."""
+    notes: dict[str, str] = {}
+
+    def clean(item: Any, where: str) -> Any:
+        if isinstance(item, dict):
+            return {k: clean(v, f"{where}.{k}" if where else str(k)) for k, v in item.items()}
+        if isinstance(item, (list, tuple)):
+            return [clean(v, f"{where}[{i}]") for i, v in enumerate(item)]
+        if isinstance(item, float) and not math.isfinite(item):
+            notes[where or "value"] = str(item)
+            return None
+        return item
+
+    out = clean(doc, "")
+    if notes and isinstance(out, dict):
+        out = {**out, "non_finite": notes}
+    return json.dumps(out, allow_nan=False, **dumps)
+
+
 def read_json_file(path: str | Path, what: str, limit: int = SMALL_FILE_LIMIT, finite: bool = True) -> Any:
     """Parsed JSON of a small regular file (`read_small_file`), numbers checked (`check_numbers`);
     errors name `what` and the file."""

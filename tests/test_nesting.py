@@ -50,3 +50,26 @@ def test_inspect_verify_and_generate_name_deep_records(tmp_path):
     (ds / "rllr_0000" / "meta.json").write_text(DEEP_JSON)
     r = run("generate", "rllr", "--pattern", "--count", "1", "--quiet", "-o", str(ds))
     assert "Traceback" not in r.stderr and "RecursionError" not in r.stderr
+
+
+def test_standard_json_has_no_nan_or_infinity():
+    import json
+
+    from spikesim.config_io import standard_json
+
+    text = standard_json({"scores": {"TFP": {"psnr": float("inf"), "ssim": 0.5}}, "rows": [float("nan"), 1.0]})
+    doc = json.loads(text, parse_constant=lambda c: pytest.fail(f"non-standard JSON constant {c}"))
+    assert doc["scores"]["TFP"]["psnr"] is None and doc["rows"] == [None, 1.0]
+    assert doc["non_finite"] == {"scores.TFP.psnr": "inf", "rows[0]": "nan"}
+
+
+def test_panel_json_is_standard(tmp_path):
+    """panel --json printed Infinity for the black floor's edge/noise; now null with the reason."""
+    import json
+
+    dat = tmp_path / "s.dat"
+    assert run("simulate", "--steps", "82", "--height", "16", "--width", "24", "--peak-y", "0.01", "-o",
+               str(dat)).returncode == 0
+    r = run("panel", str(dat), "--methods", "tfp", "black", "--json", "-o", str(tmp_path / "p.png"))
+    assert r.returncode == 0, r.stderr
+    json.loads(r.stdout, parse_constant=lambda c: pytest.fail(f"non-standard JSON constant {c}"))
