@@ -93,10 +93,10 @@ def span_method_spec(body: str, window: int) -> int | None:
     """The span of a `tfp:N` spec (N steps), None for any other spec."""
     if not body.startswith("tfp:"):
         return None
-    try:
-        span = int(body[4:])
-    except ValueError:
-        raise ValueError(f"method {body!r}: tfp:N takes a number of steps, e.g. tfp:{3 * window}") from None
+    digits = body[4:]
+    if not (digits.isascii() and digits.isdigit()):  # int() also takes "1_23" and other scripts' digits
+        raise ValueError(f"method {body!r}: tfp:N takes a number of steps in digits 0-9, e.g. tfp:{3 * window}")
+    span = int(digits)
     if span < 1:
         raise ValueError(f"method {body!r}: the span must be a positive number of steps")
     return span
@@ -145,7 +145,8 @@ def method_from_spec(spec: str, window: int = 41, chunk: int = 8, device: str = 
     """"tfp", "tfi", "black", "mean", "tfp:N" (TFP over N steps), "lrrep" (the shipped weights; any
     name of model.pretrained.PRETRAINED, e.g. the earlier lrrep_v1) or
     a checkpoint path; "label=..." names the method in tables."""
-    label, _, body = spec.rpartition("=") if "=" in spec else ("", "", spec)
+    # a checkpoint path may hold "=" (runs/lr=3e-4/best.pt): an existing file is a path, not label=spec
+    label, _, body = spec.partition("=") if "=" in spec and not Path(spec).is_file() else ("", "", spec)
     if body in MAP_METHODS:
         return MapMethod(label or (body.upper() if body in ("tfp", "tfi") else body), body, window)
     span = span_method_spec(body, window)

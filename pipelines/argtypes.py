@@ -37,6 +37,19 @@ def nonnegative_int(text: str) -> int:
     return v
 
 
+#: The largest seed: torch seeds its generators with a 64-bit integer (a 30-digit seed failed deep
+#: inside training with "Overflow when unpacking long long"); NumPy takes any.
+MAX_SEED = 2 ** 63 - 1
+
+
+def seed_int(text: str) -> int:
+    """A seed: an integer in 0..MAX_SEED."""
+    v = nonnegative_int(text)
+    if v > MAX_SEED:
+        raise argparse.ArgumentTypeError(f"a seed is at most 2**63 - 1 = {MAX_SEED}, got {len(str(v))} digits")
+    return v
+
+
 def positive_float(text: str) -> float:
     """A finite number > 0 (a rate, a gamma, a scale)."""
     v = _number(text, float)

@@ -16,13 +16,15 @@ from pathlib import Path
 
 from pipelines.argtypes import camera_spec, load_camera, output_file
 from spikesim.camera import CAMERA_PRESETS
-from spikesim.camera import CAMERA_PRESETS
 from spikesim import outputs
 
 
 def run(args: argparse.Namespace) -> int:
     from spikesim.camera_file import GEOMETRY_FIELDS, camera_toml
 
+    if args.write and args.file is not None:
+        raise ValueError(f"give a camera to check ({args.file}) or --write FILE.toml to write one, not both: the "
+                         "first would be ignored (--preset picks what --write writes)")
     if args.write:
         out: Path = args.write
         if out.suffix != ".toml":
@@ -33,7 +35,7 @@ def run(args: argparse.Namespace) -> int:
             outputs.atomic_write_text(out, camera_toml(preset=args.preset))
         print(f"[camera] wrote {out} ({args.preset}); edit it and pass --camera {out}", file=sys.stderr)
         return 0
-    camera = load_camera(args.file)
+    camera = load_camera(args.file or "realistic")
     fields = {k: v for k, v in camera.to_dict().items() if k not in GEOMETRY_FIELDS}
     print(json.dumps(fields, indent=2))
     return 0
@@ -42,7 +44,7 @@ def run(args: argparse.Namespace) -> int:
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("camera", help="write a commented camera file to start from, or check one",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("file", nargs="?", type=camera_spec, default="realistic",
+    p.add_argument("file", nargs="?", type=camera_spec, default=None,
                    help="a camera file to check (or realistic / measured / noiseless): prints the camera it describes")
     p.add_argument("--write", type=output_file, metavar="FILE.toml",
                    help="write every field with its unit, meaning and published default")

@@ -15,7 +15,7 @@ import sys
 import time
 from pathlib import Path
 
-from pipelines.argtypes import (add_device_argument, bundled_scene, existing_file, nonnegative_int, output_dir,
+from pipelines.argtypes import (seed_int, add_device_argument, bundled_scene, existing_file, output_dir,
                                 positive_int)
 
 
@@ -97,7 +97,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--workers", type=positive_int, default=None,
                    help="worker processes (default: one per core; one with a GPU)")
     add_device_argument(p)
-    p.add_argument("--seed", type=nonnegative_int, default=0, help="seed of the sensor's noise and fixed patterns")
+    p.add_argument("--seed", type=seed_int, default=0, help="seed of the sensor's noise and fixed patterns")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.add_argument("--json", action="store_true", help="print the scores as JSON (evaluate's layout) instead of the table")
     p.set_defaults(func=run)

@@ -177,6 +177,10 @@ def evaluate_pair(dat: Path, gt: np.ndarray, center: int, methods: Sequence[Meth
     source = StepWindows(lambda a, b: reader.read(a, b).unpack(), center - half - before * window, window,
                          before + 1 + after)
     target = np.clip(gt.astype(np.float32), 0.0, SATURATION_Y)
+    if float(target.max()) == float(target.min()):  # as generate refuses a black scene
+        raise ValueError(f"--gt is one value everywhere (y = {float(target.min()):.4g} after clipping at saturation): a "
+                         "constant image scores every method's PSNR as infinite or undefined; check the image and "
+                         "--gt-scale")
     rows = []
     for m in methods:
         frame = next(f for i, f in m.frames(source) if i == before)

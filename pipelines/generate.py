@@ -10,8 +10,8 @@ import shlex
 import sys
 from pathlib import Path
 
-from pipelines.argtypes import (add_device_argument, add_light_power_factor_argument, camera_spec, existing_file,
-                                load_camera, nonnegative_int, positive_float, positive_int)
+from pipelines.argtypes import (seed_int, add_device_argument, add_light_power_factor_argument, camera_spec, existing_file,
+                                load_camera, positive_float, positive_int)
 from spikesim._drjit import resolve_device
 from spikesim.dataset import check_scene_name
 from spikesim.generation.plan import CONTENTS, DARKENINGS, LOG_DARKENING_MIN
@@ -176,7 +176,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--preset", choices=sorted(PRESETS), default="small",
                    help="dataset size: small (a quick check) or paper (the paper's sizes)")
     p.add_argument("-o", "--out", type=Path, required=True, help="dataset root (resumable: rerun to continue)")
-    p.add_argument("--seed", type=nonnegative_int, default=0,
+    p.add_argument("--seed", type=seed_int, default=0,
                    help="dataset seed; each scene's seed derives from it, the scene's name and its light")
     p.add_argument("--scenes", nargs="+", type=_llr_scene, help="LLR scenes by name (default: the preset's)")
     p.add_argument("--count", type=positive_int, help="RLLR scenes (default: the preset's)")

@@ -14,7 +14,7 @@ import math
 import sys
 from typing import Any
 
-from pipelines.argtypes import camera_spec, existing_file, load_camera, nonnegative_int, output_file, positive_int
+from pipelines.argtypes import seed_int, camera_spec, existing_file, load_camera, output_file, positive_int
 from spikesim import golden
 
 
@@ -160,7 +160,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help=f"reference to compare with (default: the project's, {golden.PACKAGED_REFERENCE.name})")
     p.add_argument("--backend", default="numpy", choices=["numpy", "llvm", "cuda", "auto"],
                    help="simulator backend to measure with (default: numpy, the reference's)")
-    p.add_argument("--seed", type=nonnegative_int, default=golden.MEASURE_SEED,
+    p.add_argument("--seed", type=seed_int, default=golden.MEASURE_SEED,
                    help="seed of the check's measurement; refused if the reference used it (references use "
                         "0 .. N-1 for --seeds N)")
     mode = p.add_mutually_exclusive_group()

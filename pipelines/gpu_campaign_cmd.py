@@ -12,7 +12,7 @@ import os
 import sys
 from pathlib import Path
 
-from pipelines.argtypes import nonnegative_int, output_dir, positive_float, positive_int
+from pipelines.argtypes import seed_int, output_dir, positive_float, positive_int
 
 DESCRIPTION = __doc__ + """
 On a lent GPU, from the repository root, with .whl (scripts/gpu_wheels.sh) carried:
@@ -92,7 +92,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--wheels", type=Path, help="the folder scripts/gpu_wheels.sh filled (default: .whl)")
     p.add_argument("--rllr-count", type=positive_int,
                    help="RLLR scenes to make (default: 10 on a GPU, 2 with --dry-run; fewer if the box ends first)")
-    p.add_argument("--seed", type=nonnegative_int, default=0, help="seed of the datasets and of training")
+    p.add_argument("--seed", type=seed_int, default=0, help="seed of the datasets and of training")
     p.add_argument("--fresh", action="store_true",
                    help="forget the stage records an earlier call left in the work folder")
     p.add_argument("--inject", type=_injection, action="append", metavar="STAGE=fail|timeout",

@@ -44,6 +44,8 @@ def panel_frames(path: Path, specs: list[str], height: int | None = None, width:
     frames = {}
     for spec in specs:
         method = method_from_spec(spec, window, device=device)
+        if method.name in frames:  # a second tile of that name would replace the first, silently
+            raise ValueError(f"--methods: two methods are labelled {method.name!r}; name them with label=spec")
         frames[method.name] = np.asarray(next(f for i, f in method.frames(source) if i == index), dtype=np.float64)
         bad = int(frames[method.name].size - np.count_nonzero(np.isfinite(frames[method.name])))
         if bad:  # drawn, NaN is a black tile: no picture of the method

@@ -17,8 +17,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from pipelines.argtypes import (add_device_argument, add_light_power_factor_argument, config_file, existing_file,
-                                nonnegative_int, output_dir, positive_float, positive_int)
+from pipelines.argtypes import (seed_int, add_device_argument, add_light_power_factor_argument, config_file, existing_file,
+                                output_dir, positive_float, positive_int)
 from spikesim.outputs import atomic_write_with, output_folder, writing
 
 
@@ -106,7 +106,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
                    help="samples per pixel per frame render (default: the scene's sampler, else 4)")
     p.add_argument("--gt-spp", type=positive_int, default=None,
                    help="samples per pixel per ground-truth render (default 64)")
-    p.add_argument("--seed", type=nonnegative_int, default=None, help="render seed (default 0)")
+    p.add_argument("--seed", type=seed_int, default=None, help="render seed (default 0)")
     add_device_argument(p, sensor="none")
     p.add_argument("--height", type=positive_int, help="film rows, pixels (default: the scene's film; with --width)")
     p.add_argument("--width", type=positive_int, help="film columns, pixels (default: the scene's film; with --height)")

@@ -25,7 +25,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from pipelines.argtypes import nonnegative_int, output_file, positive_float, positive_int
+from pipelines.argtypes import seed_int, nonnegative_int, output_file, positive_float, positive_int
 from spikesim import outputs
 
 #: Illuminance at the subject of the LLR scenes' lighting conditions (docs/scenes.md, section 2).
@@ -145,7 +145,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m pipelines.rllr_lighting", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--preset", choices=["paper", "small"], default="paper", help="the preset whose scenes are planned")
-    p.add_argument("--seed", type=nonnegative_int, default=0, help="dataset seed, as generate's --seed")
+    p.add_argument("--seed", type=seed_int, default=0, help="dataset seed, as generate's --seed")
     p.add_argument("--count", type=positive_int, help="scenes (default: the preset's; paper 100)")
     p.add_argument("--steps", type=nonnegative_int, nargs="+", help="ground-truth steps per scene (default: first, middle, last)")
     p.add_argument("--lamps-lux", type=positive_float, nargs=2, metavar=("LOW", "HIGH"),

@@ -11,8 +11,8 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from pipelines.argtypes import (add_device_argument, add_light_power_factor_argument, camera_spec, existing_file, load_camera,
-                                nonnegative_float, nonnegative_int,
+from pipelines.argtypes import (seed_int, add_device_argument, add_light_power_factor_argument, camera_spec, existing_file, load_camera,
+                                nonnegative_float,
                                 output_file, positive_int)
 from spikesim import outputs
 from spikesim.camera import SpikeCamera
@@ -280,7 +280,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     add_camera_arguments(p)
     p.add_argument("--backend", default="auto", choices=["auto", "numpy", "llvm", "cuda"],
                    help="sensor backend: auto (cuda > llvm > numpy), the NumPy reference, Dr.Jit CPU or GPU")
-    p.add_argument("--seed", type=nonnegative_int, default=0, help="seed of the sensor's noise and fixed patterns")
+    p.add_argument("--seed", type=seed_int, default=0, help="seed of the sensor's noise and fixed patterns")
     p.add_argument("--no-flip", action="store_true",
                    help="write rows top-down (SPCS/SCSim convention; default: rows stored bottom-up (flip), as real cameras)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")

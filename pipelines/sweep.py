@@ -31,7 +31,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from pipelines.argtypes import add_threads_argument, camera_spec, load_camera, nonnegative_int, positive_float, positive_int
+from pipelines.argtypes import seed_int, add_threads_argument, camera_spec, load_camera, positive_float, positive_int
 from spikesim.dataset import SATURATION_Y
 
 RESULT_FILES = ("sweep.csv", "sweep.md", "sweep.png", "sweep.json")
@@ -312,7 +312,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--camera", type=camera_spec, default="realistic",
                    help="realistic, measured, noiseless or a camera file (default: realistic)")
     p.add_argument("--backend", choices=BACKENDS, default="auto", help="sensor implementation (default: auto)")
-    p.add_argument("--seed", type=nonnegative_int, default=0, help="seed of the renders and the sensor")
+    p.add_argument("--seed", type=seed_int, default=0, help="seed of the renders and the sensor")
     p.add_argument("-o", "--out", type=Path, required=True, help="folder for sweep.csv, sweep.md, sweep.json, sweep.png")
     p.add_argument("--no-plot", action="store_true", help="no sweep.png (no matplotlib needed)")
     add_threads_argument(p)

@@ -9,7 +9,7 @@ import logging
 from pathlib import Path
 from typing import Any
 
-from pipelines.argtypes import add_device_argument, bundled_scene, nonnegative_int, output_dir, positive_int
+from pipelines.argtypes import seed_int, add_device_argument, bundled_scene, output_dir, positive_int
 from spikesim import tradeoff
 from spikesim._optional import require
 from spikesim.tradeoff import DEFAULT_SCENES, KNOBS, StudyConfig, collect_rows, run_study, write_report
@@ -76,7 +76,7 @@ def add_parser(subparsers: Any) -> None:
     p.add_argument("--gt-spp", type=positive_int, default=256, help="samples per pixel of the ground truth (256)")
     p.add_argument("--knobs", nargs="+", default=list(KNOBS), choices=KNOBS, help="the knobs to vary, one at a time")
     p.add_argument("--repeats", type=positive_int, default=3, help="simulation timing repeats (minimum kept)")
-    p.add_argument("--seed", type=nonnegative_int, default=0, help="seed of the renders and the sensor")
+    p.add_argument("--seed", type=seed_int, default=0, help="seed of the renders and the sensor")
     p.add_argument("--backend", default="auto", choices=("auto", "numpy", "llvm", "cuda"), help="the sensor backend")
     add_device_argument(p, sensor="backend")
     p.add_argument("-o", "--out", type=output_dir, default=Path("out/tradeoff"),

@@ -19,7 +19,7 @@ from model.data import open_scenes, split_scenes
 from model.precision import PRECISIONS, resolve_precision
 from model.training import resolve_device, run_training
 from model.threads import set_cpu_threads
-from pipelines.argtypes import add_threads_argument, nonnegative_int, positive_float, positive_int
+from pipelines.argtypes import seed_int, add_threads_argument, nonnegative_int, positive_float, positive_int
 from spikesim.config_io import standard_json
 
 __all__ = ["add_parser", "cmd_train", "resolve_device", "run_training"]
@@ -93,7 +93,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     g.add_argument("--crop", type=positive_int, help="side of the random training crop, pixels")
     g.add_argument("--val-crop", type=positive_int, help="side of the central validation crop, pixels")
     g.add_argument("--lr", type=positive_float, help="Adam learning rate")
-    g.add_argument("--seed", type=nonnegative_int, help="seed of the weights, the sample order and the crops")
+    g.add_argument("--seed", type=seed_int, help="seed of the weights, the sample order and the crops")
     g.add_argument("--num-workers", type=nonnegative_int, help="data-loader processes (0: load in the training process)")
     g.add_argument("--samples-per-epoch", type=positive_int, help="random samples drawn per epoch (default: every start once)")
     g.add_argument("--ckpt-every-steps", type=positive_int,

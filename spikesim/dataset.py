@@ -25,7 +25,6 @@ through `inside_root`: neither a name, nor a manifest entry, nor a symlink can l
 from __future__ import annotations
 
 import hashlib
-import json
 import os
 import re
 import shutil

@@ -73,3 +73,37 @@ def test_panel_json_is_standard(tmp_path):
     r = run("panel", str(dat), "--methods", "tfp", "black", "--json", "-o", str(tmp_path / "p.png"))
     assert r.returncode == 0, r.stderr
     json.loads(r.stdout, parse_constant=lambda c: pytest.fail(f"non-standard JSON constant {c}"))
+
+
+def test_small_surface_refusals(tmp_path):
+    """panel with two methods of one label, evaluate --dat against a constant truth, camera --write
+    with a file, tfp:1_23 and a 30-digit seed: each one line, rc 2 (they were silently wrong or a
+    traceback before)."""
+    import numpy as np
+
+    dat = tmp_path / "s.dat"
+    assert run("simulate", "--steps", "123", "--height", "16", "--width", "24", "-o", str(dat)).returncode == 0
+    r = run("panel", str(dat), "--methods", "tfp", "TFP=tfi", "-o", str(tmp_path / "p.png"))
+    assert r.returncode == 2 and "two methods are labelled 'TFP'" in r.stderr
+    np.save(tmp_path / "gt.npy", np.zeros((16, 24), np.float32))
+    r = run("evaluate", "--dat", str(dat), "--gt", str(tmp_path / "gt.npy"), "--center", "61", "--methods", "tfp")
+    assert r.returncode == 2 and "one value everywhere" in r.stderr
+    r = run("camera", "--write", str(tmp_path / "c.toml"), "measured")
+    assert r.returncode == 2 and "not both" in r.stderr and not (tmp_path / "c.toml").exists()
+    r = run("evaluate", "--dat", str(dat), "--gt", str(tmp_path / "gt.npy"), "--center", "61", "--methods", "tfp:1_23")
+    assert r.returncode == 2 and "digits 0-9" in r.stderr
+    r = run("simulate", "--steps", "41", "--height", "8", "--width", "8", "--seed", "1" * 30, "-o", str(tmp_path / "x.dat"))
+    assert r.returncode == 2 and "a seed is at most" in r.stderr
+
+
+def test_a_checkpoint_path_holding_an_equals_sign_is_a_path(tmp_path):
+    import shutil
+
+    from model.methods import method_from_spec
+    from model.pretrained import pretrained_path
+
+    ckpt = tmp_path / "lr=3e-4" / "best.pt"
+    ckpt.parent.mkdir()
+    shutil.copy(pretrained_path("lrrep"), ckpt)
+    assert method_from_spec(str(ckpt)).name == "lr=3e-4"
+    assert method_from_spec(f"mine={ckpt}").name == "mine"
