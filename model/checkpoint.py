@@ -107,7 +107,13 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
     if path.is_dir():
         raise IsADirectoryError(errno.EISDIR, "is a directory, expected a checkpoint file", str(path))
     if not path.is_file():
+        if path.exists():  # a FIFO, device or socket: there is a file, not a checkpoint one
+            raise ValueError(f"{path}: not a regular file (a FIFO, device or socket), so not a checkpoint")
         raise FileNotFoundError(errno.ENOENT, "checkpoint not found", str(path))
+    device = torch.device(map_location) if isinstance(map_location, (str, torch.device)) else None
+    if device is not None and device.type == "cuda" and not torch.cuda.is_available():  # the machine, not the file
+        raise ValueError(f"device {map_location}: this machine has no CUDA device (torch {torch.__version__}); "
+                         "use cpu")
     try:
         with warnings.catch_warnings():  # a foreign pickle protocol: the refusal below says all there is
             warnings.filterwarnings("ignore", message="Detected pickle protocol")

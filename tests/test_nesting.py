@@ -107,3 +107,21 @@ def test_a_checkpoint_path_holding_an_equals_sign_is_a_path(tmp_path):
     shutil.copy(pretrained_path("lrrep"), ckpt)
     assert method_from_spec(str(ckpt)).name == "lr=3e-4"
     assert method_from_spec(f"mine={ckpt}").name == "mine"
+
+
+def test_checkpoint_errors_name_the_real_cause(tmp_path):
+    """A FIFO given as --init said "not found"; a CUDA load on a CPU machine blamed the shipped file."""
+    import os
+
+    import torch
+
+    from model.checkpoint import load_checkpoint
+    from model.pretrained import load_pretrained
+
+    fifo = tmp_path / "w.pt"
+    os.mkfifo(fifo)
+    with pytest.raises(ValueError, match="not a regular file"):
+        load_checkpoint(fifo)
+    if not torch.cuda.is_available():
+        with pytest.raises(ValueError, match="no CUDA device"):
+            load_pretrained("lrrep", "cuda")
