@@ -543,6 +543,18 @@ def _train(experiment: ExperimentConfig, train_scenes: Sequence[Scene], val_scen
         run_epochs = math.ceil(last_step() / batches_per_epoch)
         return min(tc.val_every, max(1, run_epochs // tc.min_validations))
 
+    if resume and (step >= last_step() or epoch >= tc.epochs):
+        # a finished run: one more step would change last.pt past its plan ("step 21 of 20")
+        if dist.is_main:
+            print(f"[train] nothing to do: {out / 'last.pt'} is at step {step} of {last_step()} (epoch {epoch} of "
+                  f"{tc.epochs}); raise --max-steps, --epochs or --budget-minutes to train further", file=sys.stderr)
+        logs.close()
+        return {"steps": step, "weights_sha256": state_fingerprint(run.model.state_dict()), "stopped_by": None,
+                "epoch": epoch, "last_loss": None, "best_val_psnr_aligned": best if math.isfinite(best) else None,
+                "precision": run.precision, "processes": dist.world, "rank": dist.rank, "train_seconds": 0.0,
+                "budget_minutes": tc.budget_minutes, "planned_steps": None if budget is None else budget.planned_steps,
+                "out": str(out), "nothing_to_do": True}
+
     bar = progress_bar(total=_total_steps(tc, batches_per_epoch), initial=step, desc=f"train {experiment.name}",
                        unit="step", quiet=not (progress and dist.is_main))
     timer, last_loss, stopped = _Timer(), math.nan, False

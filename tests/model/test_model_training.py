@@ -100,6 +100,18 @@ def test_tiny_overfit_loss_falls(scenes, tmp_path):
     assert np.mean(losses[-5:]) < 0.5 * np.mean(losses[:5]), losses
 
 
+def test_resume_of_a_finished_run_trains_nothing(scenes, tmp_path, capsys):
+    """`--resume` on a finished run trained one more step ("step 4 of 3", loss nan) and changed
+    last.pt; now it says there is nothing to do and leaves every file as it was."""
+    run_training(tiny_experiment(max_steps=3), scenes[:2], scenes[2:], tmp_path, device="cpu", progress=False)
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file()}
+    again = run_training(tiny_experiment(max_steps=3), scenes[:2], scenes[2:], tmp_path, device="cpu", resume=True,
+                         progress=False)
+    assert again["nothing_to_do"] and again["steps"] == 3
+    assert "nothing to do" in capsys.readouterr().err
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file()} == before
+
+
 def test_resume_continues_exactly(scenes, tmp_path):
     straight = run_training(tiny_experiment(max_steps=4), scenes[:2], scenes[2:], tmp_path / "a",
                             device="cpu", progress=False)
