@@ -1,0 +1,42 @@
+"""model.reconstruct: the documented Python call that runs a method on a spike stream."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+import model
+from model.threads import describe_threads
+
+
+def _spikes(steps=123, h=16, w=24, seed=0):
+    return np.random.default_rng(seed).random((steps, h, w)) < 0.1
+
+
+def test_tfp_frames_are_window_means():
+    s = _spikes()
+    frames = model.reconstruct(s, method="tfp", threads=1)
+    assert frames.shape == (3, 16, 24) and frames.dtype == np.float32
+    np.testing.assert_allclose(frames[1], s[41:82].mean(0), rtol=1e-6)
+
+
+def test_the_shipped_network_and_the_thread_choice(tmp_path):
+    s = torch.from_numpy(_spikes(steps=5 * 41 + 7))
+    frames = model.reconstruct(s, threads=1)
+    assert frames.shape == (5, 16, 24) and np.isfinite(frames).all()
+    assert "1 thread(s), as asked" in describe_threads()
+    model.reconstruct(s, method="tfp")  # threads=0: chosen from the free cores, as the commands do
+    assert "cores, load average" in describe_threads()
+
+
+def test_a_dat_path_and_bad_input(tmp_path):
+    from spikesim.stream import SpikeStream, write_dat
+
+    s = _spikes()
+    write_dat(tmp_path / "s.dat", SpikeStream.from_bool(s))
+    frames = model.reconstruct(tmp_path / "s.dat", method="tfp", height=16, width=24, threads=1)
+    np.testing.assert_allclose(frames[0], s[:41].mean(0), rtol=1e-6)
+    with pytest.raises(ValueError, match="no whole 41-step window"):
+        model.reconstruct(s[:40], method="tfp")
+    with pytest.raises(ValueError, match="expected \\(steps, H, W\\)"):
+        model.reconstruct(s[0], method="tfp")
