@@ -32,6 +32,7 @@ import os
 import platform
 import re
 import subprocess
+import sys
 import time
 from pathlib import Path
 from typing import Any, Callable, Sequence
@@ -268,13 +269,19 @@ def _load_state(o: Options) -> dict[str, StageRecord]:
     path = o.work / "state.json"
     if o.fresh or not path.is_file():
         return {}
+    from spikesim.config_io import read_json_object
     try:
-        doc = json.loads(path.read_text())
-    except json.JSONDecodeError:
+        doc = read_json_object(path, "campaign state")  # a small regular file, bounded nesting
+        if doc.get("schema") != SCHEMA_VERSION or doc.get("mode") != o.profile.name or doc.get("seed") != o.seed:
+            return {}  # another kind of campaign ran here: its records do not describe this one
+        stages = doc.get("stages", {})
+        if not isinstance(stages, dict):
+            raise TypeError("stages is not an object")
+        return {n: StageRecord.from_dict(r) for n, r in stages.items() if n in STAGE_NAMES}
+    except (ValueError, TypeError, AttributeError, KeyError) as exc:  # damaged: start the campaign afresh
+        print(f"[gpu-campaign] {path} is damaged ({str(exc).splitlines()[0][:160]}); its stages run again",
+              file=sys.stderr)
         return {}
-    if doc.get("schema") != SCHEMA_VERSION or doc.get("mode") != o.profile.name or doc.get("seed") != o.seed:
-        return {}  # another kind of campaign ran here: its records do not describe this one
-    return {n: StageRecord.from_dict(r) for n, r in doc.get("stages", {}).items() if n in STAGE_NAMES}
 
 
 def _machine() -> dict[str, Any]:

@@ -67,6 +67,14 @@ def cmd_gpu_campaign(args: argparse.Namespace) -> int:
     return 0
 
 
+def minutes_in_a_day(text: str) -> float:
+    """A deadline in minutes, at most a day (1e307 minutes became "inf" seconds)."""
+    v = positive_float(text)
+    if v > 24 * 60:
+        raise argparse.ArgumentTypeError(f"at most a day ({24 * 60} minutes), got {text}")
+    return v
+
+
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     from pipelines.gpu_campaign import PARTS, STAGE_NAMES
 
@@ -85,7 +93,7 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                         "(remaking a dataset the machine lost); all: every stage")
     p.add_argument("--stages", nargs="+", choices=STAGE_NAMES, metavar="STAGE",
                    help=f"only these of the part's stages ({', '.join(STAGE_NAMES)})")
-    p.add_argument("--deadline-minutes", type=positive_float, default=9.25,
+    p.add_argument("--deadline-minutes", type=minutes_in_a_day, default=9.25,
                    help="wall-clock minutes this call may take in all; each stage's box is cut to leave the later "
                         "stages their least (a device call is killed at 10: 9.25 leaves a stage's 20 s of grace "
                         "and the last writes)")

@@ -108,6 +108,16 @@ def nesting_depth(data: Any) -> int:
     return depth
 
 
+def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    """A JSON object, refusing a key given twice (the last would win silently; TOML refuses it too)."""
+    out: dict[str, Any] = {}
+    for k, v in pairs:
+        if k in out:
+            raise ValueError(f"the key {k!r} is given twice")
+        out[k] = v
+    return out
+
+
 def parse_text(text: str, where: str, toml: bool = False) -> Any:
     """JSON (or TOML) text parsed, nesting bounded by MAX_NESTING: the one parser of every small
     file (configs, records, sidecars, manifests, meta.json), so none can crash a command with a
@@ -117,7 +127,7 @@ def parse_text(text: str, where: str, toml: bool = False) -> Any:
             import tomllib
             data = tomllib.loads(text)
         else:
-            data = json.loads(text)
+            data = json.loads(text, object_pairs_hook=_unique_keys)
     except RecursionError:
         raise ValueError(f"{where}: nested deeper than {MAX_NESTING} levels (no setting needs that)") from None
     if nesting_depth(data) > MAX_NESTING:

@@ -102,8 +102,11 @@ def new_temp_beside(path: str | Path, suffix: str = ".part") -> Path:
     exclusively (O_EXCL, no link followed), mode 0666 masked by the user's umask like any file
     the user writes. An OSError names `path`."""
     path = Path(path)
+    # a legal name of up to 255 bytes must leave room for the dot, the random part and the suffix
+    room = 255 - 1 - 9 - len(suffix.encode())
+    stem = path.name.encode()[:room].decode(errors="ignore")
     while True:
-        tmp = path.with_name(f".{path.name}.{secrets.token_hex(4)}{suffix}")
+        tmp = path.with_name(f".{stem}.{secrets.token_hex(4)}{suffix}")
         try:
             fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0), 0o666)
         except FileExistsError:

@@ -125,3 +125,39 @@ def test_checkpoint_errors_name_the_real_cause(tmp_path):
     if not torch.cuda.is_available():
         with pytest.raises(ValueError, match="no CUDA device"):
             load_pretrained("lrrep", "cuda")
+
+
+def test_duplicate_json_keys_are_refused():
+    with pytest.raises(ValueError, match="'a' is given twice"):
+        parse_text('{"a": 1, "b": {"a": 2}, "a": 3}', "x")
+    assert parse_text('{"a": 1, "b": {"a": 2}}', "x") == {"a": 1, "b": {"a": 2}}
+
+
+def test_a_longest_legal_output_name_can_be_written(tmp_path):
+    """A 255-byte name failed: its temporary name (dot, random part, suffix) was longer than that."""
+    from spikesim.outputs import atomic_write_text
+
+    target = tmp_path / ("n" * 251 + ".txt")
+    atomic_write_text(target, "ok")
+    assert target.read_text() == "ok" and [p.name for p in tmp_path.iterdir()] == [target.name]
+
+
+def test_a_damaged_campaign_state_starts_afresh(tmp_path, capsys):
+    from pipelines import gpu_campaign
+
+    work = tmp_path / "w"
+    work.mkdir()
+    (work / "state.json").write_text('{"schema": ')
+    o = type("O", (), {"work": work, "fresh": False, "profile": type("P", (), {"name": "cpu"})(), "seed": 0})()
+    assert gpu_campaign._load_state(o) == {}
+    assert "is damaged" in capsys.readouterr().err
+    (work / "state.json").write_text('{"schema": %d, "mode": "cpu", "seed": 0, "stages": [1]}' % gpu_campaign.SCHEMA_VERSION)
+    assert gpu_campaign._load_state(o) == {}
+
+
+def test_a_deadline_beyond_a_day_is_refused():
+    import argparse
+
+    from pipelines.gpu_campaign_cmd import minutes_in_a_day
+    with pytest.raises(argparse.ArgumentTypeError, match="at most a day"):
+        minutes_in_a_day("1e307")
