@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import hashlib
 import io
+import json
 import math
 import os
 import random
@@ -367,6 +369,19 @@ def _start_or_resume(out: Path, resume: bool, experiment: ExperimentConfig, run:
     return 0, 0, 0, -math.inf, {}
 
 
+def data_identity(train_scenes: Sequence[Scene], val_scenes: Sequence[Scene]) -> str:
+    """What a run trains and validates on, as a digest: each scene's name, size, length and
+    ground-truth steps, and the job digest its dataset recorded where there is one (the content).
+    Recorded in every checkpoint; a resume on other data is refused (its best.pt would compare
+    scores of different validation sets)."""
+    def one(sc: Scene) -> list[Any]:
+        meta = getattr(sc, "meta", None)
+        digest = meta.get("job_digest") if isinstance(meta, dict) else None
+        return [sc.name, int(sc.num_steps), int(sc.height), int(sc.width), [int(g) for g in sc.gt_steps], digest]
+    doc = {"train": [one(s) for s in train_scenes], "val": [one(s) for s in val_scenes]}
+    return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()[:16]
+
+
 def _total_steps(tc: Any, batches_per_epoch: int) -> int:
     total = tc.epochs * batches_per_epoch
     return min(total, tc.max_steps) if tc.max_steps is not None else total
@@ -492,6 +507,13 @@ def _train(experiment: ExperimentConfig, train_scenes: Sequence[Scene], val_scen
     run = _build_run(experiment, dev, dist, init_state)
     train_ds, val_ds = _datasets(experiment, train_scenes, val_scenes)
     epoch, batch_in_epoch, step, best, saved = _start_or_resume(out, resume, experiment, run, dev, dist, overwrite)
+    identity = data_identity(train_scenes, val_scenes)
+    if resume and saved.get("data_identity") not in (None, identity):
+        # best.pt would compare scores from other validation data, and the schedule continue on other samples
+        raise ValueError(f"--resume: {out / 'last.pt'} trained on other data ({saved.get('data_scenes', '?')} scenes) "
+                         f"than given now ({len(train_scenes)} training + {len(val_scenes)} validation scenes); resume "
+                         "with the same --data and --val-data, or start a new run from its weights (--init "
+                         f"{out / 'last.pt'})")
     init_record = init_record or saved.get("init_weights")  # a resumed fine-tuning run keeps saying where it began
     if init_record and dist.is_main and not resume:
         print(f"[train] starting from the weights of {init_record['spec']} ({init_record['weights_sha256'][:16]}...)",
@@ -527,6 +549,8 @@ def _train(experiment: ExperimentConfig, train_scenes: Sequence[Scene], val_scen
                                                 "budget_elapsed_s": budget.elapsed_s + time.perf_counter() - started}
             save_checkpoint(path, run.model, experiment, run.opt, run.sched, run.scaler, epoch, step,
                             extra={"batch_in_epoch": batch_in_epoch, "best_val_psnr": best, **record,
+                                   "data_identity": identity,
+                                   "data_scenes": f"{len(train_scenes)} training + {len(val_scenes)} validation",
                                    **({"init_weights": init_record} if init_record else {})})
 
     def last_step() -> int:

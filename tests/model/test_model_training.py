@@ -112,6 +112,18 @@ def test_resume_of_a_finished_run_trains_nothing(scenes, tmp_path, capsys):
     assert {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file()} == before
 
 
+def test_resume_on_other_data_is_refused(scenes, tmp_path):
+    """`train --resume --data OTHER` continued on another dataset, and best.pt then compared scores
+    of different validation sets; the data's identity is in every checkpoint now."""
+    run_training(tiny_experiment(max_steps=2), scenes[:2], scenes[2:], tmp_path, device="cpu", progress=False)
+    with pytest.raises(ValueError, match="trained on other data"):
+        run_training(tiny_experiment(max_steps=4), scenes[1:], scenes[:1], tmp_path, device="cpu", resume=True,
+                     progress=False)
+    again = run_training(tiny_experiment(max_steps=4), scenes[:2], scenes[2:], tmp_path, device="cpu", resume=True,
+                         progress=False)
+    assert again["steps"] == 4
+
+
 def test_resume_continues_exactly(scenes, tmp_path):
     straight = run_training(tiny_experiment(max_steps=4), scenes[:2], scenes[2:], tmp_path / "a",
                             device="cpu", progress=False)
