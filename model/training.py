@@ -21,7 +21,7 @@ import sys
 import time
 import warnings
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Iterator, Sequence
 
 import numpy as np
 import torch
@@ -190,11 +190,34 @@ def validate(model: torch.nn.Module, dataset: SequenceDataset, device: torch.dev
 VALIDATION_COLUMNS = ("psnr", "ssim", "psnr_aligned", "psnr_tfp", "ssim_tfp", "psnr_aligned_tfp")
 
 
-def _epoch_order(n: int, seed: int, epoch: int) -> list[int]:
-    """The shuffled sample order of one epoch, a pure function of (seed, epoch) so a resumed run
-    continues with exactly the batches it would have seen."""
+#: Above this many samples per epoch the order is not shuffled and batches are made as they are
+#: used: each sample of a `samples_per_epoch` epoch draws its own random scene, start and crop
+#: (model/data.py), so a permutation adds nothing, and one of 10^9 samples was a list the machine
+#: could not hold (killed for memory). At or below it the order is the shuffled one, as always.
+SHUFFLE_LIMIT = 1 << 20
+
+
+def _epoch_order(n: int, seed: int, epoch: int) -> Sequence[int]:
+    """The sample order of one epoch, a pure function of (seed, epoch) so a resumed run continues
+    with exactly the batches it would have seen: shuffled up to SHUFFLE_LIMIT, else in index order
+    (a range, no memory)."""
+    if n > SHUFFLE_LIMIT:
+        return range(n)
     g = torch.Generator().manual_seed(seed * 1_000_003 + epoch)
     return torch.randperm(n, generator=g).tolist()
+
+
+def _epoch_batches(order: Sequence[int], batch_size: int, dist: "_Distributed", skip: int) -> Iterator[list[int]]:
+    """This process's share of each batch of `order`, made lazily, after the first `skip` batches; a
+    last batch too small to give every process a sample is skipped by all of them alike."""
+    made = 0
+    for i in range(0, len(order), batch_size):
+        b = list(order[i:i + batch_size])
+        if len(b) < dist.world:
+            continue
+        if made >= skip:
+            yield dist.shard(b)
+        made += 1
 
 
 #: Training settings a resumed run must keep (the others: how long, how often to save or validate,
@@ -523,8 +546,8 @@ def _train(experiment: ExperimentConfig, train_scenes: Sequence[Scene], val_scen
         budget = _BudgetPlan(60.0 * tc.budget_minutes, tc.calibration_steps,
                              saved.get("budget_planned_steps"), float(saved.get("budget_elapsed_s", 0.0)))
     logs = _Logs(out, enabled=dist.is_main, resumed_at=step if resume else None)
-    batches_per_epoch = sum(1 for i in range(0, len(train_ds), tc.batch_size)
-                            if min(tc.batch_size, len(train_ds) - i) >= dist.world)
+    # whole batches, and a last short one if it gives every process a sample (batch_size splits over them)
+    batches_per_epoch = len(train_ds) // tc.batch_size + int(len(train_ds) % tc.batch_size >= dist.world)
     if batches_per_epoch == 0:
         raise ValueError(f"{len(train_ds)} training sample(s) per epoch give no batch that {dist.world} processes can "
                          "share: more scenes or steps, or fewer processes")
@@ -589,10 +612,7 @@ def _train(experiment: ExperimentConfig, train_scenes: Sequence[Scene], val_scen
         while epoch < tc.epochs and not stopped:
             train_ds.set_epoch(epoch)
             order = _epoch_order(len(train_ds), tc.seed, epoch)
-            # a last batch too small to give every process a sample is skipped by all of them alike
-            batches = [dist.shard(b) for b in (order[i:i + tc.batch_size] for i in range(0, len(order), tc.batch_size))
-                       if len(b) >= dist.world]
-            loader = DataLoader(train_ds, batch_sampler=batches[batch_in_epoch:],
+            loader = DataLoader(train_ds, batch_sampler=_epoch_batches(order, tc.batch_size, dist, batch_in_epoch),
                                 num_workers=tc.num_workers, worker_init_fn=_worker_init, pin_memory=dev.type == "cuda")
             for batch in loader:
                 waited = timer.batch_arrived()

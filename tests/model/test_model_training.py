@@ -305,3 +305,21 @@ def test_init_starts_a_run_from_other_weights_of_the_same_network(scenes, tmp_pa
         run_training(other, scenes[:1], [], tmp_path / "c", device="cpu", progress=False, init=str(source))
     with pytest.raises(ValueError, match="--resume continues"):
         run_training(exp, scenes[:1], [], tmp_path / "a", device="cpu", progress=False, init=str(source), resume=True)
+
+
+def test_a_huge_epoch_is_not_held_in_memory(scenes, tmp_path):
+    """`--samples-per-epoch 1000000000` was killed for memory (its permutation as a list); above
+    SHUFFLE_LIMIT the order is a range and batches are made as used."""
+    import tracemalloc
+
+    from model.training import SHUFFLE_LIMIT, _epoch_order
+
+    assert isinstance(_epoch_order(10 ** 9, 0, 0), range)
+    assert sorted(_epoch_order(100, 0, 0)) == list(range(100)) and _epoch_order(100, 0, 0) != list(range(100))
+    assert SHUFFLE_LIMIT >= 1 << 20  # every run made before keeps its shuffled order
+    tracemalloc.start()
+    summary = run_training(tiny_experiment(max_steps=2, samples_per_epoch=10 ** 9), scenes[:2], [], tmp_path,
+                           device="cpu", progress=False)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert summary["steps"] == 2 and peak < 200 * 2 ** 20
