@@ -173,7 +173,7 @@ def test_evaluate_refuses_a_link_to_its_results(dataset, tmp_path, outside, caps
 
 def test_evaluate_dat_writes_its_results_under_out(dat, tmp_path, capsys):
     gt = tmp_path / "gt.npy"
-    np.save(gt, np.full((12, 16), 0.3, np.float32))
+    np.save(gt, np.linspace(0.1, 0.5, 12 * 16, dtype=np.float32).reshape(12, 16))  # not constant: refused
     out = tmp_path / "ev"
     code, err = run_cli(["evaluate", "--dat", dat, "--gt", gt, "--center", 10, "--height", 12, "--width", 16,
                          "--methods", "tfp", "--window", 7, "--out", out, "--device", "cpu", "--quiet"], capsys)
