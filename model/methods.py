@@ -75,18 +75,25 @@ class SpanTFPMethod:
                              f"(e.g. {3 * self.window}, {5 * self.window}, {21 * self.window})")
 
     def frames(self, source: WindowSource) -> Iterator[tuple[int, torch.Tensor]]:
+        """A running sum over the windows in reach: each window is added once as the reach passes
+        its right edge and subtracted once (read again) as it leaves on the left, so time and memory
+        are linear in the stream whatever the span (restacking every window in reach for each frame
+        took 269 s for tfp:328041 on 4000 windows, and held them all)."""
         half, total = self.span // self.window // 2, source.num_windows
-        counts: dict[int, torch.Tensor] = {}  # spikes per pixel of the windows in reach
-        loaded = 0
+        running: torch.Tensor | None = None  # spikes per pixel in windows lo..hi, exact integers
+        added = 0  # windows 0 .. added - 1 are in (or were in and left) the running sum
         for i in range(total):
-            while loaded < min(total, i + half + 1):
-                b = min(loaded + self.chunk, total)
-                per_window = source.windows(loaded, b).sum(dim=1, dtype=torch.float32)
-                counts.update({loaded + j: per_window[j] for j in range(b - loaded)})
-                loaded = b
-            lo, hi = max(0, i - half), min(total - 1, i + half)
-            yield i, torch.stack([counts[j] for j in range(lo, hi + 1)]).sum(0) / ((hi - lo + 1) * self.window)
-            counts.pop(i - half, None)
+            hi = min(total - 1, i + half)
+            while added <= hi:
+                b = min(added + self.chunk, hi + 1)
+                part = source.windows(added, b).sum(dim=(0, 1), dtype=torch.int64)
+                running = part if running is None else running + part
+                added = b
+            leaving = i - half - 1
+            if leaving >= 0:
+                running = running - source.windows(leaving, leaving + 1).sum(dim=(0, 1), dtype=torch.int64)
+            lo = max(0, i - half)
+            yield i, running.to(torch.float32) / ((hi - lo + 1) * self.window)
 
 
 def span_method_spec(body: str, window: int) -> int | None:

@@ -16,6 +16,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import torch
 
 from model.threads import set_cpu_threads
 from pipelines.argtypes import add_threads_argument, nonnegative_int, output_file, positive_int
@@ -50,7 +51,11 @@ def panel_frames(path: Path, specs: list[str], height: int | None = None, width:
         bad = int(frames[method.name].size - np.count_nonzero(np.isfinite(frames[method.name])))
         if bad:  # drawn, NaN is a black tile: no picture of the method
             raise ValueError(f"method {method.name}: frame {index} has {bad} NaN or infinite pixel(s); no panel was written")
-    reference = np.mean([source.windows(i, i + 1)[0].numpy().mean(0) for i in range(n)], axis=0)
+    total = None  # spikes per pixel over every window read, summed as read: memory flat in the stream's length
+    for i in range(n):
+        count = source.windows(i, i + 1)[0].sum(dim=0, dtype=torch.int64)
+        total = count if total is None else total + count
+    reference = total.numpy().astype(np.float64) / (n * window)
     read = {"input": str(path), "height": reader.height, "width": reader.width, "flip": reader.flip,
             "header_columns": header, "start": start, "windows": n, "window": window, "frame": index,
             "frame_centre_step": start + index * window + window // 2,

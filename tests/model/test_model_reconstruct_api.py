@@ -40,3 +40,29 @@ def test_a_dat_path_and_bad_input(tmp_path):
         model.reconstruct(s[:40], method="tfp")
     with pytest.raises(ValueError, match="expected \\(steps, H, W\\)"):
         model.reconstruct(s[0], method="tfp")
+
+
+def test_span_tfp_is_the_mean_over_the_windows_in_reach_in_linear_time():
+    """tfp:N restacked every window in reach for each frame (quadratic, and all of them in memory);
+    the running sum gives the same frames, reading each window at most twice."""
+    from model.methods import SpanTFPMethod
+    from model.streaming import TensorWindows
+
+    s = torch.from_numpy(np.random.default_rng(3).random((9, 41, 5, 6)) < 0.2)
+
+    class Counting(TensorWindows):
+        reads = 0
+
+        def windows(self, a, b):
+            Counting.reads += b - a
+            return super().windows(a, b)
+
+    for n_windows in (1, 3, 5, 21):
+        Counting.reads = 0
+        frames = dict(SpanTFPMethod(f"TFP-{41 * n_windows}", 41 * n_windows, chunk=2).frames(Counting(s)))
+        half = n_windows // 2
+        for i in range(9):
+            lo, hi = max(0, i - half), min(8, i + half)
+            expect = s[lo:hi + 1].float().sum(dim=(0, 1)) / ((hi - lo + 1) * 41)
+            torch.testing.assert_close(frames[i], expect)
+        assert Counting.reads <= 2 * 9
