@@ -95,8 +95,9 @@ def data_spec(text: str) -> tuple[str, Path]:
     """argparse type: LABEL=ROOT or ROOT (a dataset root; label: its folder's name)."""
     label, _, root = text.rpartition("=") if "=" in text else ("", "", text)
     path = Path(root)
-    label = label or path.resolve().name
-    if not label or any(c in label for c in "/\\#") or label.startswith(".") or label.upper().startswith("ALL"):
+    if not label:
+        return "", path  # unlabelled: one dataset for every config, or named by its folder (cmd_compare)
+    if any(c in label for c in "/\\#") or label.startswith(".") or label.upper().startswith("ALL"):
         raise argparse.ArgumentTypeError(f"{text!r}: a label is a plain name (no /, \\ or #, not starting "
                                          "with a dot or ALL)")
     return label, path
@@ -305,13 +306,15 @@ def cmd_compare(args: argparse.Namespace) -> int:
     seeds = list(dict.fromkeys(args.seeds))
     if len(seeds) < MIN_SEEDS:
         raise ValueError(f"--seeds: a comparison needs at least {MIN_SEEDS} distinct training seeds, got {seeds}")
-    data = dict(args.data)
+    # labelled data (LABEL=ROOT), or several datasets: a comparison of data, runs labelled by the data
+    by_data = len(args.data) > 1 or any(label for label, _ in args.data)
+    data = {(label or root.resolve().name): root for label, root in args.data}
     if len(data) != len(args.data):
-        raise ValueError(f"--data: labels must be unique, got {[label for label, _ in args.data]}")
-    if len(data) > 1 and len(args.configs) > 1:
-        raise ValueError("--data with several datasets compares data: give one config (its runs are labelled by the "
-                         "datasets' labels)")
-    if len(data) > 1:
+        raise ValueError(f"--data: labels must be unique, got {list(data)}; name them with LABEL=ROOT")
+    if by_data and len(args.configs) > 1:
+        raise ValueError("--data with labelled or several datasets compares data: give one config (its runs are "
+                         "labelled by the datasets' labels)")
+    if by_data:
         args.configs = [(label, args.configs[0][1]) for label in data]
     labels = [label for label, _ in args.configs]
     if len(set(labels)) != len(labels):
@@ -324,7 +327,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         raise ValueError(f"--configs: all configs must use one window length to be compared, got {sorted(windows)}")
     window = windows.pop()
     test_scenes = open_scenes(args.test_data)
-    if len(data) > 1:
+    if by_data:
         train_scenes: Any = {label: open_scenes(root) for label, root in data.items()}
         for label, exp in args.configs:
             check_samples([(label, exp)], train_scenes[label])

@@ -115,6 +115,11 @@ def test_compare_training_data_with_one_config_and_init(tmp_path, capsys):
                  str(tmp_path / "test"), "--configs", str(e), "tiny", "--max-steps", "1", "--device", "cpu",
                  "--out", str(tmp_path / "o2")]) == 2
     assert "give one config" in capsys.readouterr().err
+    # one labelled dataset: its runs take the data's label (two processes can share --out by data)
+    assert main(["compare", "--data", f"TWO={tmp_path / 'two'}", "--test-data", str(tmp_path / "test"), "--configs",
+                 str(e), "--seeds", "0", "1", "2", "--max-steps", "2", "--device", "cpu", "--quiet", "--out",
+                 str(out)]) == 0
+    assert sorted(p.name for p in (out / "runs").iterdir()) == ["ONE", "TWO"]
 
 
 @pytest.mark.parametrize("flags,msg", [
