@@ -327,24 +327,32 @@ def test_evaluate_takes_grey_alpha_palette_and_16_bit_pngs(tmp_path, capsys, mod
     """A grey+alpha PNG failed with numpy's matmul message; alpha is dropped, a palette is read as
     the colours it stands for (its indices are not light)."""
     from PIL import Image
+    half = GW // 2  # two values: evaluate refuses a constant ground truth
     grey = np.full((GH, GW), 128, np.uint8)
+    grey[:, half:] = 64
     if mode == "LA":
         img = Image.fromarray(np.dstack([grey, np.full_like(grey, 7)]), "LA")
     elif mode == "RGBA":
         img = Image.fromarray(np.dstack([grey, grey, grey, np.full_like(grey, 7)]), "RGBA")
     elif mode == "P":
-        img = Image.fromarray(np.zeros((GH, GW), np.uint8), "P")
-        img.putpalette([128, 128, 128] * 256)
+        idx = np.zeros((GH, GW), np.uint8)
+        idx[:, half:] = 1
+        img = Image.fromarray(idx, "P")
+        img.putpalette([128, 128, 128, 64, 64, 64] * 128)
     elif mode == "1":
-        img = Image.fromarray(np.ones((GH, GW), bool))
+        bits = np.ones((GH, GW), bool)
+        bits[:, half:] = False
+        img = Image.fromarray(bits)
     else:
-        img = Image.fromarray(np.full((GH, GW), 32896, np.uint16))
+        img = Image.fromarray(np.where(grey == 128, 32896, 16448).astype(np.uint16))
     img.save(tmp_path / "gt.png")
     code, err = gt_pair(tmp_path, capsys, tmp_path / "gt.png")
     assert code == 0, err
     from spikesim.imageio import read_image_y
     y = read_image_y(tmp_path / "gt.png")
-    assert y.shape == (GH, GW) and np.allclose(y, 1.0 if mode == "1" else 128 / 255, atol=1e-3), (mode, y[0, 0])
+    left, right = (1.0, 0.0) if mode == "1" else (128 / 255, 64 / 255)
+    assert y.shape == (GH, GW) and np.allclose(y[:, :half], left, atol=1e-3), (mode, y[0, 0])
+    assert np.allclose(y[:, half:], right, atol=1e-3), (mode, y[0, -1])
 
 
 def test_evaluate_refuses_a_picture_mode_that_is_not_grey_or_rgb(tmp_path, capsys):
