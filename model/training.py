@@ -435,6 +435,7 @@ class _BudgetPlan:
         measured time per step (validation included: it is measured too), at most `cap`."""
         left = max(self.budget_s - seconds_so_far, 0.0)
         planned = step + int(left / max(seconds_per_step, 1e-9))
+        self.allowed_steps = planned  # what the budget alone allows (a cap may stop the run before)
         self.planned_steps = max(step, min(planned, cap) if cap is not None else planned)
         return self.planned_steps
 
@@ -635,8 +636,12 @@ def _train(experiment: ExperimentConfig, train_scenes: Sequence[Scene], val_scen
                     budget.plan(step, budget.elapsed_s + dist.slowest(spent), tc.max_steps, per_step)
                     bar.total = last_step()
                     if dist.is_main:  # every rank plans alike; one says so
+                        allowed = getattr(budget, "allowed_steps", last_step())
+                        capped = (f"; capped at {last_step()} by the config's max_steps or epochs, so the run ends "
+                                  f"after about {last_step() * per_step / 60:.1f} of the {tc.budget_minutes:g} minutes "
+                                  f"(--max-steps or --epochs to use them all)" if last_step() < allowed else "")
                         bar.write(f"[train] budget {tc.budget_minutes:g} min: {budget.planned_steps} steps planned "
-                                  f"({per_step:.3f} s per step measured)", file=sys.stderr)
+                                  f"({per_step:.3f} s per step measured){capped}", file=sys.stderr)
                 if tc.ckpt_every_steps is not None and step % tc.ckpt_every_steps == 0:
                     checkpoint(out / "last.pt")
                 if step >= last_step() or _signalled(stop, dist):

@@ -329,8 +329,11 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     else:
         print(markdown_table(rows, names))
     if args.out is not None or not args.json:  # --json alone only prints
-        csv_path, md_path = write_results(rows, names, Path(args.out or DEFAULT_OUT))
-        print(f"[evaluate] wrote {csv_path} and {md_path}", file=sys.stderr)
+        target = Path(args.out or DEFAULT_OUT)
+        replaced = [n for n in RESULT_FILES if (target / n).exists()]
+        csv_path, md_path = write_results(rows, names, target)
+        print(f"[evaluate] wrote {csv_path} and {md_path}" + (" (replacing an earlier evaluation's; -o DIR to keep "
+                                                                "each)" if replaced else ""), file=sys.stderr)
     return 0
 
 

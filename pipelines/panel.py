@@ -71,7 +71,7 @@ def compose_panel(frames: dict[str, np.ndarray], captions: dict[str, str], perce
 
     tiles = [Image.fromarray(to_display(f, percentile=percentile)) for f in frames.values()]
     h, w = tiles[0].height, tiles[0].width
-    pad, text_h = 6, 30
+    pad, text_h = 6, 44  # the name, then the caption's two lines (noise, edge): narrow tiles do not overlap
     canvas = Image.new("L", (len(tiles) * (w + pad) + pad, h + 2 * pad + text_h), 255)
     draw = ImageDraw.Draw(canvas)
     for i, (name, tile) in enumerate(zip(frames, tiles)):
@@ -93,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
     frames, reference, read = panel_frames(args.input, args.methods, args.height, args.width, header, args.flip,
                                            args.start, args.num_windows, args.frame, args.window, device)
     scores = {name: no_reference_scores(f, reference) for name, f in frames.items()}
-    captions = {n: f"noise {s['flat_noise']:.3f}  edge {s['edge_sharpness']:.3f}" for n, s in scores.items()}
+    captions = {n: f"noise {s['flat_noise']:.3f}\nedge {s['edge_sharpness']:.3f}" for n, s in scores.items()}
     image = compose_panel(frames, captions)
     with outputs.output_file(args.out) as out:
         outputs.atomic_write_with(out, lambda tmp: image.save(tmp, format="PNG"))
@@ -112,7 +112,8 @@ def run(args: argparse.Namespace) -> int:
         print("| method | flat noise (lower) | edge sharpness (higher) | edge / noise |\n|---|---|---|---|")
         for name, s in scores.items():
             print(f"| {name} | {s['flat_noise']:.4f} | {s['edge_sharpness']:.4f} | {s['edge_to_noise']:.2f} |")
-        print(f"[panel] wrote {out}", file=sys.stderr)
+        if not args.quiet:
+            print(f"[panel] wrote {out}", file=sys.stderr)
     return 0
 
 
@@ -139,4 +140,5 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--device", default="auto", help="auto (CUDA when present), cpu, cuda, cuda:N or mps")
     add_threads_argument(p)
     p.add_argument("--json", action="store_true", help="print the measures as JSON")
+    p.add_argument("--quiet", action="store_true", help="no line on stderr (panel has no progress bar)")
     p.set_defaults(func=run)

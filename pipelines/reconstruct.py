@@ -220,7 +220,10 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
                                device, args.enhance, args.gamma, args.scale,
                                args.percentile, args.fps, not args.no_gif, not args.no_mp4, args.save_npy,
                                progress=not args.quiet)
-    print(json.dumps(summary, indent=2))
+    if args.json:
+        print(json.dumps(summary, indent=2))
+    else:  # the record is in the output folder; one line says what was made
+        print(f"[reconstruct] {summary.get('frames', '?')} frame(s) of {args.input} by {args.method} -> {args.out}")
     return 0
 
 
@@ -262,5 +265,6 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--no-mp4", action="store_true", help="do not write the MP4")
     p.add_argument("--save-npy", action="store_true", help="also write the linear frames to frames.npy")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--json", action="store_true", help="print the run's record (also written to the output folder) as JSON")
     p.set_defaults(func=cmd_reconstruct)
     return p

@@ -54,12 +54,14 @@ def test_a_spent_budget_ends_at_the_calibration_steps(scenes, tmp_path):
     assert load_checkpoint(tmp_path / "last.pt")["extra"]["budget_planned_steps"] == 3
 
 
-def test_the_cosine_decay_ends_at_the_planned_step(scenes, tmp_path):
+def test_the_cosine_decay_ends_at_the_planned_step(scenes, tmp_path, capsys):
     """max_steps caps the plan; the logged rate falls along the cosine and reaches the floor at the
     last step's schedule position."""
     summary = run_training(budget_experiment(budget_minutes=10_000, max_steps=6), scenes, [], tmp_path,
                            device="cpu", progress=False)
     assert summary["planned_steps"] == 6 and summary["steps"] == 6
+    # the cap is said, not silent (`--budget-minutes 4` with tiny stopped at 300 steps without a word)
+    assert "capped at 6 by the config's max_steps or epochs" in capsys.readouterr().err
     lrs = [float(r["lr"]) for r in csv.DictReader((tmp_path / "train_log.csv").open())]
     tc = budget_experiment(max_steps=6).train
     # before the plan is made (calibration), the schedule runs on the cap

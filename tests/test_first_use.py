@@ -1,0 +1,55 @@
+"""A new user's walls (issue 30, "First use"): what commands print, and what they say they did."""
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+
+sys.path.insert(0, str(Path(__file__).parent / "model"))  # modeltest_fakes
+from modeltest_fakes import make_scene  # noqa: E402
+
+
+@pytest.fixture()
+def dat(tmp_path):
+    from spikesim.stream import SpikeStream, write_dat
+    s = np.random.default_rng(0).random((123, 16, 24)) < 0.05
+    write_dat(tmp_path / "s.dat", SpikeStream.from_bool(s))
+    return tmp_path / "s.dat"
+
+
+def test_reconstruct_stdout(dat, tmp_path, capsys):
+    from pipelines.cli import main
+    base = ["reconstruct", str(dat), "--height", "16", "--width", "24", "--method", "tfp", "--no-gif", "--no-mp4",
+            "--quiet"]
+    assert main([*base, "-o", str(tmp_path / "a")]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("[reconstruct] 3 frame(s)") and "{" not in out
+    assert main([*base, "-o", str(tmp_path / "b"), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["frames"] == 3
+
+
+def test_panel_quiet_and_two_line_captions(dat, tmp_path, capsys):
+    from pipelines.cli import main
+    assert main(["panel", str(dat), "--height", "16", "--width", "24", "--methods", "tfp", "tfi", "--quiet",
+                 "-o", str(tmp_path / "p.png")]) == 0
+    assert capsys.readouterr().err == ""
+    from PIL import Image
+    assert Image.open(tmp_path / "p.png").height == 16 + 2 * 6 + 44
+
+
+def test_a_second_evaluate_says_it_replaces_the_first(tmp_path, capsys, monkeypatch):
+    from pipelines.cli import main
+    from spikesim.dataset import write_scene
+    from spikesim.stream import SpikeStream
+    sc = make_scene("a_low", 12, 16, 41 * 2, brightness=0.05, velocity=0.2, seed=1)
+    write_scene(tmp_path / "d", "a_low", SpikeStream.from_bool(sc.spike_array), {20: sc.gt[20], 61: sc.gt[61]}, meta={})
+    monkeypatch.chdir(tmp_path)
+    argv = ["evaluate", "--data", str(tmp_path / "d"), "--methods", "tfp", "--quiet"]
+    assert main(argv) == 0
+    assert "replacing" not in capsys.readouterr().err
+    assert main(argv) == 0
+    assert "replacing an earlier evaluation's" in capsys.readouterr().err
