@@ -30,7 +30,6 @@ import json
 import math
 import os
 import platform
-import re
 import subprocess
 import sys
 import time
@@ -265,6 +264,31 @@ def _run_stage(c: Campaign, name: str, later: Sequence[str], catch_up: bool) -> 
     return rec
 
 
+def earlier_outputs(out: Path) -> list[Path]:
+    """The files in `out` an earlier campaign wrote, by its own record: a `summary.json` of this
+    campaign's schema, and each file it lists with the size and sha256 it recorded. Anything else
+    (the user's own report.md, weights or .part file) is not this campaign's to delete."""
+    from spikesim.config_io import read_json_object
+
+    summary = out / "summary.json"
+    if not summary.is_file() or summary.is_symlink():
+        return []
+    try:
+        doc = read_json_object(summary, "campaign summary")
+    except ValueError:
+        return []
+    if doc.get("campaign") != "spikesim gpu-campaign" or not isinstance(doc.get("files"), list):
+        return []
+    ours = [summary]
+    for f in doc["files"]:
+        p = out / str(f.get("name", "")) if isinstance(f, dict) else None
+        if p is None or p.parent != out or not p.is_file() or p.is_symlink():
+            continue
+        if p.stat().st_size == f.get("bytes") and file_record(p)["sha256"] == f.get("sha256"):
+            ours.append(p)
+    return ours
+
+
 def _load_state(o: Options) -> dict[str, StageRecord]:
     path = o.work / "state.json"
     if o.fresh or not path.is_file():
@@ -359,14 +383,14 @@ def run_campaign(options: Options, progress: Callable[[str], None] | None = None
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out}: exists and is not a folder")
     if out.is_dir():
-        ours = [p for p in out.iterdir() if p.name in OUT_FILES or re.fullmatch(r"weights[\w.]*\.pt", p.name)
-                or re.fullmatch(r"\..+\.part", p.name)]  # a killed call's temporary files too
+        ours = earlier_outputs(out)
         others = sorted(p.name for p in out.iterdir() if p not in ours)
         if others:
-            raise ValueError(f"--out {out} holds other files ({', '.join(others[:5])}{', ...' if len(others) > 5 else ''}): "
-                             "give an empty folder (a lent machine returns at most 8 files)")
+            raise ValueError(f"--out {out} holds files this campaign did not write ({', '.join(others[:5])}"
+                             f"{', ...' if len(others) > 5 else ''}): give an empty folder, or one an earlier "
+                             "campaign filled (a lent machine returns at most 8 files)")
         for p in ours:  # an earlier call's results, weights above all, would mislead
-            p.unlink()
+            outputs.remove(out, p.name)
     options.work.mkdir(parents=True, exist_ok=True)
     c = Campaign(options)
     c.logs.mkdir(parents=True, exist_ok=True)

@@ -42,8 +42,11 @@ def options_from_args(args: argparse.Namespace):
         raise ValueError("gpu-campaign needs -o/--out (or $OUT, as on a lent machine)")
     profile = PROFILES["dry-run" if args.dry_run else "gpu"]
     work = args.work if args.work is not None else ROOT / "runs" / ("gpu_campaign_dry" if args.dry_run else "gpu_campaign")
+    # every path absolute before it is handed on: the stages run from the repository, not the user's folder
+    out, work = Path(out).resolve(), Path(work).resolve()
+    wheels = Path(args.wheels).resolve() if args.wheels else ROOT / ".whl"
     return Options(out=out, work=work, profile=profile, part=args.part, stages=tuple(args.stages or ()),
-                   deadline_s=60.0 * args.deadline_minutes, wheels=args.wheels or ROOT / ".whl", seed=args.seed,
+                   deadline_s=60.0 * args.deadline_minutes, wheels=wheels, seed=args.seed,
                    rllr_count=args.rllr_count, inject=dict(args.inject or ()), fresh=args.fresh)
 
 

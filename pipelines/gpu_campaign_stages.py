@@ -435,13 +435,16 @@ def _checkpoint(c: Campaign) -> Path | None:
 def stage_train(c: Campaign) -> dict[str, Any]:
     """The profile's config on the RLLR slice, bf16, its step count planned from the measured step
     rate to fill what is left of the box (`--budget-minutes`), cosine schedule to that step."""
+    run = c.o.work / "run"  # checked first: a folder that is not ours is never removed
+    if run.exists() or run.is_symlink():  # a rerun trains afresh, in a folder an earlier call of this campaign made
+        if not (c.o.work / "state.json").is_file() or not (run / "config.json").is_file():
+            raise StageFailed(f"{run} exists and is not an earlier campaign's training run (no state.json beside it, "
+                              "or no config.json in it): move it, or give another --work")
+        outputs.remove(c.o.work, "run")  # never through a link
     data = c.o.work / "rllr"
     scenes = complete_scenes(data)
     if not scenes:
         raise SkipStage(f"no RLLR scene in {data} (stage rllr made none)")
-    run = c.o.work / "run"
-    if run.exists() or run.is_symlink():  # a rerun trains afresh; the folder is this campaign's scratch
-        outputs.remove(c.o.work, "run")  # never through a link
     minutes = max(c.left() - c.p.train_overhead_s, 6.0) * 0.85 / 60
     if c.p.train_max_minutes is not None:
         minutes = min(minutes, c.p.train_max_minutes)

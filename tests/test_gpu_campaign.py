@@ -233,7 +233,7 @@ def test_the_carried_wheels_install_into_a_folder_and_damage_is_named(tmp_path):
     (["--dry-run", "-o", "X", "--inject", "nosuch=fail"], "expected STAGE=fail or STAGE=timeout"),
     (["--dry-run", "-o", "X", "--part", "1", "--stages", "train"], "not stages of part 1"),
     (["--dry-run"], "needs -o/--out"),
-    (["--dry-run", "-o", "FULL"], "holds other files (notes.txt)"),
+    (["--dry-run", "-o", "FULL"], "did not write (notes.txt)"),
 ])
 def test_bad_input_is_one_line(args, message, tmp_path, monkeypatch, capsys):
     from pipelines.cli import main
@@ -261,3 +261,51 @@ def test_exported_weights_are_never_written_through_a_link(dry_run, tmp_path):
     with pytest.raises(ValueError, match="weights.pt: is a symlink"):
         write_weights(work / "run" / "best.pt", out, tmp_path / "scratch")
     assert outside.read_text() == "keep" and (out / "weights.pt").is_symlink()
+
+
+def test_the_campaign_deletes_only_what_its_own_record_lists(dry_run, tmp_path, capsys):
+    """A -o holding the user's own report.md or weights lost them; a --work holding the user's run/
+    lost it (rm -rf). Now: only files an earlier campaign's summary.json lists, with their recorded
+    sha256, are replaced; anything else is refused, untouched."""
+    import shutil
+
+    from pipelines.cli import main
+    from pipelines.gpu_campaign import earlier_outputs
+
+    out, _, summary = dry_run
+    earlier = tmp_path / "earlier"
+    shutil.copytree(out, earlier)
+    assert sorted(p.name for p in earlier_outputs(earlier)) == sorted(p.name for p in earlier.iterdir())
+    (earlier / "report.md").write_text("the user's own notes")  # no longer the file the record lists
+    assert "report.md" not in {p.name for p in earlier_outputs(earlier)}
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "report.md").write_text("mine")
+    (mine / "weights.pt").write_bytes(b"mine")
+    assert main(["gpu-campaign", "--dry-run", "-o", str(mine), "--work", str(tmp_path / "w")]) == 2
+    assert "did not write (report.md, weights.pt)" in capsys.readouterr().err
+    assert (mine / "report.md").read_text() == "mine" and (mine / "weights.pt").read_bytes() == b"mine"
+
+
+def test_a_users_run_folder_in_work_is_never_removed(tmp_path):
+    work = tmp_path / "w"
+    (work / "run").mkdir(parents=True)
+    (work / "run" / "precious.txt").write_text("keep")
+    proc = _campaign("--dry-run", "--part", "2", "--stages", "train", "-o", str(tmp_path / "o"), "--work", str(work),
+                     "--json", "--quiet")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    stage = next(s for s in json.loads(proc.stdout)["stages"] if s["name"] == "train")
+    assert stage["status"] == "failed" and "not an earlier campaign's training run" in stage["note"]
+    assert (work / "run" / "precious.txt").read_text() == "keep"
+
+
+def test_relative_paths_are_resolved_before_the_stages_run(tmp_path, monkeypatch):
+    import argparse
+
+    from pipelines.gpu_campaign_cmd import options_from_args
+
+    monkeypatch.chdir(tmp_path)
+    args = argparse.Namespace(out=Path("o"), work=Path("scratch"), dry_run=True, part="all", stages=None,
+                              deadline_minutes=9.0, wheels=Path("wh"), seed=0, rllr_count=None, inject=None, fresh=False)
+    o = options_from_args(args)
+    assert o.out == tmp_path / "o" and o.work == tmp_path / "scratch" and o.wheels == tmp_path / "wh"
