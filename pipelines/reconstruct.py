@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import shutil
 import sys
 import tempfile
@@ -33,7 +32,7 @@ from pipelines.argtypes import add_threads_argument, nonnegative_int, positive_f
 from pipelines.inspect_cmd import header_columns_arg, open_stream
 from spikesim._optional import require
 from spikesim.errors import UnavailableError
-from spikesim.outputs import make_dirs, output_folder, remove, writable, writing
+from spikesim.outputs import make_dirs, move_into, output_folder, remove, writable, writing
 from spikesim.stream import HEADER_COLUMNS as PKU_HEADER
 from spikesim.stream import detect_header_columns  # noqa: F401  (callers and tests reach it here)
 
@@ -199,13 +198,11 @@ def replace_outputs(stage: Path, out: Path) -> None:
     for old in png.glob(PNG_PATTERN):
         if old.name not in fresh:
             remove(out, PNG_DIR, old.name)
-    for name in sorted(fresh):
-        with writing(out / PNG_DIR / name):
-            os.replace(stage / PNG_DIR / name, writable(out, PNG_DIR, name))
+    for name in sorted(fresh):  # by the folder's descriptor: a folder swapped for a link is not followed
+        move_into(stage / PNG_DIR / name, out, PNG_DIR, name)
     for name in OUTPUT_FILES:
         if (stage / name).exists():
-            with writing(out / name):
-                os.replace(stage / name, writable(out, name))
+            move_into(stage / name, out, name)
         else:
             remove(out, name)
 

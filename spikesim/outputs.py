@@ -29,6 +29,7 @@ import json
 import os
 import secrets
 import shutil
+import stat
 from pathlib import Path
 from typing import Any, BinaryIO, Callable, Iterator
 
@@ -225,18 +226,77 @@ def make_dirs(root: str | Path, *parts: str | Path) -> Path:
     return target
 
 
+_DIR_FLAGS = os.O_RDONLY | getattr(os, "O_DIRECTORY", 0) | getattr(os, "O_CLOEXEC", 0)
+
+
+@contextlib.contextmanager
+def parent_fd(root: str | Path, *parts: str | Path) -> Iterator[tuple[int, str]]:
+    """(a descriptor of the folder that holds `root/parts`, the last part's name), the folder
+    reached from the root one component at a time with openat and O_NOFOLLOW: a folder swapped
+    for a link between a check and the use (a race) makes the open fail instead of following it,
+    so a delete or a move by name in that descriptor can only touch the folder that was checked.
+    The root itself may be a link the user named. Refusals name the part, as `inside` does."""
+    path = writable(root, *parts)  # the path check first: `..`, absolute parts, links found now
+    rel = Path(*parts).parts
+    fd = os.open(root, _DIR_FLAGS)
+    try:
+        for i, part in enumerate(rel[:-1]):
+            try:
+                nxt = os.open(part, _DIR_FLAGS | getattr(os, "O_NOFOLLOW", 0), dir_fd=fd)
+            except OSError as exc:
+                if exc.errno in (errno.ELOOP, errno.ENOTDIR):  # swapped for a link or a file since the check
+                    raise ValueError(f"{Path(root).joinpath(*rel[:i + 1])}: {LINK_REFUSED}") from None
+                raise naming(exc, path) from exc
+            os.close(fd)
+            fd = nxt
+        yield fd, rel[-1]
+    finally:
+        os.close(fd)
+
+
 def remove(root: str | Path, *parts: str | Path) -> None:
     """Delete `root/parts` (a file or a whole folder) if it exists, guarded by `inside`: never
     outside the root, never through a link; a link at the name is refused, not deleted (it is
-    not this command's to remove)."""
+    not this command's to remove). The delete works on the folder's descriptor (`parent_fd`;
+    shutil.rmtree with dir_fd), so a folder swapped for a link during it cannot redirect it."""
     path = writable(root, *parts)
     try:
-        if path.is_dir():
-            shutil.rmtree(path)
-        elif path.exists():
-            path.unlink()
+        with parent_fd(root, *parts) as (fd, name):
+            try:
+                st = os.stat(name, dir_fd=fd, follow_symlinks=False)
+            except FileNotFoundError:
+                return
+            if stat.S_ISLNK(st.st_mode):
+                raise ValueError(f"{path}: {LINK_REFUSED}")
+            if stat.S_ISDIR(st.st_mode):
+                shutil.rmtree(name, dir_fd=fd)  # avoids symlink attacks where the platform has *at calls
+            else:
+                os.unlink(name, dir_fd=fd)
+    except FileNotFoundError:
+        return  # the root or a folder on the way does not exist: nothing to delete
     except OSError as exc:
         raise naming(exc, path) from exc
+
+
+def move_into(src: str | Path, root: str | Path, *parts: str | Path) -> Path:
+    """Move the file `src` (one this command made, in its own staging folder) to `root/parts`,
+    replacing a file there: renamed into the folder's descriptor (`parent_fd`), so a folder
+    swapped for a link cannot redirect it; a link or a folder at the name is refused."""
+    path = writable(root, *parts)
+    try:
+        with parent_fd(root, *parts) as (fd, name):
+            try:
+                st = os.stat(name, dir_fd=fd, follow_symlinks=False)
+                if stat.S_ISLNK(st.st_mode):
+                    raise ValueError(f"{path}: {LINK_REFUSED}")
+                if stat.S_ISDIR(st.st_mode):
+                    raise IsADirectoryError(errno.EISDIR, "is a directory, expected a file name", str(path))
+            except FileNotFoundError:
+                pass
+            os.rename(src, name, dst_dir_fd=fd)
+    except OSError as exc:
+        raise naming(exc, path) from exc
+    return path
 
 
 def missing_folders(path: str | Path) -> list[Path]:
@@ -292,6 +352,6 @@ def discard_empty(folders: list[Path]) -> None:
             break  # not empty (or gone): nor are the folders above it
 
 
-__all__ = ["in_place_fd", "open_in_place", "HARD_LINK_REFUSED", "LINK_REFUSED", "inside", "writable", "check_not_link", "naming", "writing", "new_temp_beside",
+__all__ = ["parent_fd", "move_into", "in_place_fd", "open_in_place", "HARD_LINK_REFUSED", "LINK_REFUSED", "inside", "writable", "check_not_link", "naming", "writing", "new_temp_beside",
            "atomic_write_with", "atomic_write_file", "atomic_write_bytes", "atomic_write_text", "atomic_write_json", "append_text",
            "make_dirs", "remove", "missing_folders", "output_folder", "output_file", "discard_empty"]
