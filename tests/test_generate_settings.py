@@ -87,7 +87,7 @@ def test_generate_prints_each_setting_with_its_origin_and_records_it_in_meta(tmp
                    "--height", "8", "--width", "12", "--workers", "1", "--quiet", "-o", str(tmp_path / "d")])
     assert rc == 0
     line = next(x for x in out.getvalue().splitlines() if x.startswith("settings:"))
-    assert "height 8 (--height)" in line and "spp 2 (preset small)" in line and "rllr_steps 12 (--steps)" in line
+    assert "height 8 (--height)" in line and "spp 2 (preset small)" in line and "steps 12 (--steps)" in line and "rllr_steps" not in line
     meta = json.loads((tmp_path / "d" / "rllr_0000" / "meta.json").read_text())
     assert meta["settings"]["width"] == {"value": 12, "from": "--width"}
     assert meta["settings"]["gt_spp"] == {"value": 16, "from": "preset small"}

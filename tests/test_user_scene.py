@@ -83,7 +83,7 @@ def test_simulate_scene_takes_a_camera_files_size_over_the_scene_film(tmp_path, 
 def test_generate_scene_takes_steps_and_a_ground_truth_stride(tmp_path, capsys):
     out = run(["generate", "scene", "--xml", PLAIN, "--steps", "6", "--gt-stride", "3", "--spp", "1", "--gt-spp", "1",
                *TINY, "-o", tmp_path / "d"], capsys)
-    assert "rllr_steps 6 (--steps)" in settings_line(out) and "rllr_gt_stride 3 (--gt-stride)" in settings_line(out)
+    assert "steps 6 (--steps)" in settings_line(out) and "gt_stride 3 (--gt-stride)" in settings_line(out) and "rllr_" not in settings_line(out)
     meta = json.loads((tmp_path / "d" / "plain_scene_normal" / "meta.json").read_text())
     assert meta["job"]["num_steps"] == 6 and len(meta["job"]["gt_steps"]) == 2 and meta["windows"] == []
 

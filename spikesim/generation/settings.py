@@ -53,8 +53,15 @@ class ResolvedSettings:
                 if k in self.values}
 
     def summary(self) -> str:
-        """One line: each setting with its origin."""
-        return "settings: " + ", ".join(f"{k} {v['value']} ({v['from']})" for k, v in self.table().items())
+        """One line: each setting with its origin, named as its flag is (`steps`, not the preset's
+        field `rllr_steps`; the recorded table keeps the field names)."""
+        return "settings: " + ", ".join(f"{SHOWN_AS.get(k, k)} {v['value']} ({v['from']})"
+                                        for k, v in self.table().items())
+
+
+#: The name a setting is shown by: the flag that sets it (generate --steps, --gt-stride, --windows,
+#: --count), where the preset's field has another name.
+SHOWN_AS = {"rllr_steps": "steps", "rllr_gt_stride": "gt_stride", "llr_windows": "windows", "rllr_scenes": "count"}
 
 
 #: The most samples per pixel a scene file may ask for (the reference preset uses 64): more is a
