@@ -4,7 +4,8 @@ recording) to PNG frames and a GIF (and an MP4 with the `video` extra: imageio-f
 The stream is cut into consecutive windows of T steps from --start; each window gives one frame
 at its centre step. Methods: tfp, tfi, or a trained checkpoint (exact chunked inference, memory
 bounded by --chunk). Display: y * scale, clipped, 1/gamma encoded; --enhance stretch maps a
-percentile of each frame to white for very dark results (as the paper does for display). The
+percentile of each frame to white for very dark results (as the paper does for display), and the
+default --enhance auto does so for the frames that would otherwise be near black. The
 enhancement touches only the pictures: --save-npy keeps the linear frames for metrics.
 
 Geometry (--height, --width, row order) defaults to what the stream's sidecar or dataset
@@ -59,7 +60,16 @@ def display_frame(y: np.ndarray, enhance: str, gamma: float, scale: float, perce
         return to_display(y, gamma=gamma, scale=scale)
     if enhance == "stretch":
         return to_display(y, gamma=gamma, percentile=percentile)
-    raise ValueError(f"enhance must be none, gamma or stretch, got {enhance!r}")
+    if enhance == "auto":  # gamma where the frame is bright enough to see, else stretched
+        dark = float(np.percentile(y, percentile)) * scale < AUTO_STRETCH_BELOW_Y
+        return display_frame(y, "stretch" if dark else "gamma", gamma, scale, percentile)
+    raise ValueError(f"enhance must be none, gamma, stretch or auto, got {enhance!r}")
+
+
+#: --enhance auto stretches a frame whose `percentile` (99.5th) is below this y (x --scale): gamma
+#: encoded it would reach at most about half of white (0.25^(1/2.2) = 0.53); a low-light frame at
+#: y ~ 0.01 gave images with a maximum of 30/255, near black.
+AUTO_STRETCH_BELOW_Y = 0.25
 
 
 class _Video:
@@ -99,7 +109,7 @@ class _Video:
 def reconstruct_file(path: Path, out: Path, method_spec: str = "tfp", height: int | None = None,
                      width: int | None = None, header_columns: int | None = None, flip: bool | None = None,
                      start: int = 0, num_windows: int | None = None, window: int = 41, chunk: int = 8,
-                     device: str = "cpu", enhance: str = "gamma", gamma: float = 2.2, scale: float = 1.0,
+                     device: str = "cpu", enhance: str = "auto", gamma: float = 2.2, scale: float = 1.0,
                      percentile: float = 99.5, fps: float = 10.0, gif: bool = True, mp4: bool = True,
                      save_npy: bool = False, progress: bool = True) -> dict:
     """Reconstruct `path` into `out`; returns a summary (also written to out/reconstruct.json).
@@ -251,8 +261,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--chunk", type=positive_int, default=8, help="windows held in memory by a network")
     p.add_argument("--device", default="auto", help="auto (CUDA when present), cpu, cuda, cuda:N or mps")
     add_threads_argument(p)
-    p.add_argument("--enhance", choices=["none", "gamma", "stretch"], default="gamma",
-                   help="display only: none (linear), gamma (1/gamma encode; default), stretch (percentile to white + gamma)")
+    p.add_argument("--enhance", choices=["auto", "none", "gamma", "stretch"], default="auto",
+                   help="display only: auto (default: gamma, or stretch for a frame whose 99.5th percentile is below "
+                        f"y = {AUTO_STRETCH_BELOW_Y}), none (linear), gamma (1/gamma encode), stretch (percentile to "
+                        "white + gamma)")
     p.add_argument("--gamma", type=positive_float, default=2.2, help="display gamma of --enhance gamma")
     p.add_argument("--scale", type=positive_float, default=1.0, help="display gain on y before clipping (e.g. 1/0.6)")
     p.add_argument("--percentile", type=percentage, default=99.5,

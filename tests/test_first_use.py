@@ -53,3 +53,15 @@ def test_a_second_evaluate_says_it_replaces_the_first(tmp_path, capsys, monkeypa
     assert "replacing" not in capsys.readouterr().err
     assert main(argv) == 0
     assert "replacing an earlier evaluation's" in capsys.readouterr().err
+
+
+def test_reconstruct_stretches_only_dark_frames_by_default():
+    """Low-light frames were near black (max 30/255) unless --enhance stretch was given."""
+    from pipelines.reconstruct import display_frame
+
+    dark = np.linspace(0, 0.01, 64).reshape(8, 8)
+    bright = np.linspace(0, 0.8, 64).reshape(8, 8)
+    assert display_frame(dark, "auto", 2.2, 1.0, 99.5).max() > 240
+    assert display_frame(dark, "gamma", 2.2, 1.0, 99.5).max() < 40
+    np.testing.assert_array_equal(display_frame(bright, "auto", 2.2, 1.0, 99.5),
+                                  display_frame(bright, "gamma", 2.2, 1.0, 99.5))
