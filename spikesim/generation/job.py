@@ -17,6 +17,7 @@ import numpy as np
 
 from spikesim.dataset import inside_root, remove_inside, write_scene
 from spikesim.keyframes import keyframe_count
+from spikesim.render.lights import scale_light_amounts
 from spikesim.render_settings import RenderSettings
 
 if TYPE_CHECKING:
@@ -119,25 +120,6 @@ class _FrameSource:
         if self.scale != 1.0 and "light" in out:
             out["light"] = {**scale_light_amounts(out["light"], self.scale), "light_power_factor": self.scale}
         return out
-
-
-#: Keys of a light's record whose values scale with its power.
-_POWER_KEYS = ("power", "photometric")
-
-
-def _scales_with_power(key: str) -> bool:
-    return key in _POWER_KEYS or "lux" in key or key.endswith(("_lm", "_cd", "_w"))
-
-
-def scale_light_amounts(record: Any, factor: float) -> Any:
-    """A light record (spikesim.render.lights: conditions, emitters) with every amount that
-    scales with emitter power multiplied by `factor` (light transport is linear in it)."""
-    if isinstance(record, dict):
-        return {k: (v * factor if _scales_with_power(k) and isinstance(v, (int, float)) and not isinstance(v, bool)
-                    else scale_light_amounts(v, factor)) for k, v in record.items()}
-    if isinstance(record, list):
-        return [scale_light_amounts(v, factor) for v in record]
-    return record
 
 
 def subject_illuminance_lux(source: dict[str, Any]) -> float | None:

@@ -488,5 +488,24 @@ def load_lights(path: str | Path, scene_emitters: tuple[EmitterSpec, ...] = ()) 
     return out
 
 
-__all__ = ["EmitterSpec", "LightingCondition", "load_lights", "parse_emitter", "LAMP_EFFICACY_LM_PER_W",
+#: Keys of a light's record whose values scale with its power.
+_POWER_KEYS = ("power", "photometric")
+
+
+def _scales_with_power(key: str) -> bool:
+    return key in _POWER_KEYS or "lux" in key or key.endswith(("_lm", "_cd", "_w"))
+
+
+def scale_light_amounts(record: Any, factor: float) -> Any:
+    """A light record (spikesim.render.lights: conditions, emitters) with every amount that
+    scales with emitter power multiplied by `factor` (light transport is linear in it)."""
+    if isinstance(record, dict):
+        return {k: (v * factor if _scales_with_power(k) and isinstance(v, (int, float)) and not isinstance(v, bool)
+                    else scale_light_amounts(v, factor)) for k, v in record.items()}
+    if isinstance(record, list):
+        return [scale_light_amounts(v, factor) for v in record]
+    return record
+
+
+__all__ = ["scale_light_amounts", "EmitterSpec", "LightingCondition", "load_lights", "parse_emitter", "LAMP_EFFICACY_LM_PER_W",
            "EMITTER_TYPES", "POWER_KINDS", "preview_rgb", "spectrum_element"]

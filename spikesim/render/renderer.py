@@ -258,7 +258,7 @@ class SceneRenderer:
         """Every parameter that determines the output, for a dataset's meta.json."""
         light = self.lighting.describe(self.exposure.pixel)
         if self.light_power_factor != 1.0:
-            from spikesim.generation.job import scale_light_amounts
+            from spikesim.render.lights import scale_light_amounts
             light = {**scale_light_amounts(light, self.light_power_factor),
                      "light_power_factor": self.light_power_factor}
         return {
