@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from scenes.natural_textures import dead_leaves, package_photo, save_srgb
-from scenes.random_scene import _material, _trimesh_object, random_lamps
+from scenes.random_scene import _material, _trimesh_object, random_lamps, scene_xml
 
 #: Lamps' illuminance at the subject before darkening (log-uniform). With the log-uniform
 #: darkening down to 0.005 this spans 0.1-1000 lx at the subject: from the darkest LLR light to
@@ -184,19 +184,9 @@ def build_natural_scene(seed: int, folder: str | Path, resolution: tuple[int, in
     camera_motion, camera_record = _camera_motion(rng, eye, fov, w, readout_period_s)
     if camera_motion is not None:
         objects.append(camera_motion)
-    xml = f'''<?xml version="1.0" encoding="utf-8"?>
-<!-- RLLR natural scene, seed {seed}: built by scenes/natural_scene.py; lights in lights.json,
-     texture sources and licences in content.json. -->
-<scene version="3.0.0">
-    <integrator type="path"><integer name="max_depth" value="3"/></integrator>
-    <sensor type="perspective" id="camera">
-        <float name="fov" value="{fov:.2f}"/><string name="fov_axis" value="x"/>
-        <transform name="to_world"><lookat origin="{eye[0]}, {eye[1]:.4f}, {eye[2]}" target="0, 0, 1" up="0, 0, 1"/></transform>
-        <film type="hdrfilm"><integer name="width" value="{w}"/><integer name="height" value="{h}"/><rfilter type="box"/></film>
-    </sensor>
-    {chr(10).join("    " + s for s in shapes)}
-</scene>
-'''
+    xml = scene_xml(f"RLLR natural scene, seed {seed}: built by scenes/natural_scene.py; lights in lights.json,\n"
+                    "     texture sources and licences in content.json.", fov,
+                    f"{eye[0]}, {eye[1]:.4f}, {eye[2]}", "0, 0, 1", w, h, shapes)
     (folder / "scene.xml").write_text(xml)
     motion = {"version": 1, "description": f"natural random scene, seed {seed}", "start_time_s": 0.0,
               "objects": objects}

@@ -177,24 +177,33 @@ def build_random_scene(seed: int, folder: str | Path, resolution: tuple[int, int
             motions.append({"type": "translation", "direction": (d / np.linalg.norm(d)).round(4).tolist(),
                             "speed_mps": float(rng.uniform(1.0, 25.0))})
         objects.append({"targets": [oid], "motions": motions})
-    xml = f'''<?xml version="1.0" encoding="utf-8"?>
-<!-- RLLR random scene, seed {seed}: built by scenes/random_scene.py; lights in lights.json. -->
-<scene version="3.0.0">
-    <integrator type="path"><integer name="max_depth" value="3"/></integrator>
-    <sensor type="perspective" id="camera">
-        <float name="fov" value="{fov:.2f}"/><string name="fov_axis" value="x"/>
-        <transform name="to_world"><lookat origin="{eye[0]}, {eye[1]}, {eye[2]}" target="{target[0]}, {target[1]}, {target[2]}" up="0, 0, 1"/></transform>
-        <film type="hdrfilm"><integer name="width" value="{w}"/><integer name="height" value="{h}"/><rfilter type="box"/></film>
-    </sensor>
-    {chr(10).join("    " + s for s in shapes)}
-</scene>
-'''
+    xml = scene_xml(f"RLLR random scene, seed {seed}: built by scenes/random_scene.py; lights in lights.json.", fov,
+                    f"{eye[0]}, {eye[1]}, {eye[2]}", f"{target[0]}, {target[1]}, {target[2]}", w, h, shapes)
     (folder / "scene.xml").write_text(xml)
     (folder / "motion.json").write_text(json.dumps({"version": 1, "description": f"random motions, seed {seed}",
                                                     "start_time_s": 0.0, "objects": objects}, indent=1))
     lights = random_lamps(rng, lo_lux, hi_lux)
     (folder / "lights.json").write_text(json.dumps(lights, indent=1))
     return folder / "scene.xml", folder / "motion.json", folder / "lights.json", "normal"
+
+
+def scene_xml(comment: str, fov_deg: float, origin: str, target: str, width: int, height: int,
+              shapes: list[str]) -> str:
+    """A random scene's XML: a path tracer of depth 3, a perspective camera (`origin` and `target`
+    as the callers format them, so each builder's scenes keep their bytes), a box-filtered film,
+    and the shapes."""
+    return f'''<?xml version="1.0" encoding="utf-8"?>
+<!-- {comment} -->
+<scene version="3.0.0">
+    <integrator type="path"><integer name="max_depth" value="3"/></integrator>
+    <sensor type="perspective" id="camera">
+        <float name="fov" value="{fov_deg:.2f}"/><string name="fov_axis" value="x"/>
+        <transform name="to_world"><lookat origin="{origin}" target="{target}" up="0, 0, 1"/></transform>
+        <film type="hdrfilm"><integer name="width" value="{width}"/><integer name="height" value="{height}"/><rfilter type="box"/></film>
+    </sensor>
+    {chr(10).join("    " + s for s in shapes)}
+</scene>
+'''
 
 
 def random_lamps(rng: np.random.Generator, lo_lux: float, hi_lux: float,
@@ -227,4 +236,4 @@ def random_lamps(rng: np.random.Generator, lo_lux: float, hi_lux: float,
     return lights
 
 
-__all__ = ["build_random_scene", "random_lamps", "SPECTRA", "LAMPS_LUX", "LAMPS_LUX_BEFORE_STUDY", "GENERATOR_VERSION"]
+__all__ = ["build_random_scene", "random_lamps", "scene_xml", "SPECTRA", "LAMPS_LUX", "LAMPS_LUX_BEFORE_STUDY", "GENERATOR_VERSION"]
