@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from scenes.natural_textures import dead_leaves, package_photo, save_srgb
-from scenes.random_scene import _material, _trimesh_object, random_lamps, scene_xml
+from scenes.random_scene import _material, mesh_xml, random_lamps, scene_start, scene_xml, solid_xml
 
 #: Lamps' illuminance at the subject before darkening (log-uniform). With the log-uniform
 #: darkening down to 0.005 this spans 0.1-1000 lx at the subject: from the darkest LLR light to
@@ -107,13 +107,7 @@ def build_natural_scene(seed: int, folder: str | Path, resolution: tuple[int, in
                         readout_period_s: float = 25e-6) -> tuple[Path, Path, Path, str]:
     """Write a natural random scene into `folder` (module docstring); returns (xml, motion,
     lights, light name), as scenes.random_scene.build_random_scene."""
-    lo_lux, hi_lux = (float(v) for v in lamps_lux)
-    if not 0 < lo_lux <= hi_lux:
-        raise ValueError(f"lamps_lux={lamps_lux!r}: expected 0 < low <= high (lux)")
-    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 4321]))
-    folder = Path(folder)
-    (folder / "textures").mkdir(parents=True, exist_ok=True)
-    (folder / "meshes").mkdir(parents=True, exist_ok=True)
+    rng, folder, lo_lux, hi_lux = scene_start(seed, folder, lamps_lux, 4321)
     h, w = resolution
     distance = float(rng.uniform(1.5, 4.0))
     eye = np.array([0.0, -distance, 1.0])
@@ -152,22 +146,9 @@ def build_natural_scene(seed: int, folder: str | Path, resolution: tuple[int, in
         elif kind == "solid":
             solid = str(rng.choice(["sphere", "cube", "cylinder"]))
             rel = _surface(rng, folder, oid, _OBJECT_TEXTURE, textures, photo_share=0.5)
-            if solid == "cylinder":
-                xform = (f'<scale x="{size:.4f}" y="{size:.4f}" z="{2 * size:.4f}"/>'
-                         f'<translate x="{center[0]:.4f}" y="{center[1]:.4f}" z="{center[2] - size:.4f}"/>')
-            else:
-                xform = (f'<scale value="{size:.4f}"/>'
-                         f'<translate x="{center[0]:.4f}" y="{center[1]:.4f}" z="{center[2]:.4f}"/>')
-            shapes.append(f'<shape type="{solid}" id="{oid}"><transform name="to_world">{xform}</transform>'
-                          f'{_material(rng, _bitmap(rel))}</shape>')
+            shapes.append(solid_xml(solid, oid, size, center, _material(rng, _bitmap(rel))))
         else:
-            mesh = _trimesh_object(rng, size)
-            mesh.apply_translation(center - mesh.centroid)
-            mesh.export(folder / "meshes" / f"{oid}.ply")
-            rgb = ", ".join(f"{c:.3f}" for c in rng.uniform(0.03, 0.9, 3))
-            material = _material(rng, f'<rgb name="reflectance" value="{rgb}"/>')
-            shapes.append(f'<shape type="ply" id="{oid}"><string name="filename" value="meshes/{oid}.ply"/>'
-                          f'<boolean name="face_normals" value="true"/>{material}</shape>')
+            shapes.append(mesh_xml(rng, oid, size, center, folder, 0.03))
         motions = []
         if rng.random() < 0.9:  # else still
             if rng.random() < 0.6:

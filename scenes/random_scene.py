@@ -117,13 +117,7 @@ def build_random_scene(seed: int, folder: str | Path, resolution: tuple[int, int
     """Write a random scene into `folder`; returns (xml, motion, lights, light name). The lamps'
     illuminance at the subject is drawn log-uniformly from `lamps_lux` with one random draw, so
     the range changes the level and nothing else of the scene."""
-    lo_lux, hi_lux = (float(v) for v in lamps_lux)
-    if not 0 < lo_lux <= hi_lux:
-        raise ValueError(f"lamps_lux={lamps_lux!r}: expected 0 < low <= high (lux)")
-    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 1234]))
-    folder = Path(folder)
-    (folder / "textures").mkdir(parents=True, exist_ok=True)
-    (folder / "meshes").mkdir(parents=True, exist_ok=True)
+    rng, folder, lo_lux, hi_lux = scene_start(seed, folder, lamps_lux, 1234)
     h, w = resolution
     # Camera 2.5 m in front of a backdrop, looking along +y; z is up (as the bundled scenes).
     eye = np.array([0.0, -2.5, 1.0])
@@ -151,21 +145,9 @@ def build_random_scene(seed: int, folder: str | Path, resolution: tuple[int, int
             tex = f"textures/{oid}.png"
             _texture(rng, folder / tex)
             refl = f'<texture type="bitmap" name="reflectance"><string name="filename" value="{tex}"/></texture>'
-            if kind == "cylinder":
-                xform = (f'<scale x="{size:.4f}" y="{size:.4f}" z="{2 * size:.4f}"/>'
-                         f'<translate x="{center[0]:.4f}" y="{center[1]:.4f}" z="{center[2] - size:.4f}"/>')
-            else:
-                xform = f'<scale value="{size:.4f}"/><translate x="{center[0]:.4f}" y="{center[1]:.4f}" z="{center[2]:.4f}"/>'
-            shapes.append(f'<shape type="{kind}" id="{oid}"><transform name="to_world">{xform}</transform>'
-                          f'{_material(rng, refl)}</shape>')
+            shapes.append(solid_xml(str(kind), oid, size, center, _material(rng, refl)))
         else:
-            mesh = _trimesh_object(rng, size)
-            mesh.apply_translation(center - mesh.centroid)
-            mesh.export(folder / "meshes" / f"{oid}.ply")
-            rgb = ", ".join(f"{c:.3f}" for c in rng.uniform(0.05, 0.9, 3))
-            refl = f'<rgb name="reflectance" value="{rgb}"/>'
-            shapes.append(f'<shape type="ply" id="{oid}"><string name="filename" value="meshes/{oid}.ply"/>'
-                          f'<boolean name="face_normals" value="true"/>{_material(rng, refl)}</shape>')
+            shapes.append(mesh_xml(rng, oid, size, center, folder, 0.05))
         motions = []
         if rng.random() < 0.7:
             axis = rng.normal(size=3)
@@ -185,6 +167,45 @@ def build_random_scene(seed: int, folder: str | Path, resolution: tuple[int, int
     lights = random_lamps(rng, lo_lux, hi_lux)
     (folder / "lights.json").write_text(json.dumps(lights, indent=1))
     return folder / "scene.xml", folder / "motion.json", folder / "lights.json", "normal"
+
+
+def solid_xml(kind: str, oid: str, size: float, center: np.ndarray, material: str) -> str:
+    """A Mitsuba sphere, cube or cylinder (a cylinder stands 2 size tall, its base size below the
+    centre) of half-size `size` at `center`, with `material`."""
+    if kind == "cylinder":
+        xform = (f'<scale x="{size:.4f}" y="{size:.4f}" z="{2 * size:.4f}"/>'
+                 f'<translate x="{center[0]:.4f}" y="{center[1]:.4f}" z="{center[2] - size:.4f}"/>')
+    else:
+        xform = f'<scale value="{size:.4f}"/><translate x="{center[0]:.4f}" y="{center[1]:.4f}" z="{center[2]:.4f}"/>'
+    return f'<shape type="{kind}" id="{oid}"><transform name="to_world">{xform}</transform>{material}</shape>'
+
+
+def mesh_xml(rng: np.random.Generator, oid: str, size: float, center: np.ndarray, folder: Path,
+             darkest: float) -> str:
+    """A random trimesh primitive at `center`, written to meshes/<oid>.ply, with a uniform colour
+    (each channel U(darkest, 0.9)) and a random material."""
+    mesh = _trimesh_object(rng, size)
+    mesh.apply_translation(center - mesh.centroid)
+    mesh.export(folder / "meshes" / f"{oid}.ply")
+    rgb = ", ".join(f"{c:.3f}" for c in rng.uniform(darkest, 0.9, 3))
+    material = _material(rng, f'<rgb name="reflectance" value="{rgb}"/>')
+    return (f'<shape type="ply" id="{oid}"><string name="filename" value="meshes/{oid}.ply"/>'
+            f'<boolean name="face_normals" value="true"/>{material}</shape>')
+
+
+def scene_start(seed: int, folder: str | Path, lamps_lux: tuple[float, float],
+                stream: int) -> tuple[np.random.Generator, Path, float, float]:
+    """What every random-scene builder starts with: the lamps' range checked, the scene's random
+    generator (the seed and the builder's own `stream` key), and its folder with textures/ and
+    meshes/ made."""
+    lo_lux, hi_lux = (float(v) for v in lamps_lux)
+    if not 0 < lo_lux <= hi_lux:
+        raise ValueError(f"lamps_lux={lamps_lux!r}: expected 0 < low <= high (lux)")
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), stream]))
+    folder = Path(folder)
+    (folder / "textures").mkdir(parents=True, exist_ok=True)
+    (folder / "meshes").mkdir(parents=True, exist_ok=True)
+    return rng, folder, lo_lux, hi_lux
 
 
 def scene_xml(comment: str, fov_deg: float, origin: str, target: str, width: int, height: int,
@@ -236,4 +257,4 @@ def random_lamps(rng: np.random.Generator, lo_lux: float, hi_lux: float,
     return lights
 
 
-__all__ = ["build_random_scene", "random_lamps", "scene_xml", "SPECTRA", "LAMPS_LUX", "LAMPS_LUX_BEFORE_STUDY", "GENERATOR_VERSION"]
+__all__ = ["build_random_scene", "random_lamps", "scene_start", "scene_xml", "SPECTRA", "LAMPS_LUX", "LAMPS_LUX_BEFORE_STUDY", "GENERATOR_VERSION"]
