@@ -233,7 +233,8 @@ def write_scene(root: str | Path, name: str, stream: SpikeStream | Path, ground_
                 raise ValueError(f"scene {name}: ground truth at step {step} has shape {np.asarray(img).shape}, stream is {h}x{w}")
             if not 0 <= int(step) < n:
                 raise ValueError(f"scene {name}: ground truth step {step} outside the stream's {n} steps")
-            write_exr(tmp / GT_DIR / gt_name(step), img)
+            with outputs.writing(root / name / GT_DIR / gt_name(step), stage=tmp):  # a full disk names the file
+                write_exr(tmp / GT_DIR / gt_name(step), img)
             saturation.add(img)
             steps.append(int(step))
         full_meta = {**meta, "name": name, "height": h, "width": w, "num_steps": n, "flip": flip,

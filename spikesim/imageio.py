@@ -5,6 +5,8 @@ what the renderer produced; PNGs are previews only and are never read back for m
 """
 from __future__ import annotations
 
+import errno
+import os
 from pathlib import Path
 
 import numpy as np
@@ -24,7 +26,16 @@ def write_exr(path: str | Path, y: np.ndarray) -> Path:
         raise ValueError(f"{path}: expected a (H, W) image, got shape {y.shape}")
     path.parent.mkdir(parents=True, exist_ok=True)
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-    return atomic_write_with(path, lambda tmp: OpenEXR.File(header, {CHANNEL: y}).write(str(tmp)))
+
+    def write(tmp: Path) -> None:
+        try:
+            OpenEXR.File(header, {CHANNEL: y}).write(str(tmp))
+        except RuntimeError as exc:  # OpenEXR reports I/O failures (a full disk) as RuntimeError
+            text = str(exc)
+            code = errno.ENOSPC if "No space left" in text else errno.EIO
+            raise OSError(code, os.strerror(code) if code == errno.ENOSPC else text.splitlines()[0], str(path)) from None
+
+    return atomic_write_with(path, write)
 
 
 def read_exr(path: str | Path) -> np.ndarray:

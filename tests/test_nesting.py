@@ -161,3 +161,22 @@ def test_a_deadline_beyond_a_day_is_refused():
     from pipelines.gpu_campaign_cmd import minutes_in_a_day
     with pytest.raises(argparse.ArgumentTypeError, match="at most a day"):
         minutes_in_a_day("1e307")
+
+
+def test_a_full_disk_during_an_exr_write_is_an_oserror_naming_the_file(tmp_path, monkeypatch):
+    """OpenEXR reports a full disk as RuntimeError: `generate` gave its traceback, not rc 2."""
+    import errno
+
+    import numpy as np
+    import OpenEXR
+
+    from spikesim.imageio import write_exr
+
+    def full(self, path):
+        raise RuntimeError(f'Failed to write pixel data to image file "{path}". No space left on device.')
+
+    monkeypatch.setattr(OpenEXR.File, "write", full)
+    with pytest.raises(OSError) as info:
+        write_exr(tmp_path / "gt.exr", np.zeros((4, 4), np.float32))
+    assert info.value.errno == errno.ENOSPC and info.value.filename == str(tmp_path / "gt.exr")
+    assert list(tmp_path.iterdir()) == []  # no partial file left

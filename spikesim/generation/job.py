@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any, Callable, Iterator
 import numpy as np
 
 from spikesim.dataset import inside_root, remove_inside, write_scene
+from spikesim.outputs import writing
 from spikesim.keyframes import keyframe_count
 from spikesim.render.lights import scale_light_amounts
 from spikesim.render_settings import RenderSettings
@@ -46,16 +47,18 @@ class _FrameSource:
             self._content = None
             if src["type"] == "random" and src.get("content", "procedural") == "natural":
                 from scenes.natural_scene import NATURAL_LAMPS_LUX, build_natural_scene
-                scene, motion, lights, light = build_natural_scene(
-                    int(src["scene_seed"]), workdir / "random_scene", resolution=(h, w),
-                    lamps_lux=tuple(src.get("lamps_lux", NATURAL_LAMPS_LUX)),
-                    readout_period_s=float(job.camera["readout_period_s"]))
+                with writing(workdir / "random_scene"):  # a full disk names the folder, not a mesh library's call
+                    scene, motion, lights, light = build_natural_scene(
+                        int(src["scene_seed"]), workdir / "random_scene", resolution=(h, w),
+                        lamps_lux=tuple(src.get("lamps_lux", NATURAL_LAMPS_LUX)),
+                        readout_period_s=float(job.camera["readout_period_s"]))
                 self._content = workdir / "random_scene" / "content.json"
             elif src["type"] == "random":
                 from scenes.random_scene import LAMPS_LUX_BEFORE_STUDY, build_random_scene
-                scene, motion, lights, light = build_random_scene(
-                    int(src["scene_seed"]), workdir / "random_scene",
-                    lamps_lux=tuple(src.get("lamps_lux", LAMPS_LUX_BEFORE_STUDY)))
+                with writing(workdir / "random_scene"):
+                    scene, motion, lights, light = build_random_scene(
+                        int(src["scene_seed"]), workdir / "random_scene",
+                        lamps_lux=tuple(src.get("lamps_lux", LAMPS_LUX_BEFORE_STUDY)))
             else:
                 scene, motion, lights, light = src["scene"], src.get("motion"), src.get("lights"), src["light"]
             settings = RenderSettings.from_dict(job.render)
