@@ -33,6 +33,7 @@ from pipelines.argtypes import add_threads_argument, nonnegative_int, positive_f
 from pipelines.inspect_cmd import header_columns_arg, open_stream
 from spikesim._optional import require
 from spikesim.errors import UnavailableError
+from spikesim.imageio import DARK_PREVIEW_Y
 from spikesim.outputs import make_dirs, move_into, output_folder, remove, writable, writing
 from spikesim.stream import HEADER_COLUMNS as PKU_HEADER
 from spikesim.stream import detect_header_columns  # noqa: F401  (callers and tests reach it here)
@@ -66,10 +67,9 @@ def display_frame(y: np.ndarray, enhance: str, gamma: float, scale: float, perce
     raise ValueError(f"enhance must be none, gamma, stretch or auto, got {enhance!r}")
 
 
-#: --enhance auto stretches a frame whose `percentile` (99.5th) is below this y (x --scale): gamma
-#: encoded it would reach at most about half of white (0.25^(1/2.2) = 0.53); a low-light frame at
-#: y ~ 0.01 gave images with a maximum of 30/255, near black.
-AUTO_STRETCH_BELOW_Y = 0.25
+#: --enhance auto stretches a frame whose `percentile` (99.5th) is below this y (x --scale), as
+#: every preview does (spikesim.imageio.DARK_PREVIEW_Y).
+AUTO_STRETCH_BELOW_Y = DARK_PREVIEW_Y
 
 
 class _Video:

@@ -119,7 +119,8 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
                    help="JSON/TOML file of Exposure (optics, pixel, T, threshold)")
     p.add_argument("--png-scale", type=positive_float, default=None, help="PNG preview: multiply y by this before display")
     p.add_argument("--png-percentile", type=percentile, default=None,
-                   help="PNG preview: map this percentile (0-100) of y to white (for dark scenes)")
+                   help="PNG preview: map this percentile (0-100) of y to white (default: 99.5 for a frame whose "
+                        "99.5th percentile is below y = 0.25, else y = 1 is white)")
     p.add_argument("-o", "--out", type=output_dir, default=Path("out/render"), help="output folder")
     p.add_argument("--quiet", action="store_true",
                    help="no line per step: the settings and one line of what was written")
@@ -159,7 +160,7 @@ def run(args: argparse.Namespace) -> int:
 def _render_into(args: argparse.Namespace, renderer: Any, kind: str, previous: list[str],
                  settings_table: Any) -> tuple[dict, list[str]]:
     from pipelines.render_folder import remove_stage, replace_outputs
-    from spikesim.imageio import write_exr, write_png
+    from spikesim.imageio import auto_percentile, write_exr, write_png
     from spikesim.render import write_ground_truth
 
     # The run is written aside and moved in whole, so the folder always holds one run: a failed
@@ -184,7 +185,8 @@ def _render_into(args: argparse.Namespace, renderer: Any, kind: str, previous: l
                 else:
                     y = renderer.render_step(step)
                     write_exr(name.with_suffix(".exr"), y)
-                    write_png(name.with_suffix(".png"), y, scale=args.png_scale, percentile=args.png_percentile)
+                    write_png(name.with_suffix(".png"), y, scale=args.png_scale,
+                              percentile=auto_percentile(y, args.png_scale, args.png_percentile))
             timings.append(time.perf_counter() - t0)
             if not args.json and not args.quiet:
                 print(f"{args.out / kind / name.name}  ({timings[-1]:.2f} s)")

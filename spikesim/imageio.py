@@ -147,6 +147,22 @@ def to_display(y: np.ndarray, gamma: float = 2.2, scale: float | None = None, pe
     return np.round(v * 255.0).astype(np.uint8)
 
 
+#: A preview whose 99.5th percentile of y (times its scale) is below this is stretched by default:
+#: gamma encoded it would reach at most about half of white (0.25^(1/2.2) = 0.53), and a low-light
+#: frame (y ~ 0.01) came out near black (maximum 30/255).
+DARK_PREVIEW_Y = 0.25
+PREVIEW_PERCENTILE = 99.5
+
+
+def auto_percentile(y: np.ndarray, scale: float | None = None, percentile: float | None = None) -> float | None:
+    """The percentile a preview maps to white: the one asked for; else PREVIEW_PERCENTILE when no
+    scale was asked either and the image is dark (DARK_PREVIEW_Y); else None (y = 1 is white)."""
+    if percentile is not None or scale is not None:
+        return percentile
+    dark = float(np.percentile(np.asarray(y, dtype=np.float64), PREVIEW_PERCENTILE)) < DARK_PREVIEW_Y
+    return PREVIEW_PERCENTILE if dark else None
+
+
 def write_png(path: str | Path, y: np.ndarray, gamma: float = 2.2, scale: float | None = None,
               percentile: float | None = None) -> Path:
     """A tone-mapped preview PNG of a linear image (see `to_display`)."""
@@ -159,4 +175,4 @@ def write_png(path: str | Path, y: np.ndarray, gamma: float = 2.2, scale: float 
     return atomic_write_with(path, lambda tmp: Image.fromarray(img).save(tmp, format="PNG"))
 
 
-__all__ = ["write_exr", "read_exr", "write_png", "to_display"]
+__all__ = ["write_exr", "read_exr", "write_png", "to_display", "auto_percentile", "DARK_PREVIEW_Y", "PREVIEW_PERCENTILE"]

@@ -65,3 +65,12 @@ def test_reconstruct_stretches_only_dark_frames_by_default():
     assert display_frame(dark, "gamma", 2.2, 1.0, 99.5).max() < 40
     np.testing.assert_array_equal(display_frame(bright, "auto", 2.2, 1.0, 99.5),
                                   display_frame(bright, "gamma", 2.2, 1.0, 99.5))
+
+
+def test_a_dark_preview_is_stretched_unless_a_scale_is_asked():
+    """`render --steps 0` of a low-light scene wrote a near-black preview."""
+    from spikesim.imageio import auto_percentile
+
+    dark, bright = np.full((4, 4), 0.01), np.full((4, 4), 0.5)
+    assert auto_percentile(dark) == 99.5 and auto_percentile(bright) is None
+    assert auto_percentile(dark, scale=30.0) is None and auto_percentile(dark, percentile=90.0) == 90.0

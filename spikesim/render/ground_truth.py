@@ -18,14 +18,15 @@ def write_ground_truth(renderer: SceneRenderer, steps: Iterable[int], folder: st
                        png_scale: float | None = None, png_percentile: float | None = None,
                        spp: int | None = None) -> list[Path]:
     """Render the ground truth at each step (renderer.ground_truth) and write EXR (+ PNG)."""
-    from spikesim.imageio import write_exr, write_png
+    from spikesim.imageio import auto_percentile, write_exr, write_png
 
     written = []
     for step in steps:
         y = renderer.ground_truth(step, spp=spp)
         path = write_exr(gt_path(folder, step), y)
         if png:
-            write_png(path.with_suffix(".png"), y, scale=png_scale, percentile=png_percentile)
+            write_png(path.with_suffix(".png"), y, scale=png_scale,
+                      percentile=auto_percentile(y, png_scale, png_percentile))  # a dark one stretched
         written.append(path)
     return written
 
