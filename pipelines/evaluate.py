@@ -253,18 +253,20 @@ def markdown_table(rows: Sequence[Score], methods: Sequence[str]) -> str:
             continue
         title = "All scenes" if cond is None else f"{cond.capitalize()} light"
         lines += [f"**{title}** ({present[0].frames} frames)", ""] + _group_table(rows, methods, group) + [""]
-    lines += ["| Scene | frames | " + " | ".join(f"{method_label(m)} aligned / light-norm. | {method_label(m)} PSNR / SSIM | "
-                                                  f"{method_label(m)} 8-bit" for m in methods) + " |",
-              "|---|---|" + "---|" * (3 * len(methods))]
+    # per scene, two narrow tables (aligned PSNR, then SSIM; best in bold): a column per method, not
+    # three (6 methods made 20 columns); metrics.csv has every metric of every scene
     scenes = [r.scene for r in rows if not r.scene.startswith(ALL) and r.method == methods[0]]
-    for sc in scenes:
-        by = {r.method: r for r in rows if r.scene == sc}
-        cells = []
-        for m in methods:
-            r = by[m]
-            cells += [f"{r.psnr_aligned:.3f} / {r.psnr_norm:.3f} / {r.ssim_norm:.5f}", f"{r.psnr:.3f} / {r.ssim:.5f}",
-                      f"{r.psnr_8bit:.3f} / {r.ssim_8bit:.5f}"]
-        lines.append(f"| {sc} | {by[methods[0]].frames} | " + " | ".join(cells) + " |")
+    for key, label, fmt in (("psnr_aligned", "aligned PSNR (dB)", "{:.2f}"), ("ssim", "SSIM", "{:.4f}")):
+        lines += [f"**Per scene: {label}** (every metric: metrics.csv)", "",
+                  "| Scene | frames | " + " | ".join(method_label(m) for m in methods) + " |",
+                  "|---|---|" + "---|" * len(methods)]
+        for sc in scenes:
+            by = {r.method: r for r in rows if r.scene == sc}
+            vals = [by[m].value(key) for m in methods]
+            best = max(v for m, v in zip(methods, vals) if m not in FLOORS) if any(m not in FLOORS for m in methods) else None
+            cells = [f"**{fmt.format(v)}**" if v == best and m not in FLOORS else fmt.format(v) for m, v in zip(methods, vals)]
+            lines.append(f"| {sc} | {by[methods[0]].frames} | " + " | ".join(cells) + " |")
+        lines.append("")
     lines += ["", f"Metric conventions. PSNR, SSIM: {METRIC_CONVENTION} {AUTHORS_CONVENTION} "
                   f"{NORMALISED_CONVENTION} Ground truth clipped at saturation (y = {SATURATION_Y:g}). "
                   "Groups = mean over all frames of their scenes."]

@@ -44,7 +44,10 @@ if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
   "$VENV/bin/python" -m pip install -q --upgrade pip 2>&1 | grep -v '^WARNING: Location' || true
   # torch first, so the project's `torch>=...` range is satisfied by the CPU build.
   bash "$here/scripts/torch_cpu.sh" "$VENV/bin/python"
-  "$VENV/bin/python" -m pip install -q -e ".[test,train,plot,video,cluster]" 2>&1 | grep -v '^WARNING: Location' || true
+  # PYTHONWARNINGS reaches the build backend: setuptools' "Editable installation" warning block
+  # (about folders named like the package) says nothing a user of this checkout needs.
+  PYTHONWARNINGS=ignore "$VENV/bin/python" -m pip install -q -e ".[test,train,plot,video,cluster]" 2>&1 \
+    | grep -v '^WARNING: Location' || true
   "$VENV/bin/python" -c "import torch, drjit, mitsuba, spikesim" 
   echo "$want" > "$stamp"
 fi
