@@ -74,3 +74,20 @@ def test_a_dark_preview_is_stretched_unless_a_scale_is_asked():
     dark, bright = np.full((4, 4), 0.01), np.full((4, 4), 0.5)
     assert auto_percentile(dark) == 99.5 and auto_percentile(bright) is None
     assert auto_percentile(dark, scale=30.0) is None and auto_percentile(dark, percentile=90.0) == 90.0
+
+
+def test_generate_progress_counts_renders_with_the_ground_truth(tmp_path):
+    """The per-scene bar counted simulated steps only (100 % at 78 s of a 180 s scene); it counts
+    renders now, the ground truth's included, and ends at its total."""
+    from spikesim.generation.job import run_job
+    from spikesim.generation.plan import PRESETS, plan_user
+
+    job = plan_user("tests/data/plain_scene/scene.xml", "normal", PRESETS["small"], num_windows=2)[0]
+    import dataclasses
+    job = dataclasses.replace(job, camera={**job.camera, "height": 8, "width": 12},
+                              render={**job.render, "resolution": [8, 12], "spp": 1, "gt_spp": 1})
+    seen = []
+    run_job(job, tmp_path, progress=lambda name, done, total: seen.append((done, total)))
+    total = job.num_steps + len(job.gt_steps)  # a render per step, and one per ground-truth frame
+    assert all(t == total for _, t in seen) and seen[-1][0] == total
+    assert [d for d, _ in seen] == sorted(d for d, _ in seen)

@@ -215,6 +215,11 @@ def run_job(job: SceneJob, root: str | Path, progress: Callable[[str, int, int],
         on_device = renderer is not None and sim.backend_name == renderer.device
         dat = work / "spikes.dat"
         written = 0
+        # progress counts renders, ground truth included (the bar said 100 % at 78 s of a 180 s
+        # scene, counting simulated steps only); a pattern has no render: its steps count instead
+        k = job.keyframe_every if renderer is not None else 1
+        frame_renders = keyframe_count(job.num_steps, k)
+        total_renders = frame_renders + (len(job.gt_steps) if renderer is not None else 0)
         with DatWriter(dat, cam.height, cam.width, flip=job.flip) as writer:
             if quality_record is not None:
                 parts = q.simulate(sim, source.scaled(on_device), 0, job.num_steps)
@@ -229,14 +234,16 @@ def run_job(job: SceneJob, root: str | Path, progress: Callable[[str, int, int],
                     writer.write(part.slice(0, take))
                     written += take
                     if progress:
-                        progress(job.name, written, job.num_steps)
+                        progress(job.name, min(keyframe_count(written, k), frame_renders), total_renders)
             except ValueError as exc:
                 raise source.rendered_frames_error(exc) from exc
         t_frames = time.perf_counter() - t0
 
         def ground_truth() -> Iterator[tuple[int, np.ndarray]]:
-            for step in job.gt_steps:
+            for i, step in enumerate(job.gt_steps):
                 yield step, source.ground_truth(step)
+                if progress and renderer is not None:
+                    progress(job.name, frame_renders + i + 1, total_renders)
             source.check_lit()  # before the scene folder appears: write_scene removes what it wrote
 
         described = _without_prefix(source.describe(), str(work), "<built from the job's seed>")

@@ -91,7 +91,7 @@ def generate_local(todo: list[SceneJob], root: Path, workers: int, show_progress
                 while not queue.empty():
                     name, n, total = queue.get()
                     if name not in bars:
-                        bars[name] = progress_bar(total=total, desc=name, unit="step", quiet=not show_progress,
+                        bars[name] = progress_bar(total=total, desc=name, unit="render", quiet=not show_progress,
                                                   nested=True, position=1 + len(bars) % max(1, workers))
                     bars[name].n = n
                     bars[name].refresh()
@@ -126,10 +126,10 @@ def _generate_in_process(todo: list[SceneJob], root: Path, show_progress: bool, 
     results = []
     overall = progress_bar(total=len(todo), desc="scenes", unit="scene", quiet=not show_progress)
     for job in todo:
-        bar = progress_bar(total=job.num_steps, desc=job.name, unit="step", quiet=not show_progress, nested=True)
+        bar = progress_bar(total=None, desc=job.name, unit="render", quiet=not show_progress, nested=True)
 
         def progress(name: str, done: int, total: int, bar: Any = bar) -> None:
-            bar.n = done
+            bar.total, bar.n = total, done  # renders, ground truth included (spikesim.generation.job)
             bar.refresh()
         results.append(run_job(job, root, progress=progress, device=device))
         bar.close()
