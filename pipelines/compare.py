@@ -178,7 +178,7 @@ def evaluate_runs(checkpoints: dict[tuple[str, int], Path], test_scenes: Sequenc
                   progress: bool = False) -> list[Any]:
     """evaluate's rows for every run (method names label#seed) and the baselines."""
     from model.methods import ModelMethod, method_from_spec
-    from pipelines.evaluate import evaluate
+    from model.evaluation import evaluate
 
     methods: list[Any] = [method_from_spec(b, window) for b in baselines]
     methods += [ModelMethod(run_name(label, seed), path, chunk, device) for (label, seed), path in checkpoints.items()]
@@ -205,7 +205,7 @@ def baseline_spec(text: str) -> str:
 def aggregate(rows: Sequence[Any], labels: Sequence[str], baselines: Sequence[str] = BASELINES) -> list[SeedStat]:
     """Per label, group (ALL_low, ALL_normal, ALL) and metric: the statistics over seeds."""
     from model.metrics import METRICS
-    from pipelines.evaluate import ALL
+    from model.evaluation import ALL
 
     groups = [g for g in dict.fromkeys(r.scene for r in rows) if g.startswith(ALL)]
     stats = []
@@ -231,7 +231,7 @@ def markdown(stats: Sequence[SeedStat], labels: Sequence[str], baselines: Sequen
     """Per group, a table of mean +- std over seeds; then every pair of configs, with the
     difference called only where it exceeds the spread."""
     from model.metrics import METRICS
-    from pipelines.evaluate import ALL, TABLE_ROWS, method_label
+    from model.evaluation import ALL, TABLE_ROWS, method_label
 
     cols = [baseline_label(b) for b in baselines] + list(labels)
     by = {(s.label, s.group, s.metric): s for s in stats}
@@ -276,7 +276,7 @@ COMPARE_FILES = ("compare.csv", "compare.json", "compare.md")
 def write_comparison(stats: Sequence[SeedStat], rows: Sequence[Any], text: str, meta: dict[str, Any], out: Path) -> None:
     """compare.csv, compare.json, compare.md and every run's per-scene metrics.csv, each written
     whole, inside `out` and never through a link there (spikesim.outputs)."""
-    from pipelines.evaluate import check_results, write_results
+    from model.evaluation import check_results, write_results
     for name in COMPARE_FILES:
         writable(out, name)
     check_results(out)
@@ -349,7 +349,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
             "configs": {label: exp.to_dict() for label, exp in args.configs}}
     write_comparison(stats, rows, text, meta, out)
     if args.json:
-        from pipelines.evaluate import json_safe
+        from model.evaluation import json_safe
         print(json.dumps(json_safe({**meta, "statistics": [{**dataclasses.asdict(s), "values": list(s.values), "n": s.n}
                                                           for s in stats]}), indent=2))
     else:

@@ -24,7 +24,7 @@ def run(args: argparse.Namespace) -> int:
 
     from model.methods import FLOORS, PRETRAINED_METHOD, ModelMethod, method_from_spec
     from model.streaming import StepWindows
-    from pipelines.evaluate import evaluate, evaluation_run, json_safe, markdown_table, scores_json, write_results
+    from model.evaluation import evaluate, evaluation_run, json_safe, markdown_table, scores_json, write_results
     from spikesim.generation import PRESETS, generate, plan_llr
     from spikesim.dataset import open_dataset
     from spikesim.imageio import write_png

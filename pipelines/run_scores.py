@@ -22,7 +22,7 @@ import numpy as np
 
 
 def pair_scores(methods: Sequence[Any], dat: Path, gt_path: Path, center: int, scale: float) -> dict[str, dict]:
-    from pipelines.evaluate import ALL, evaluate_pair
+    from model.evaluation import ALL, evaluate_pair
     from spikesim.imageio import read_image_y
 
     gt = read_image_y(gt_path, scale)

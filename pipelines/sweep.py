@@ -140,7 +140,7 @@ def sweep(rendered: Sequence[RenderedScene], levels: Sequence[float], methods: S
           seed: int = 0, backend: str = "auto", progress: bool = False) -> list[dict[str, Any]]:
     """Every method at every level on every scene: one row per (scene, lux, method) with every
     metric of model.metrics.METRICS (mean over the scene's windows)."""
-    from pipelines.evaluate import evaluate_scene
+    from model.evaluation import evaluate_scene
 
     rows = []
     total = len(rendered) * len(levels)

@@ -91,3 +91,21 @@ def test_generate_progress_counts_renders_with_the_ground_truth(tmp_path):
     total = job.num_steps + len(job.gt_steps)  # a render per step, and one per ground-truth frame
     assert all(t == total for _, t in seen) and seen[-1][0] == total
     assert [d for d, _ in seen] == sorted(d for d, _ in seen)
+
+
+def test_a_notebook_scores_without_importing_pipelines(tmp_path):
+    """Evaluation is a library (model.evaluation), as training is (model.training)."""
+    import subprocess
+    code = f"""
+import sys
+from model.evaluation import evaluate, markdown_table
+from model.methods import method_from_spec
+sys.path.insert(0, {str(Path(__file__).parent / 'model')!r})
+from modeltest_fakes import make_scene
+sc = make_scene("a_low", 12, 16, 41 * 2, brightness=0.05, velocity=0.2, seed=1)
+rows = evaluate([sc], [method_from_spec("tfp")], 41, progress=False)
+assert "TFP" in markdown_table(rows, ["TFP"])
+assert not any(m == "pipelines" or m.startswith("pipelines.") for m in sys.modules), sorted(sys.modules)
+"""
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr[-2000:]
