@@ -171,3 +171,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--json", action="store_true", help="print the statistics over seeds as JSON instead of the tables")
     p.set_defaults(func=cmd_compare)
     return p
+
+
+__all__ = ["cmd_compare", "add_parser", "config_spec", "data_spec", "baseline_spec",
+           # the library's names, for callers of pipelines.compare
+           "BASELINES", "COMPARE_FILES", "MIN_SEEDS", "SeedStat", "aggregate", "baseline_label", "check_samples",
+           "difference_holds", "evaluate_runs", "markdown", "run_dir", "run_name", "seed_stat", "steps_per_run",
+           "train_seeds", "write_comparison"]

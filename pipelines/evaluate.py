@@ -121,3 +121,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--quiet", action="store_true", help="no per-scene progress lines")
     p.set_defaults(func=cmd_evaluate)
     return p
+
+
+__all__ = ["cmd_evaluate", "add_parser",
+           # the library's names, for callers of pipelines.evaluate
+           "ALL", "CONDITIONS", "CSV_FIELDS", "DEFAULT_OUT", "RESULT_FILES", "TABLE_ROWS", "Score", "check_results",
+           "evaluate", "evaluate_pair", "evaluate_scene", "evaluation_run", "group_name", "json_safe",
+           "light_condition", "markdown_table", "method_label", "pair_table", "pooled", "scores_json", "write_results"]
