@@ -1,5 +1,6 @@
-"""One parser bounds the nesting of every small file: a JSON or TOML file nested ~1000 deep gave a
-RecursionError traceback in camera, inspect, train --config, verify and generate."""
+"""Round three (issue 30): one bounded parser for every small file (a file nested ~1000 deep gave a
+RecursionError traceback in camera, inspect, train --config, verify and generate), standard JSON,
+and the small surfaces that were silently wrong or a traceback (each test says which)."""
 from __future__ import annotations
 
 import subprocess
