@@ -236,8 +236,13 @@ def parent_fd(root: str | Path, *parts: str | Path) -> Iterator[tuple[int, str]]
     for a link between a check and the use (a race) makes the open fail instead of following it,
     so a delete or a move by name in that descriptor can only touch the folder that was checked.
     The root itself may be a link the user named. Refusals name the part, as `inside` does."""
-    path = writable(root, *parts)  # the path check first: `..`, absolute parts, links found now
-    rel = Path(*parts).parts
+    with _open_parent(root, writable(root, *parts), Path(*parts).parts) as opened:
+        yield opened
+
+
+@contextlib.contextmanager
+def _open_parent(root: str | Path, path: Path, rel: tuple[str, ...]) -> Iterator[tuple[int, str]]:
+    """parent_fd's walk, for callers that have checked `path` (= writable(root, *rel)) already."""
     fd = os.open(root, _DIR_FLAGS)
     try:
         for i, part in enumerate(rel[:-1]):
@@ -261,7 +266,7 @@ def remove(root: str | Path, *parts: str | Path) -> None:
     shutil.rmtree with dir_fd), so a folder swapped for a link during it cannot redirect it."""
     path = writable(root, *parts)
     try:
-        with parent_fd(root, *parts) as (fd, name):
+        with _open_parent(root, path, Path(*parts).parts) as (fd, name):
             try:
                 st = os.stat(name, dir_fd=fd, follow_symlinks=False)
             except FileNotFoundError:
@@ -284,7 +289,7 @@ def move_into(src: str | Path, root: str | Path, *parts: str | Path) -> Path:
     swapped for a link cannot redirect it; a link or a folder at the name is refused."""
     path = writable(root, *parts)
     try:
-        with parent_fd(root, *parts) as (fd, name):
+        with _open_parent(root, path, Path(*parts).parts) as (fd, name):
             try:
                 st = os.stat(name, dir_fd=fd, follow_symlinks=False)
                 if stat.S_ISLNK(st.st_mode):
