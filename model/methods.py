@@ -68,6 +68,7 @@ class SpanTFPMethod:
     span: int
     window: int = 41
     chunk: int = 64
+    KEPT_WINDOWS = 64
 
     def __post_init__(self) -> None:
         if self.span % self.window or (self.span // self.window) % 2 == 0:
@@ -76,22 +77,31 @@ class SpanTFPMethod:
 
     def frames(self, source: WindowSource) -> Iterator[tuple[int, torch.Tensor]]:
         """A running sum over the windows in reach: each window is added once as the reach passes
-        its right edge and subtracted once (read again) as it leaves on the left, so time and memory
-        are linear in the stream whatever the span (restacking every window in reach for each frame
-        took 269 s for tfp:328041 on 4000 windows, and held them all)."""
+        its right edge and subtracted once as it leaves on the left, so time is linear in the
+        stream whatever the span (restacking every window in reach for each frame took 269 s for
+        tfp:328041 on 4000 windows, and held them all). A span of up to KEPT_WINDOWS windows keeps
+        their counts (tfp:205: five maps), so each window is read once; a longer one reads the
+        leaving window again, so memory stays at one map."""
         half, total = self.span // self.window // 2, source.num_windows
+        keep = 2 * half + 1 <= self.KEPT_WINDOWS  # a short span keeps its windows' counts: each read once
+        kept: dict[int, torch.Tensor] = {}
         running: torch.Tensor | None = None  # spikes per pixel in windows lo..hi, exact integers
         added = 0  # windows 0 .. added - 1 are in (or were in and left) the running sum
         for i in range(total):
             hi = min(total - 1, i + half)
             while added <= hi:
                 b = min(added + self.chunk, hi + 1)
-                part = source.windows(added, b).sum(dim=(0, 1), dtype=torch.int64)
+                counts = source.windows(added, b).sum(dim=1, dtype=torch.int64)
+                if keep:
+                    kept.update({added + j: counts[j] for j in range(b - added)})
+                part = counts.sum(dim=0)
                 running = part if running is None else running + part
                 added = b
             leaving = i - half - 1
             if leaving >= 0:
-                running = running - source.windows(leaving, leaving + 1).sum(dim=(0, 1), dtype=torch.int64)
+                gone = (kept.pop(leaving) if keep
+                        else source.windows(leaving, leaving + 1).sum(dim=(0, 1), dtype=torch.int64))
+                running = running - gone
             lo = max(0, i - half)
             yield i, running.to(torch.float32) / ((hi - lo + 1) * self.window)
 

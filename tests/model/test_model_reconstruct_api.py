@@ -57,12 +57,14 @@ def test_span_tfp_is_the_mean_over_the_windows_in_reach_in_linear_time():
             Counting.reads += b - a
             return super().windows(a, b)
 
-    for n_windows in (1, 3, 5, 21):
+    for n_windows, kept in ((1, 64), (3, 64), (5, 64), (21, 64), (5, 1), (21, 1)):  # counts kept, or read again
         Counting.reads = 0
-        frames = dict(SpanTFPMethod(f"TFP-{41 * n_windows}", 41 * n_windows, chunk=2).frames(Counting(s)))
+        method = SpanTFPMethod(f"TFP-{41 * n_windows}", 41 * n_windows, chunk=2)
+        method.KEPT_WINDOWS = kept
+        frames = dict(method.frames(Counting(s)))
         half = n_windows // 2
         for i in range(9):
             lo, hi = max(0, i - half), min(8, i + half)
             expect = s[lo:hi + 1].float().sum(dim=(0, 1)) / ((hi - lo + 1) * 41)
             torch.testing.assert_close(frames[i], expect)
-        assert Counting.reads <= 2 * 9
+        assert Counting.reads <= (9 if 2 * (n_windows // 2) + 1 <= kept else 2 * 9)
