@@ -26,7 +26,7 @@ _SUBCOMMANDS = (
     "pipelines.panel",
     "pipelines.tradeoff",
     "pipelines.sweep",
-    "pipelines.gpu_campaign_cmd",
+    "pipelines.gpu_campaign.cmd",
 )
 
 
@@ -37,7 +37,7 @@ _COMMAND_MODULE = {
     "bench": "pipelines.bench", "golden": "pipelines.golden_stats", "camera": "pipelines.camera_cmd", "generate": "pipelines.generate",
     "verify": "pipelines.generate", "render": "pipelines.render_cmd", "train": "pipelines.train",
     "evaluate": "pipelines.evaluate", "compare": "pipelines.compare", "reconstruct": "pipelines.reconstruct", "tradeoff": "pipelines.tradeoff",
-    "panel": "pipelines.panel", "sweep": "pipelines.sweep", "gpu-campaign": "pipelines.gpu_campaign_cmd",
+    "panel": "pipelines.panel", "sweep": "pipelines.sweep", "gpu-campaign": "pipelines.gpu_campaign.cmd",
 }
 
 

@@ -7,7 +7,7 @@
 #   bash scripts/gpu_campaign.sh --part 2
 # Rehearsal on the CPU at a tiny size: bash scripts/gpu_campaign.sh --dry-run -o out/campaign
 # The Python is $PYTHON, else this checkout's .venv for --dry-run, else python3 (a GPU image's,
-# which holds CUDA torch). The logic is pipelines/gpu_campaign.py; this only picks the interpreter.
+# which holds CUDA torch). The logic is pipelines/gpu_campaign/; this only picks the interpreter.
 set -euo pipefail
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$here"
@@ -16,4 +16,4 @@ if [ -z "${PYTHON:-}" ]; then
   case " $* " in *" --dry-run "*) [ -x "$here/.venv/bin/python" ] && PYTHON="$here/.venv/bin/python" ;; esac
 fi
 export PYTHONUNBUFFERED=1
-exec "$PYTHON" -m pipelines.gpu_campaign_cmd "$@"
+exec "$PYTHON" -m pipelines.gpu_campaign.cmd "$@"

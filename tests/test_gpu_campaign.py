@@ -1,4 +1,4 @@
-"""The GPU campaign (pipelines/gpu_campaign.py) rehearsed on the CPU: a lent GPU comes rarely and
+"""The GPU campaign (pipelines/gpu_campaign/) rehearsed on the CPU: a lent GPU comes rarely and
 for minutes, so everything it will run has to have run here first. `--dry-run` runs every stage
 (the same `spikesim` commands, tiny sizes, Dr.Jit LLVM and torch on the CPU) into the same files
 with the same schema; these tests check that schema, the limits on what a lent machine returns,
@@ -17,9 +17,9 @@ from pathlib import Path
 import pytest
 
 from pipelines.gpu_campaign import PARTS, STAGE_NAMES, STATUSES
-from pipelines.gpu_campaign_outputs import (MAX_FILES, combined_logs, join_weight_parts, out_problems,
+from pipelines.gpu_campaign.outputs import (MAX_FILES, combined_logs, join_weight_parts, out_problems,
                                             write_weights)
-from pipelines.gpu_campaign_stages import install_wheels
+from pipelines.gpu_campaign.stages import install_wheels
 from sensor_testing import HAS_LLVM
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -302,7 +302,7 @@ def test_a_users_run_folder_in_work_is_never_removed(tmp_path):
 def test_relative_paths_are_resolved_before_the_stages_run(tmp_path, monkeypatch):
     import argparse
 
-    from pipelines.gpu_campaign_cmd import options_from_args
+    from pipelines.gpu_campaign.cmd import options_from_args
 
     monkeypatch.chdir(tmp_path)
     args = argparse.Namespace(out=Path("o"), work=Path("scratch"), dry_run=True, part="all", stages=None,

@@ -144,22 +144,22 @@ def test_a_longest_legal_output_name_can_be_written(tmp_path):
 
 
 def test_a_damaged_campaign_state_starts_afresh(tmp_path, capsys):
-    from pipelines import gpu_campaign
+    from pipelines.gpu_campaign import runner
 
     work = tmp_path / "w"
     work.mkdir()
     (work / "state.json").write_text('{"schema": ')
     o = type("O", (), {"work": work, "fresh": False, "profile": type("P", (), {"name": "cpu"})(), "seed": 0})()
-    assert gpu_campaign._load_state(o) == {}
+    assert runner._load_state(o) == {}
     assert "is damaged" in capsys.readouterr().err
-    (work / "state.json").write_text('{"schema": %d, "mode": "cpu", "seed": 0, "stages": [1]}' % gpu_campaign.SCHEMA_VERSION)
-    assert gpu_campaign._load_state(o) == {}
+    (work / "state.json").write_text('{"schema": %d, "mode": "cpu", "seed": 0, "stages": [1]}' % runner.SCHEMA_VERSION)
+    assert runner._load_state(o) == {}
 
 
 def test_a_deadline_beyond_a_day_is_refused():
     import argparse
 
-    from pipelines.gpu_campaign_cmd import minutes_in_a_day
+    from pipelines.gpu_campaign.cmd import minutes_in_a_day
     with pytest.raises(argparse.ArgumentTypeError, match="at most a day"):
         minutes_in_a_day("1e307")
 

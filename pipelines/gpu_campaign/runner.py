@@ -11,18 +11,21 @@ a tiny size, in the default test suite), and on the day it:
    itself: the later ones still run, and each stage's record (status, seconds, figures, log) is
    written to the output folder as soon as it ends, so a call killed at its limit still returns
    everything before it;
-3. hands back at most 8 files (pipelines/gpu_campaign_outputs.py): summary.json, logs.txt,
-   report.md and the trained weights.
+3. hands back at most 8 files (outputs.py): summary.json, logs.txt, report.md and the trained
+   weights.
 
 Stages, in order: install, gpu_tests, bench_sensor, bench_render, llr, rllr, train, evaluate,
 export. Two device calls split them (`--part 1`: up to the datasets; `--part 2`: training,
 evaluation, weights); the second finds the first's datasets and records in the work folder when
 the machine is still the same, and regenerates what is missing when it is not. Each stage is a
 `spikesim` command, so what is measured is what users run.
+
+This module is the run: it puts the stages (stages.py) in order and in their boxes and writes the
+records (records.py) of an invocation (options.py) into the output folder (outputs.py). Nothing
+in the package imports it but `__init__` and the command line (cmd.py).
 """
 from __future__ import annotations
 
-import dataclasses
 import datetime
 import functools
 import hashlib
@@ -37,181 +40,14 @@ from pathlib import Path
 from typing import Any, Callable, Sequence
 
 from spikesim import outputs
-from pipelines.gpu_campaign_outputs import check_out, combined_logs, file_record, report_markdown
-from pipelines.gpu_campaign_stages import ROOT, STAGES, Campaign, SkipStage, StageFailed, check_command, complete_scenes
+from pipelines.gpu_campaign.options import DATA_STAGES, ROOT, STAGE_NAMES, Options
+from pipelines.gpu_campaign.outputs import check_out, combined_logs, file_record, report_markdown
+from pipelines.gpu_campaign.records import STATUSES, StageRecord
+from pipelines.gpu_campaign.stages import STAGES, Campaign, SkipStage, StageFailed, check_command, complete_scenes
 
 SCHEMA_VERSION = 1
-STATUSES = ("ok", "failed", "skipped", "timeout")
-STAGE_NAMES = ("install", "gpu_tests", "bench_sensor", "bench_render", "llr", "rllr", "train", "evaluate", "export")
-PARTS = {
-    "1": ("install", "gpu_tests", "bench_sensor", "bench_render", "llr", "rllr"),
-    "2": ("install", "llr", "rllr", "train", "evaluate", "export"),
-    "all": STAGE_NAMES,
-}
-#: Stages whose data a later call reuses instead of measuring again (resumable datasets).
-DATA_STAGES = ("llr", "rllr")
-INJECTIONS = ("fail", "timeout")
 #: The files a campaign writes in its output folder, besides the weights (weights*.pt).
 OUT_FILES = ("summary.json", "logs.txt", "report.md")
-
-
-# ---- what a campaign runs at which size ---------------------------------------------------------
-@dataclasses.dataclass(frozen=True)
-class Profile:
-    """The sizes, devices and time boxes of one kind of campaign: `gpu` (the paper's sizes on
-    CUDA) or `dry-run` (the same commands on the CPU at a tiny size, to rehearse them)."""
-
-    name: str
-    drjit_device: str
-    """Where `generate` and `bench` render and simulate: cuda or llvm."""
-    torch_device: str
-    """Where `train` and `evaluate` run: cuda or cpu."""
-    needs_gpu: bool
-    """Whether the install stage fails when torch or Dr.Jit sees no CUDA device."""
-    bench_sensor: tuple[str, ...]
-    bench_render: tuple[str, ...]
-    llr: tuple[str, ...]
-    rllr: tuple[str, ...]
-    rllr_count: int
-    """RLLR scenes to make (the paper has 100; the time for 100 is extrapolated)."""
-    train: tuple[str, ...]
-    evaluate: tuple[str, ...]
-    train_config: str
-    train_overhead_s: float
-    """Seconds of a training stage's box that are not training steps: start-up, validation, saving."""
-    train_max_minutes: float | None
-    llr_windows: int
-    """Windows per LLR sequence: `tfp:N` takes N = windows x 41 steps (a network sees as much)."""
-    boxes: dict[str, tuple[float, float]]
-    """Per stage (least seconds worth starting it with, most seconds it may take)."""
-    catch_up_s: dict[str, float]
-    """Most seconds a later call spends remaking a dataset the machine lost between calls."""
-    grace_s: float
-    """Seconds between SIGTERM and SIGKILL when a stage's box ends (train writes last.pt)."""
-
-    def __post_init__(self) -> None:
-        if self.drjit_device not in ("cuda", "llvm") or self.torch_device not in ("cuda", "cpu"):
-            raise ValueError(f"profile {self.name}: devices {self.drjit_device}/{self.torch_device}")
-        if set(self.boxes) != set(STAGE_NAMES):
-            raise ValueError(f"profile {self.name}: time boxes for {sorted(self.boxes)}, expected {STAGE_NAMES}")
-        for stage, (least, most) in self.boxes.items():
-            if not 0 < least <= most:
-                raise ValueError(f"profile {self.name}: stage {stage}: box ({least}, {most}) must have 0 < least <= most")
-        if self.rllr_count < 1 or self.llr_windows < 1 or self.grace_s < 0 or self.train_overhead_s < 0:
-            raise ValueError(f"profile {self.name}: counts must be positive, times non-negative")
-
-
-_TINY = ("--height", "16", "--width", "24", "--workers", "1", "--quality", "balanced")
-PROFILES: dict[str, Profile] = {
-    "gpu": Profile(
-        "gpu", "cuda", "cuda", True,
-        bench_sensor=("--stages", "sensor", "--backends", "cuda", "--streams", "8", "--steps", "2048",
-                      "--numpy-steps", "128"),
-        bench_render=("--stages", "render", "pipeline", "--backends", "cuda", "--repeats", "2"),
-        llr=("--preset", "paper", "--quality", "balanced"),
-        rllr=("--preset", "paper", "--quality", "balanced"),
-        rllr_count=10,
-        # 8 loader processes of the 16 cores: a sample is 21 windows of spikes and 21 ground-truth
-        # EXR files, read and cropped on the CPU
-        train=("--config", "full", "--num-workers", "8"),
-        evaluate=(),
-        train_config="full", train_overhead_s=75.0, train_max_minutes=None, llr_windows=21,
-        # the measurements first, each capped so that at worst they leave the LLR two minutes; the
-        # RLLR slice and training take what is left of their call
-        boxes={"install": (30, 90), "gpu_tests": (30, 120), "bench_sensor": (30, 90), "bench_render": (30, 90),
-               "llr": (60, 240), "rllr": (60, 600), "train": (150, 3600), "evaluate": (90, 180),
-               "export": (15, 60)},
-        # a bare machine in part 2 (the first call's datasets lost): the LLR (under 2 min is the
-        # goal) and 1-3 RLLR scenes, which leaves training about 3 minutes
-        catch_up_s={"llr": 150, "rllr": 90}, grace_s=20.0),
-    "dry-run": Profile(
-        "dry-run", "llvm", "cpu", False,
-        bench_sensor=("--stages", "sensor", "--backends", "llvm", "--streams", "2", "--height", "16", "--width", "24",
-                      "--steps", "64", "--numpy-steps", "8", "--repeats", "1"),
-        bench_render=("--stages", "render", "pipeline", "--backends", "llvm", "--height", "16", "--width", "24",
-                      "--spp", "1", "--repeats", "1", "--pipeline-steps", "17"),
-        llr=("--preset", "small", "--scenes", "fan", "--windows", "3", *_TINY),
-        rllr=("--preset", "small", *_TINY),
-        rllr_count=2,
-        # one torch thread: on a shared CPU, OpenMP's barriers between two threads that wait for
-        # cores made steps of 0.2 s take 4-17 s (measured on the development VM)
-        train=("--config", "tiny", "--crop", "16", "--max-steps", "20", "--threads", "1"),
-        evaluate=("--threads", "1"),
-        train_config="tiny", train_overhead_s=10.0, train_max_minutes=0.1, llr_windows=3,
-        boxes={"install": (5, 60), "gpu_tests": (5, 120), "bench_sensor": (5, 120), "bench_render": (5, 120),
-               "llr": (5, 180), "rllr": (5, 180), "train": (10, 180), "evaluate": (5, 120), "export": (2, 60)},
-        catch_up_s={"llr": 180, "rllr": 180}, grace_s=5.0),
-}
-
-
-@dataclasses.dataclass(frozen=True)
-class Options:
-    """One invocation of the campaign."""
-
-    out: Path
-    work: Path
-    profile: Profile
-    part: str = "all"
-    stages: tuple[str, ...] = ()
-    """Only these of the part's stages (empty: all of them)."""
-    deadline_s: float = 555.0
-    """Seconds this invocation may take in all (a device call is killed at 600)."""
-    wheels: Path = ROOT / ".whl"
-    seed: int = 0
-    rllr_count: int | None = None
-    inject: dict[str, str] = dataclasses.field(default_factory=dict)
-    """Stage -> "fail" or "timeout": that stage's work is replaced by a failure (to test the campaign)."""
-    fresh: bool = False
-    """Forget the records of earlier calls (by default a call keeps them: part 2 adds to part 1)."""
-
-    def __post_init__(self) -> None:
-        if self.part not in PARTS:
-            raise ValueError(f"--part {self.part!r}: expected one of {', '.join(PARTS)}")
-        unknown = [s for s in self.stages if s not in PARTS[self.part]]
-        if unknown:
-            raise ValueError(f"--stages {' '.join(unknown)}: not stages of part {self.part} "
-                             f"({', '.join(PARTS[self.part])})")
-        for stage, what in self.inject.items():
-            if stage not in STAGE_NAMES or what not in INJECTIONS:
-                raise ValueError(f"--inject {stage}={what}: expected STAGE=fail or STAGE=timeout, STAGE one of "
-                                 f"{', '.join(STAGE_NAMES)}")
-        if not (math.isfinite(self.deadline_s) and self.deadline_s > 0):
-            raise ValueError(f"the deadline must be a positive number of seconds, got {self.deadline_s}")
-        if self.rllr_count is not None and self.rllr_count < 1:
-            raise ValueError(f"--rllr-count must be >= 1, got {self.rllr_count}")
-        out, work = self.out.resolve(), self.work.resolve()
-        if out == work or work in out.parents or out in work.parents:
-            raise ValueError(f"--out {self.out} and --work {self.work} must be separate folders (the output holds "
-                             "only what comes back)")
-
-    @property
-    def selected(self) -> tuple[str, ...]:
-        return tuple(s for s in PARTS[self.part] if not self.stages or s in self.stages)
-
-
-# ---- one stage's record --------------------------------------------------------------------------
-@dataclasses.dataclass
-class StageRecord:
-    """What summary.json says of a stage."""
-
-    name: str
-    status: str = "skipped"
-    seconds: float = 0.0
-    figures: dict[str, Any] = dataclasses.field(default_factory=dict)
-    log: str | None = None
-    note: str | None = None
-    commands: list[str] = dataclasses.field(default_factory=list)
-    returncode: int | None = None
-    time_box_s: float | None = None
-    started: str | None = None
-    part: str | None = None
-
-    def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
-
-    @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> "StageRecord":
-        return cls(**{f.name: data[f.name] for f in dataclasses.fields(cls) if f.name in data})
 
 
 # ---- the campaign --------------------------------------------------------------------------------
@@ -411,5 +247,4 @@ def run_campaign(options: Options, progress: Callable[[str], None] | None = None
     return write_outputs(c, summary_of(c, state, started, _now()))
 
 
-__all__ = ["Options", "Profile", "PROFILES", "PARTS", "STAGE_NAMES", "STATUSES", "StageRecord", "run_campaign",
-           "summary_of", "SCHEMA_VERSION"]
+__all__ = ["SCHEMA_VERSION", "OUT_FILES", "run_campaign", "summary_of", "write_outputs", "earlier_outputs"]

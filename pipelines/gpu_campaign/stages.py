@@ -1,8 +1,11 @@
-"""The stages of a GPU campaign (pipelines/gpu_campaign.py) and what runs them: each stage is a
+"""The stages of a GPU campaign (pipelines/gpu_campaign/) and what runs them: each stage is a
 function of the running `Campaign` that returns its figures, or raises StageFailed, TimeoutError
 (both with the figures measured so far) or SkipStage. Every stage but export runs `spikesim`
 commands (or pytest) as children through `Campaign.command`, which holds them to the stage's box,
 so what is measured is what users run and a stage that hangs is stopped.
+
+It reads the invocation (options.py) and fills the stages' records (records.py); the run
+(runner.py) imports it, never the other way round.
 """
 from __future__ import annotations
 
@@ -20,18 +23,16 @@ import sys
 import tarfile
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, Sequence
+from typing import Any, Callable, Sequence
 
-from pipelines.gpu_campaign_outputs import write_weights
+from pipelines.gpu_campaign.options import ROOT, Options
+from pipelines.gpu_campaign.outputs import write_weights
+from pipelines.gpu_campaign.records import StageRecord
 from spikesim import outputs
-
-if TYPE_CHECKING:
-    from pipelines.gpu_campaign import Options, StageRecord
 
 #: The packages a lent machine lacks (scripts/gpu_wheels.sh), by import name and distribution.
 CARRIED = (("drjit", "drjit"), ("mitsuba", "mitsuba"), ("OpenEXR", "OpenEXR"), ("colour", "colour-science"),
            ("trimesh", "trimesh"))
-ROOT = Path(__file__).resolve().parents[1]
 WINDOW = 41
 
 
@@ -56,15 +57,15 @@ class CommandResult:
 class Campaign:
     """The state of one invocation: where things go, the child environment, the clock."""
 
-    def __init__(self, options: "Options") -> None:
+    def __init__(self, options: Options) -> None:
         self.o = options
         self.p = options.profile
         self.t0 = time.monotonic()
         self.logs = options.work / "logs"
         self.site = options.work / "site"
         self.python = sys.executable
-        self.records: dict[str, "StageRecord"] = {}
-        self.current: "StageRecord | None" = None
+        self.records: dict[str, StageRecord] = {}
+        self.current: StageRecord | None = None
         self.box_end = math.inf
 
     # the clock
@@ -203,7 +204,7 @@ def probe_environment() -> dict[str, Any]:
     return out
 
 
-_PROBE = ("import json; from pipelines.gpu_campaign_stages import probe_environment; "
+_PROBE = ("import json; from pipelines.gpu_campaign.stages import probe_environment; "
           "print(json.dumps(probe_environment()))")
 
 

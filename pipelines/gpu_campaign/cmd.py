@@ -1,8 +1,9 @@
 """`spikesim gpu-campaign`: every GPU measurement and a training run in one or two device calls
-(the run is pipelines/gpu_campaign.py, the stages pipelines/gpu_campaign_stages.py;
-docs/gpu_campaign.md says how to run it). This module only parses and prints. `scripts/gpu_campaign.sh` runs it as `python -m pipelines.gpu_campaign_cmd`,
-which needs nothing beyond the standard library to start: the packages a lent machine lacks are
-installed by the campaign's first stage.
+(the run is pipelines/gpu_campaign/runner.py, the stages pipelines/gpu_campaign/stages.py;
+docs/gpu_campaign.md says how to run it). This module only parses and prints.
+`scripts/gpu_campaign.sh` runs it as `python -m pipelines.gpu_campaign.cmd`, which needs nothing
+beyond the standard library to start: the packages a lent machine lacks are installed by the
+campaign's first stage.
 """
 from __future__ import annotations
 
@@ -25,7 +26,7 @@ Rehearsal on the CPU (tiny sizes, the same stages and files):
 
 def _injection(text: str) -> tuple[str, str]:
     """argparse type: STAGE=fail or STAGE=timeout."""
-    from pipelines.gpu_campaign import INJECTIONS, STAGE_NAMES
+    from pipelines.gpu_campaign.options import INJECTIONS, STAGE_NAMES
 
     stage, sep, what = text.partition("=")
     if not sep or stage not in STAGE_NAMES or what not in INJECTIONS:
@@ -35,7 +36,7 @@ def _injection(text: str) -> tuple[str, str]:
 
 
 def options_from_args(args: argparse.Namespace):
-    from pipelines.gpu_campaign import PROFILES, ROOT, Options
+    from pipelines.gpu_campaign.options import PROFILES, ROOT, Options
 
     out = args.out if args.out is not None else (Path(os.environ["OUT"]) if os.environ.get("OUT") else None)
     if out is None:
@@ -51,7 +52,7 @@ def options_from_args(args: argparse.Namespace):
 
 
 def cmd_gpu_campaign(args: argparse.Namespace) -> int:
-    from pipelines.gpu_campaign import run_campaign
+    from pipelines.gpu_campaign.runner import run_campaign
 
     options = options_from_args(args)
     summary = run_campaign(options, progress=None if args.quiet else lambda text: print(text, file=sys.stderr,
@@ -79,7 +80,7 @@ def minutes_in_a_day(text: str) -> float:
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    from pipelines.gpu_campaign import PARTS, STAGE_NAMES
+    from pipelines.gpu_campaign.options import PARTS, STAGE_NAMES
 
     p = sub.add_parser("gpu-campaign", help="every GPU measurement and a training run, each stage time-boxed, "
                                             "into at most 8 files (--dry-run: rehearse on the CPU)",

@@ -1,4 +1,4 @@
-"""What a GPU campaign (pipelines/gpu_campaign.py) hands back, within what a lent machine returns:
+"""What a GPU campaign (pipelines/gpu_campaign/) hands back, within what a lent machine returns:
 at most 8 files, 16 MiB each, 64 MiB together, no deeper than 2 folders, plain names
 (docs/gpu_campaign.md). Everything is written so that it fits, and checked before the campaign
 ends: a file that would not come back is lost without a word, so the limits are enforced here
