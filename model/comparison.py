@@ -75,20 +75,136 @@ def _steps_done(last: Path) -> tuple[int | None, int | None]:
     return int(state["step"]), None if planned is None else int(planned)
 
 
+#: Each run's record of what it cost: process CPU seconds and wall seconds, summed over the sessions
+#: that trained it (a resumed run adds to it), and the steps it reached.
+COMPUTE_FILE = "compute.json"
+
+
+def _process_cpu_seconds() -> float:
+    """CPU time of this process, every thread (user + system): what a run consumed, however many
+    other jobs shared the machine (its wall time is not)."""
+    import resource
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+
+
+def read_compute(folder: Path) -> dict[str, Any]:
+    """A run's compute record ({} when it has none: trained before the record existed)."""
+    path = folder / COMPUTE_FILE
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return {}
+    return data if isinstance(data, dict) else {}
+
+
+def _record_compute(folder: Path, cpu_s: float, wall_s: float, steps: int, threads: int) -> None:
+    before = read_compute(folder)
+    record = {"cpu_seconds": float(before.get("cpu_seconds", 0.0)) + cpu_s,
+              "wall_seconds": float(before.get("wall_seconds", 0.0)) + wall_s,
+              "sessions": int(before.get("sessions", 0)) + 1, "steps": steps,
+              "threads": sorted(set(before.get("threads", [])) | {threads})}
+    atomic_write_text(writable(folder, COMPUTE_FILE), json.dumps(record, indent=1))
+
+
+def _same_run(out: Path, run: Any, seed: int, steps: int | None) -> Path | None:
+    """A finished run in `out` of the very same network, recipe and seed under another label (the
+    ablation's E is the representations' LR-Rep), or None. Only step-budgeted runs are shared."""
+    if steps is None:
+        return None
+    want = json.loads(json.dumps({k: v for k, v in run.to_dict().items() if k not in ("name", "description")}))
+    for cfg in sorted((out / "runs").glob(f"*/seed{seed}/config.json")):
+        try:
+            have = json.loads(cfg.read_text())
+        except (OSError, ValueError):
+            continue
+        if isinstance(have, dict) and {k: v for k, v in have.items() if k not in ("name", "description")} == want:
+            last = cfg.parent / "last.pt"
+            if _steps_done(last)[0] == steps:
+                return last
+    return None
+
+
+@dataclass(frozen=True)
+class RunTask:
+    """One (config, seed) run to train, everything a worker process needs (picklable)."""
+
+    label: str
+    seed: int
+    experiment: Any
+    folder: Path
+    data: Any  # the training scenes, or the root to open them from (a worker process)
+    device: str
+    resume: bool
+    init: str | None
+    steps: int | None
+    threads: int
+    progress: bool
+
+
+def _train_task(task: RunTask) -> tuple[str, int, int]:
+    """Train one run and add its cost to its compute record; (label, seed, steps reached)."""
+    import time
+
+    import torch
+
+    from model.training import run_training
+    scenes = task.data
+    if isinstance(scenes, (str, Path)):  # a worker process opens the data itself
+        from model.data import open_scenes
+        from model.threads import set_cpu_threads
+        set_cpu_threads(task.threads)
+        scenes = open_scenes(scenes)
+    cpu0, wall0 = _process_cpu_seconds(), time.monotonic()
+    summary = run_training(task.experiment, scenes, [], task.folder, task.device, resume=task.resume,
+                           progress=task.progress, init=None if task.resume else task.init)
+    _record_compute(task.folder, _process_cpu_seconds() - cpu0, time.monotonic() - wall0, int(summary["steps"]),
+                    torch.get_num_threads())
+    if task.steps is not None and summary["steps"] != task.steps:
+        raise ValueError(f"config {task.label}: its {task.experiment.train.epochs} epochs end after "
+                         f"{summary['steps']} steps, before --steps {task.steps}; raise its epochs or lower --steps")
+    return task.label, task.seed, int(summary["steps"])
+
+
+def _run_parallel(fn: Any, tasks: Sequence[Any], jobs: int, on_done: Any) -> list[Any]:
+    """fn over tasks, in `jobs` worker processes (spawned: no torch state is forked) or in this one."""
+    if jobs <= 1 or len(tasks) <= 1:
+        results = []
+        for t in tasks:
+            results.append(fn(t))
+            on_done(results[-1])
+        return results
+    import concurrent.futures
+    import multiprocessing
+    results = []
+    with concurrent.futures.ProcessPoolExecutor(min(jobs, len(tasks)),
+                                                mp_context=multiprocessing.get_context("spawn")) as pool:
+        for fut in concurrent.futures.as_completed([pool.submit(fn, t) for t in tasks]):
+            results.append(fut.result())
+            on_done(results[-1])
+    return results
+
+
 def train_seeds(configs: Sequence[tuple[str, Any]], seeds: Sequence[int], steps: int | None,
                 train_scenes: Sequence[Any] | dict[str, Sequence[Any]], out: Path, device: str = "auto",
                 precision: str | None = None, progress: bool = False, budget_minutes: float | None = None,
-                init: str | None = None) -> dict[tuple[str, int], Path]:
+                init: str | None = None, jobs: int = 1,
+                data_roots: Path | dict[str, Path] | None = None, threads: int = 1) -> dict[tuple[str, int], Path]:
     """Train every (config, seed) for exactly `steps` steps, or for `budget_minutes` of wall time
     each (equal time: the steps are what each config's speed allows); returns each run's last
     checkpoint. A finished run is kept; an unfinished one is continued (--resume); one past
     `steps` is refused. `train_scenes` is one dataset for every label, or {label: scenes} (a
-    comparison of data); `init` starts every new run from those weights (fine-tuning)."""
-    from model.training import run_training
+    comparison of data); `init` starts every new run from those weights (fine-tuning).
 
+    jobs > 1 trains that many runs at once, each in its own process with `threads` torch threads
+    (data_roots: where each process opens the data). Each run records the CPU seconds it took
+    (COMPUTE_FILE), measured in the process that trained it."""
     if (steps is None) == (budget_minutes is None):
         raise ValueError("give either a number of steps or a budget in minutes")
+    if jobs > 1 and data_roots is None:
+        raise ValueError("train_seeds: jobs > 1 needs data_roots (each worker process opens the data)")
     done: dict[tuple[str, int], Path] = {}
+    tasks: list[RunTask] = []
     for (label, exp), seed in itertools.product(configs, seeds):
         limits = {"max_steps": steps} if steps is not None else {"budget_minutes": budget_minutes, "max_steps": None}
         train = dataclasses.replace(exp.train, seed=int(seed), **limits,
@@ -96,21 +212,40 @@ def train_seeds(configs: Sequence[tuple[str, Any]], seeds: Sequence[int], steps:
         run = dataclasses.replace(exp, name=f"{label}_seed{seed}", train=train)
         folder = run_dir(out, label, seed)
         last = folder / "last.pt"
+        if not last.exists() and init is None:
+            same = _same_run(out, run, seed, steps)
+            if same is not None:  # this config and seed trained under another label: one run serves both
+                print(f"[compare] {label} seed {seed}: the same config and seed already trained as {same.parent}",
+                      file=sys.stderr)
+                done[(label, seed)] = same
+                continue
         have, planned = _steps_done(last)
         target = steps if steps is not None else planned
         if have is not None and target is not None and have > target:
             raise ValueError(f"{last} has {have} steps, more than --max-steps {steps}: choose another --out")
-        if have is None or have != target:
-            what = f"{steps} steps" if steps is not None else f"{budget_minutes:g} minutes"
-            print(f"[compare] training {label} seed {seed} for {what}"
-                  + (f" (continuing from step {have})" if have else ""), file=sys.stderr)
-            scenes = train_scenes[label] if isinstance(train_scenes, dict) else train_scenes
-            summary = run_training(run, scenes, [], folder, device, resume=have is not None, progress=progress,
-                                   init=None if have is not None else init)
-            if steps is not None and summary["steps"] != steps:
-                raise ValueError(f"config {label}: its {exp.train.epochs} epochs end after {summary['steps']} steps, "
-                                 f"before --steps {steps}; raise its epochs or lower --steps")
         done[(label, seed)] = last
+        if have is None or have != target:
+            if jobs > 1:
+                data: Any = data_roots[label] if isinstance(data_roots, dict) else data_roots
+            else:
+                data = train_scenes[label] if isinstance(train_scenes, dict) else train_scenes
+            tasks.append(RunTask(label, int(seed), run, folder, data, device, have is not None, init, steps,
+                                 threads, progress and jobs <= 1))
+    what = f"{steps} steps" if steps is not None else f"{budget_minutes:g} minutes"
+    if tasks:
+        print(f"[compare] {len(tasks)} of {len(done)} runs to train ({what} each), {jobs} at a time", file=sys.stderr)
+    import time
+
+    from spikesim.progress import progress_bar
+    start, count = time.monotonic(), [0]
+    with progress_bar(total=len(tasks), desc="runs", unit="run", quiet=not progress or not tasks) as bar:
+        def finished(result: tuple[str, int, int]) -> None:
+            bar.update(1)
+            count[0] += 1
+            left = (time.monotonic() - start) / count[0] * (len(tasks) - count[0])
+            print(f"[compare] run {count[0]}/{len(tasks)} trained: {result[0]} seed {result[1]}, {result[2]} steps; "
+                  f"about {left / 60:.0f} min of training left", file=sys.stderr)
+        _run_parallel(_train_task, tasks, jobs, finished)
     return done
 
 
@@ -129,16 +264,122 @@ def run_name(label: str, seed: int) -> str:
     return f"{label}#{seed}"
 
 
+def _scores_file(test_id: str) -> str:
+    return f"scores-{test_id}.json"
+
+
+def _checkpoint_stamp(path: Path) -> list[Any]:
+    st = path.stat()
+    return [st.st_size, st.st_mtime_ns]
+
+
+def _read_scores(path: Path, stamp: list[Any]) -> list[Any] | None:
+    """Cached rows of one method on one test set, None unless written for this very checkpoint."""
+    from model.evaluation import Score
+    try:
+        data = json.loads(path.read_text())
+        if data.get("checkpoint") != stamp:
+            return None
+        return [Score(**{k: (math.nan if v is None else v) for k, v in row.items()}) for row in data["rows"]]
+    except (OSError, ValueError, TypeError, KeyError, AttributeError):
+        return None
+
+
+def _write_scores(path: Path, stamp: list[Any], rows: Sequence[Any]) -> None:
+    from model.evaluation import json_safe
+    atomic_write_text(path, json.dumps(json_safe({"checkpoint": stamp, "rows": [dataclasses.asdict(r) for r in rows]})))
+
+
+@dataclass(frozen=True)
+class EvalTask:
+    """One method (a run's checkpoint, or a seedless baseline) to score on the test set."""
+
+    name: str
+    spec: str | Path  # a baseline spec, or a checkpoint path
+    is_run: bool
+    cache: Path | None  # where its rows are kept (None: not kept)
+    test_data: Any  # scenes, or the root a worker opens
+    window: int
+    device: str
+    chunk: int
+    threads: int
+
+
+def _eval_task(task: EvalTask) -> list[Any]:
+    from model.evaluation import evaluate
+    from model.methods import ModelMethod, method_from_spec
+    scenes = task.test_data
+    if isinstance(scenes, (str, Path)):
+        from model.data import open_scenes
+        from model.threads import set_cpu_threads
+        set_cpu_threads(task.threads)
+        scenes = open_scenes(scenes)
+    method = (ModelMethod(task.name, Path(task.spec), task.chunk, task.device) if task.is_run
+              else method_from_spec(str(task.spec), task.window))
+    rows = evaluate(scenes, [method], task.window, progress=False)
+    stamp = _checkpoint_stamp(Path(task.spec)) if task.is_run else ["baseline", str(task.spec)]
+    if task.cache is not None:
+        _write_scores(task.cache, stamp, rows)
+    return rows
+
+
 def evaluate_runs(checkpoints: dict[tuple[str, int], Path], test_scenes: Sequence[Any], window: int,
                   baselines: Sequence[str] = BASELINES, device: str = "cpu", chunk: int = 8,
-                  progress: bool = False) -> list[Any]:
-    """evaluate's rows for every run (method names label#seed) and the baselines."""
-    from model.methods import ModelMethod, method_from_spec
-    from model.evaluation import evaluate
+                  progress: bool = False, jobs: int = 1, test_root: Path | None = None, out: Path | None = None,
+                  threads: int = 1) -> list[Any]:
+    """evaluate's rows for every run (method names label#seed) and the baselines.
 
-    methods: list[Any] = [method_from_spec(b, window) for b in baselines]
-    methods += [ModelMethod(run_name(label, seed), path, chunk, device) for (label, seed), path in checkpoints.items()]
-    return evaluate(test_scenes, methods, window, progress=progress)
+    Each method is scored on its own (evaluate scores methods independently, so the rows are the
+    same), and with `out` its rows are kept beside it (a run's folder, or `out` for a baseline),
+    keyed by the test set's identity and the checkpoint's size and time: a comparison rerun with
+    more configs scores only what is new. jobs > 1 scores that many methods at once, each process
+    opening `test_root`."""
+    from model.training import data_identity
+    if jobs > 1 and test_root is None:
+        raise ValueError("evaluate_runs: jobs > 1 needs test_root (each worker process opens the test data)")
+    test_id = data_identity(test_scenes, [])
+    data: Any = test_root if jobs > 1 else test_scenes
+    cached: dict[str, list[Any]] = {}
+    tasks: list[EvalTask] = []
+    names: list[str] = []
+    for b in baselines:
+        name = baseline_label(b, window)
+        names.append(name)
+        cache = writable(out, _scores_file(f"{test_id}-{name}")) if out is not None else None
+        rows = _read_scores(cache, ["baseline", b]) if cache is not None else None
+        if rows is not None:
+            cached[name] = rows
+        else:
+            tasks.append(EvalTask(name, b, False, cache, data, window, device, chunk, threads))
+    for (label, seed), path in checkpoints.items():
+        name = run_name(label, seed)
+        names.append(name)
+        cache = writable(path.parent, _scores_file(test_id)) if out is not None else None
+        rows = _read_scores(cache, _checkpoint_stamp(path)) if cache is not None else None
+        if rows is not None:
+            cached[name] = [dataclasses.replace(r, method=name) for r in rows]
+        else:
+            tasks.append(EvalTask(name, path, True, cache, data, window, device, chunk, threads))
+    if tasks:
+        print(f"[compare] scoring {len(tasks)} methods on the test set ({len(cached)} kept from before), "
+              f"{jobs} at a time", file=sys.stderr)
+    import time
+    start, count = time.monotonic(), [0]
+
+    def finished(rows: list[Any]) -> None:
+        count[0] += 1
+        left = (time.monotonic() - start) / count[0] * (len(tasks) - count[0])
+        print(f"[compare] scored {count[0]}/{len(tasks)}: {rows[-1].method} aligned PSNR {rows[-1].psnr_aligned:.2f} dB; "
+              f"about {left / 60:.0f} min of scoring left", file=sys.stderr)
+    for rows in _run_parallel(_eval_task, tasks, jobs, finished):
+        cached[rows[0].method] = rows
+    from model.evaluation import ALL
+
+    def is_group(r: Any) -> bool:
+        return r.scene == ALL or r.scene.startswith(ALL + "_")
+    per_scene = [r for n in names for r in cached[n] if not is_group(r)]
+    pooled = [r for n in names for r in cached[n] if is_group(r)]
+    return per_scene + pooled
 
 
 def baseline_label(spec: str, window: int = 41) -> str:
@@ -167,12 +408,35 @@ def _fmt(s: SeedStat, fmt: str) -> str:
     return body if s.n == 1 else f"{body} ± {fmt.format(s.std)}"
 
 
+def run_costs(configs: Sequence[tuple[str, Any]], checkpoints: dict[tuple[str, int], Path], height: int,
+              width: int) -> dict[str, dict[str, Any]]:
+    """Per config label: parameters, GFLOP per frame at height x width and per training step
+    (model/flops.py), the steps its runs reached, their mean CPU minutes (COMPUTE_FILE; None where a
+    run has no record) and how many seeds."""
+    from model.flops import network_cost
+    steps = steps_per_run(checkpoints)
+    out: dict[str, dict[str, Any]] = {}
+    for label, exp in configs:
+        keys = [k for k in checkpoints if k[0] == label]
+        cost = network_cost(exp, height, width).to_dict()
+        cpu = [read_compute(checkpoints[k].parent).get("cpu_seconds") for k in keys]
+        reached = sorted({steps[k] for k in keys})
+        out[label] = {"parameters": cost["parameters"], "gflop_per_frame": cost["gflop_per_frame"],
+                      "sampling_gflop_per_frame": cost["sampling_flop_per_frame"] / 1e9,
+                      "train_gflop_per_step": cost["train_gflop_per_step"], "frame": [height, width],
+                      "steps": reached[0] if len(reached) == 1 else "/".join(map(str, reached)),
+                      "cpu_minutes": (sum(cpu) / len(cpu) / 60 if cpu and all(c is not None for c in cpu) else None),
+                      "seeds": len(keys)}
+    return out
+
+
 def steps_per_run(checkpoints: dict[tuple[str, int], Path]) -> dict[tuple[str, int], int]:
     return {key: int(_steps_done(path)[0] or 0) for key, path in checkpoints.items()}
 
 
 def markdown(stats: Sequence[SeedStat], labels: Sequence[str], baselines: Sequence[str], seeds: Sequence[int],
-             length: int | str, steps_per_run: dict[tuple[str, int], int] | None = None) -> str:
+             length: int | str, steps_per_run: dict[tuple[str, int], int] | None = None,
+             costs: dict[str, dict[str, Any]] | None = None) -> str:
     """Per group, a table of mean +- std over seeds; then every pair of configs, with the
     difference called only where it exceeds the spread."""
     from model.metrics import METRICS
@@ -191,6 +455,17 @@ def markdown(stats: Sequence[SeedStat], labels: Sequence[str], baselines: Sequen
         for (label, _), n in steps_per_run.items():
             per_label.setdefault(label, []).append(n)
         lines += ["Steps per run: " + "; ".join(f"{label} {', '.join(map(str, n))}" for label, n in per_label.items()), ""]
+    if costs:
+        h, w = next(iter(costs.values()))["frame"]
+        lines += [f"| Config | parameters | GFLOP per {w} x {h} frame | GFLOP per training step | steps | "
+                  "CPU-minutes per run (mean) | seeds |", "|---|---|---|---|---|---|---|"]
+        for label, c in costs.items():
+            cpu = "—" if c["cpu_minutes"] is None else f"{c['cpu_minutes']:.1f}"
+            lines.append(f"| {label} | {c['parameters']:,} | {c['gflop_per_frame']:.1f} | "
+                         f"{c['train_gflop_per_step']:.1f} | {c['steps']} | {cpu} | {c['seeds']} |")
+        lines += ["", "FLOP: torch's counter on convolutions and matrix products, deformable sampling added at 8 "
+                  "FLOP per sample and channel (model/flops.py); CPU-minutes: the training process's own CPU time, "
+                  "every thread.", ""]
     for g in groups:
         title = "All scenes" if g == ALL else f"{g.split('_', 1)[1].capitalize()} light"
         lines += [f"**{title}**", "", "| Metric | " + " | ".join(method_label(c) for c in cols) + " |",

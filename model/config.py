@@ -270,16 +270,56 @@ def available_configs() -> list[str]:
     return sorted(p.name[:-len(".json")] for p in CONFIG_DIR.iterdir() if p.name.endswith(".json"))
 
 
-def load_config(name_or_path: str | Path) -> ExperimentConfig:
-    """Load a named config ("full", "tiny", ...) or a JSON file path."""
+#: How many configs a chain of "base" may pass through (a -> b -> c ...): far more than any study needs;
+#: a longer chain is a loop or a damaged file.
+MAX_BASE_DEPTH = 8
+
+
+def _config_path(name_or_path: str | Path) -> Path:
     p = Path(name_or_path)
     if not (p.suffix == ".json" and p.exists()):
         p = CONFIG_DIR / f"{name_or_path}.json"
     if not p.exists():  # a FIFO or device named *.json is refused by the reader, not called missing
         raise FileNotFoundError(f"no config {str(name_or_path)!r}: not a JSON file and not one of "
                                 f"{available_configs()} in {CONFIG_DIR}")
+    return p
+
+
+def _read_with_base(p: Path, chain: tuple[str, ...] = ()) -> dict[str, Any]:
+    """A config's dictionary with its "base" resolved: the base config's model and train sections,
+    each overridden field by field by this file's. A study's variants are then one or two fields on
+    top of the network they vary (cpu_ablation_a = lrrep_cpu with the spike branch alone)."""
     from spikesim.config_io import read_json_file
     data = read_json_file(p, "config")  # a regular file, small, valid JSON, numbers finite and sane
+    if not isinstance(data, dict) or "base" not in data:
+        return data
+    base = data["base"]
+    if not isinstance(base, str) or not base:
+        raise ValueError(f"{p}: \"base\" must name a config (a shipped name or a JSON file), got {base!r}")
+    key = str(p.resolve())
+    if key in chain or len(chain) >= MAX_BASE_DEPTH:
+        raise ValueError(f"{p}: \"base\" chain {' -> '.join(chain + (key,))} loops or is longer than "
+                         f"{MAX_BASE_DEPTH} configs")
+    beside = p.parent / base  # a file named relative to this config's folder; else a name or a path as given
+    parent = _read_with_base(beside if base.endswith(".json") and beside.is_file() else _config_path(base),
+                             chain + (key,))
+    merged = {k: v for k, v in parent.items() if k not in ("name", "description")}
+    for k, v in data.items():
+        if k == "base":
+            continue
+        if k in ("model", "train") and isinstance(v, dict) and isinstance(merged.get(k), dict):
+            merged[k] = {**merged[k], **v}
+        else:
+            merged[k] = v
+    return merged
+
+
+def load_config(name_or_path: str | Path) -> ExperimentConfig:
+    """Load a named config ("full", "tiny", ...) or a JSON file path; a "base" key names a config
+    whose model and train fields this one starts from (resolved at load: a checkpoint stores the
+    whole result)."""
+    p = _config_path(name_or_path)
+    data = _read_with_base(p)
     experiment = ExperimentConfig.from_dict(data, where=str(p))
     if "model" not in data:  # every named config has one: without it the default network trains silently
         raise ValueError(f"{p}: no \"model\" section: a config names the network it trains (arch, num_features, "

@@ -31,7 +31,7 @@ from typing import Any
 
 # the library (model/comparison.py); re-exported here for callers of pipelines.compare
 from model.comparison import (BASELINES, COMPARE_FILES, MIN_SEEDS, SeedStat, aggregate, baseline_label,  # noqa: F401
-                              check_samples, difference_holds, evaluate_runs, markdown, run_dir, run_name,
+                              check_samples, difference_holds, evaluate_runs, markdown, run_costs, run_dir, run_name,
                               seed_stat, steps_per_run, train_seeds, write_comparison)
 from model.threads import set_cpu_threads
 from pipelines.argtypes import add_threads_argument, nonnegative_int, output_dir, positive_float, positive_int
@@ -74,12 +74,31 @@ def baseline_spec(text: str) -> str:
     return text
 
 
+def _study_names() -> list[str]:
+    from model.studies import STUDIES
+    return list(STUDIES)
+
+
 def cmd_compare(args: argparse.Namespace) -> int:
     from model.data import open_scenes
     from model.precision import resolve_precision
     from model.training import resolve_device
 
     dev = resolve_device(args.device)
+    study = None
+    if args.study:
+        from model.studies import get_study
+        study = get_study(args.study)
+        if not args.configs:
+            args.configs = [config_spec(f"{label}={name}") for label, name in study.configs]
+        if args.baselines is None:
+            args.baselines = list(study.baselines)
+    if not args.configs:
+        raise ValueError("--configs: name the configs to compare, or a --study")
+    if args.baselines is None:
+        args.baselines = list(BASELINES)
+    if args.jobs > 1 and str(dev) != "cpu":
+        raise ValueError(f"--jobs {args.jobs}: parallel runs are for CPU cores; on {dev} train one at a time")
     if args.precision:
         resolve_precision(args.precision, dev)
     set_cpu_threads(args.threads)  # before any torch work; the run log says how many and why
@@ -115,18 +134,30 @@ def cmd_compare(args: argparse.Namespace) -> int:
         train_scenes = open_scenes(next(iter(data.values())))
         check_samples(args.configs, train_scenes)
     out = Path(args.out)
+    roots: Any = data if by_data else next(iter(data.values()))
+    import torch
+    worker_threads = max(1, torch.get_num_threads() // args.jobs)  # --threads (or the free cores) shared out
     checkpoints = train_seeds(args.configs, seeds, args.max_steps, train_scenes, out, str(dev), args.precision,
-                              progress=not args.quiet, budget_minutes=args.budget_minutes, init=args.init)
-    rows = evaluate_runs(checkpoints, test_scenes, window, args.baselines, str(dev), progress=not args.quiet)
+                              progress=not args.quiet, budget_minutes=args.budget_minutes, init=args.init,
+                              jobs=args.jobs, data_roots=roots, threads=worker_threads)
+    rows = evaluate_runs(checkpoints, test_scenes, window, args.baselines, str(dev), progress=not args.quiet,
+                         jobs=args.jobs, test_root=Path(args.test_data), out=out,
+                         threads=worker_threads)
     stats = aggregate(rows, labels, args.baselines)
     length = f"{args.max_steps} steps" if args.max_steps else f"{args.budget_minutes:g} minutes of wall time"
-    text = markdown(stats, labels, args.baselines, seeds, length, steps_per_run(checkpoints))
+    costs = run_costs(args.configs, checkpoints, test_scenes[0].height, test_scenes[0].width)
+    text = markdown(stats, labels, args.baselines, seeds, length, steps_per_run(checkpoints), costs)
+    if study is not None:
+        from model.studies import study_markdown
+        labels_of = {baseline_label(b): baseline_label(b) for b in args.baselines}
+        text = study_markdown(study, stats, costs, labels_of) + "\n" + text
     meta = {"command": "spikesim " + shlex.join(sys.argv[1:]), "data": {k: str(v) for k, v in data.items()},
             "init": args.init,
             "test_data": str(args.test_data), "seeds": seeds, "steps": args.max_steps,
             "budget_minutes": args.budget_minutes, "steps_per_run": {f"{k[0]}#{k[1]}": v for k, v in
                                                                     steps_per_run(checkpoints).items()},
-            "configs": {label: exp.to_dict() for label, exp in args.configs}}
+            "configs": {label: exp.to_dict() for label, exp in args.configs}, "study": args.study,
+            "costs": costs, "jobs": args.jobs}
     write_comparison(stats, rows, text, meta, out)
     if args.json:
         from model.evaluation import json_safe
@@ -149,8 +180,16 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                    help="start every run from these weights (a shipped network, lrrep, or a checkpoint): a "
                         "comparison of fine-tuning")
     p.add_argument("--test-data", required=True, help="test dataset root (evaluate's frames)")
-    p.add_argument("--configs", nargs="+", required=True, type=config_spec, metavar="[LABEL=]CONFIG",
-                   help="named configs or JSON files, each labelled (default label: the config's name)")
+    p.add_argument("--configs", nargs="+", type=config_spec, metavar="[LABEL=]CONFIG",
+                   help="named configs or JSON files, each labelled (default label: the config's name); "
+                        "default with --study: the study's")
+    p.add_argument("--study", choices=sorted(_study_names()),
+                   help="one of the paper's comparisons (docs/comparisons.md): its configs, its seedless methods "
+                        "and a table with the paper's figures beside ours")
+    p.add_argument("--jobs", type=positive_int, default=1,
+                   help="runs trained (and scored) at once, each in its own process with --threads / jobs torch "
+                        "threads (default 1; 2 on a 2-core machine: one thread each scales better than two threads "
+                        "on one run)")
     p.add_argument("--seeds", nargs="+", type=nonnegative_int, default=[0, 1, 2],
                    help=f"training seeds, at least {MIN_SEEDS} (default: 0 1 2)")
     length = p.add_mutually_exclusive_group(required=True)
@@ -159,7 +198,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     length.add_argument("--budget-minutes", type=positive_float,
                         help="wall minutes of every run (equal time, as train --budget-minutes: each config takes "
                              "the steps its speed allows)")
-    p.add_argument("--baselines", nargs="*", type=baseline_spec, default=list(BASELINES),
+    p.add_argument("--baselines", nargs="*", type=baseline_spec, default=None,
                    help="seedless baselines in the tables: tfp, tfi, black, mean, tfp:N (TFP over N steps, an odd "
                         "number of windows: the span a network sees, e.g. tfp:205 for K = 5) (default: tfp tfi)")
     p.add_argument("-o", "--out", type=output_dir, required=True, help="folder for the runs and the tables")

@@ -1,0 +1,155 @@
+"""The paper's comparisons as studies: configs built on a base, the cost of a network counted
+(FLOP, parameters), each run's CPU time recorded, runs trained and scored in parallel and kept
+between calls, one run serving every label of the same config, and the study table's verdicts."""
+from __future__ import annotations
+
+import dataclasses
+import json
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+sys.path.insert(0, str(Path(__file__).parent))
+
+from test_targets_compare import _config, _write_dataset  # noqa: E402
+
+from model.comparison import COMPUTE_FILE, read_compute, seed_stat  # noqa: E402
+from model.config import load_config  # noqa: E402
+from model.flops import network_cost  # noqa: E402
+from model.studies import STUDIES, get_study, ordering_verdict, study_markdown  # noqa: E402
+from pipelines.cli import main  # noqa: E402
+
+
+@pytest.fixture(autouse=True)
+def _one_thread():
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+# ---- configs on a base ------------------------------------------------------------------------
+
+def test_a_config_on_a_base_takes_its_fields_and_overrides_some(tmp_path):
+    (tmp_path / "b.json").write_text(json.dumps({"name": "b", "base": "lrrep_cpu", "model": {"representation": "tfp"},
+                                                 "train": {"lr": 0.002}}))
+    (tmp_path / "c.json").write_text(json.dumps({"name": "c", "base": "b.json", "model": {"num_blocks": 3}}))
+    base, c = load_config("lrrep_cpu"), load_config(tmp_path / "c.json")
+    assert c.name == "c" and c.description == ""  # the base's name and description are not inherited
+    assert (c.model.representation, c.model.num_blocks, c.train.lr) == ("tfp", 3, 0.002)
+    assert dataclasses.replace(c.model, representation=base.model.representation, num_blocks=base.model.num_blocks) == base.model
+    assert c.train.crop == base.train.crop and c.train.num_windows == base.train.num_windows
+
+
+@pytest.mark.parametrize("text, msg", [
+    ('{"name": "x", "base": "x.json", "model": {}}', "loops"),
+    ('{"name": "x", "base": 3, "model": {}}', "must name a config"),
+    ('{"name": "x", "base": "no_such_config", "model": {}}', "no config 'no_such_config'"),
+])
+def test_a_bad_base_is_refused_with_its_reason(tmp_path, text, msg):
+    (tmp_path / "x.json").write_text(text)
+    with pytest.raises((ValueError, FileNotFoundError), match=msg):
+        load_config(tmp_path / "x.json")
+
+
+def test_every_study_config_that_ships_loads_at_the_shipped_size():
+    shipped = load_config("lrrep_cpu")
+    for study in STUDIES.values():
+        for label, name in study.configs:
+            try:
+                exp = load_config(name)
+            except FileNotFoundError:
+                continue  # a study whose networks are not built yet says so when run
+            assert exp.train.num_windows == shipped.train.num_windows and exp.train.crop == shipped.train.crop, label
+
+
+# ---- cost -------------------------------------------------------------------------------------
+
+def test_flop_count_scales_with_pixels_and_training_costs_about_three_forwards():
+    exp = load_config("cpu_ablation_a")  # no deformable sampling: every FLOP is a convolution
+    small, big = network_cost(exp, 32, 48), network_cost(exp, 64, 48)
+    assert big.flop_per_frame == 2 * small.flop_per_frame  # convolutions: FLOP per output pixel
+    assert small.sampling_flop_per_frame == 0
+    same = network_cost(exp, exp.train.crop, exp.train.crop)
+    per_sample = exp.train.batch_size * exp.train.num_windows * same.flop_per_frame
+    # backward: the input gradient and the weight gradient, each one forward's FLOP, except that the
+    # first convolution's input (spikes) needs no gradient
+    assert 2.5 * per_sample < same.train_flop_per_step <= 3 * per_sample
+    assert same.parameters == sum(p.numel() for p in __import__("model.arch", fromlist=["x"]).build_model(exp.model).parameters())
+
+
+def test_the_paper_network_costs_the_papers_flop_per_window():
+    cost = network_cost(load_config("full"), 250, 400)
+    assert cost.parameters == pytest.approx(5.6e6, rel=0.01)  # the paper: 5.6 M parameters
+    assert cost.flop_per_frame / 1e12 == pytest.approx(1.16, rel=0.01)  # the paper: 1.16 TFLOP per window
+    assert 0 < cost.sampling_flop_per_frame < 0.01 * cost.flop_per_frame  # alignment's sampling, counted apart
+
+
+# ---- verdicts ---------------------------------------------------------------------------------
+
+def test_each_paper_ordering_is_marked_from_the_seeds():
+    stats = {("A", "ALL_low", "psnr_aligned"): seed_stat("A", "ALL_low", "psnr_aligned", [20.0, 20.1, 19.9]),
+             ("B", "ALL_low", "psnr_aligned"): seed_stat("B", "ALL_low", "psnr_aligned", [21.0, 21.1, 20.9]),
+             ("C", "ALL_low", "psnr_aligned"): seed_stat("C", "ALL_low", "psnr_aligned", [20.0, 21.0, 19.0])}
+    assert ordering_verdict(stats, "B", "A", "ALL_low") == "held"
+    assert ordering_verdict(stats, "A", "B", "ALL_low") == "not held"
+    assert ordering_verdict(stats, "C", "A", "ALL_low") == "within spread"
+    assert ordering_verdict(stats, "D", "A", "ALL_low") == "not measured"
+    study = get_study("ablation")
+    assert ("E", "A") in study.orderings and ("A", "E") not in study.orderings  # the paper: E 45.08 > A 42.74
+    with pytest.raises(ValueError, match="unknown study 'nope'; known: representations, ablation, table1"):
+        get_study("nope")
+
+
+def test_the_study_table_puts_the_papers_figures_beside_ours():
+    study = get_study("ablation")
+    stats = [seed_stat(label, g, m, [20.0 + i, 20.5 + i, 21.0 + i])
+             for i, label in enumerate("ABCDEF") for g in ("ALL_low", "ALL_normal", "ALL")
+             for m in ("psnr_aligned", "psnr_8bit", "ssim_8bit")]
+    costs = {label: {"parameters": 1000, "gflop_per_frame": 1.5, "steps": 300, "cpu_minutes": 2.0, "seeds": 3}
+             for label in "ABCDEF"}
+    text = study_markdown(study, stats, costs, {})
+    row_a = next(line for line in text.splitlines() if line.startswith("| A |"))
+    assert "20.50 ± 0.50" in row_a and "42.74" in row_a and "0.9740" in row_a and "1,000" in row_a
+    assert "| E > A | held | held |" in text  # E is 4 dB above A, spreads 0.5 each
+
+
+# ---- compare: CPU time, parallel runs, kept scores, shared runs --------------------------------
+
+def test_compare_records_cpu_time_trains_in_parallel_keeps_scores_and_shares_a_run(tmp_path, capsys):
+    _write_dataset(tmp_path / "train", ["a_normal", "b_low"], 0)
+    _write_dataset(tmp_path / "test", ["c_low", "c_normal"], 10)
+    e = _config(tmp_path / "e.json", "e")
+    out = tmp_path / "cmp"
+    argv = ["compare", "--data", str(tmp_path / "train"), "--test-data", str(tmp_path / "test"),
+            "--configs", f"E={e}", "--seeds", "0", "1", "2", "--max-steps", "2", "--device", "cpu",
+            "--quiet", "--jobs", "2", "--threads", "2", "--out", str(out)]
+    assert main(argv) == 0
+    err = capsys.readouterr().err
+    assert "3 of 3 runs to train (2 steps each), 2 at a time" in err
+    for s in (0, 1, 2):
+        record = read_compute(out / "runs" / "E" / f"seed{s}")
+        assert record["steps"] == 2 and record["cpu_seconds"] > 0 and record["threads"] == [1]
+    text = (out / "compare.md").read_text()
+    assert "GFLOP per 16 x 12 frame" in text and "CPU-minutes per run" in text
+    # again, with the same config under a second label: nothing trains, nothing is scored again
+    stamp = (out / "runs" / "E" / "seed0" / "last.pt").stat().st_mtime_ns
+    assert main(argv[:6] + [f"E={e}", f"SAME={e}"] + argv[7:]) == 0
+    err = capsys.readouterr().err
+    assert "runs to train" not in err and "scoring" not in err
+    assert "SAME seed 0: the same config and seed already trained as" in err
+    assert not (out / "runs" / "SAME").exists() or not (out / "runs" / "SAME" / "seed0" / COMPUTE_FILE).exists()
+    assert (out / "runs" / "E" / "seed0" / "last.pt").stat().st_mtime_ns == stamp
+    stats = {(r["label"], r["metric"], r["group"]): r["values"] for r in
+             __import__("csv").DictReader((out / "compare.csv").open())}
+    assert stats[("SAME", "psnr_aligned", "ALL")] == stats[("E", "psnr_aligned", "ALL")]
+
+
+def test_compare_names_an_unknown_study_and_asks_for_configs(tmp_path, capsys):
+    assert main(["compare", "--study", "nope", "--data", "d", "--test-data", "d", "--max-steps", "1",
+                 "-o", str(tmp_path / "o")]) == 2
+    assert "invalid choice: 'nope'" in capsys.readouterr().err
+    assert main(["compare", "--data", "d", "--test-data", "d", "--max-steps", "1", "-o", str(tmp_path / "o")]) == 2
+    assert "name the configs to compare, or a --study" in capsys.readouterr().err
