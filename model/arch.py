@@ -19,6 +19,7 @@ from .blocks import conv3x3, conv_lrelu, double_conv, residual_stack
 from .config import ModelConfig
 from .lrrep import build_representation
 from .pcd import PCDAlign
+from .published_reps import PUBLISHED_REPS, published_input_map
 from .registry import ARCH_REGISTRY
 from .representations import (LastSpike, NextSpike, gisi, lisi_windows, tfi_windows, tfp_windows,
                               transform_interval)
@@ -57,6 +58,8 @@ class ReconNet(nn.Module):
             return tfp_windows(spikes), last, nxt
         if cfg.representation == "tfi":
             return tfi_windows(spikes), last, nxt
+        if cfg.representation in PUBLISHED_REPS:  # window-local: None, or AMIM's windowed TFI
+            return published_input_map(cfg.representation, spikes), last, nxt
         if cfg.interval == "lisi":
             return transform_interval(lisi_windows(spikes), cfg.interval_transform), last, nxt
         interval, last_out, next_out = gisi(spikes, first_step, last, nxt)

@@ -18,7 +18,7 @@ from .representations import INTERVAL_TRANSFORMS
 
 CONFIG_DIR = resources.files(__package__) / "configs"  # the named configs, shipped in the package
 
-REPRESENTATIONS = ("lr_rep", "spike", "tfp", "tfi")
+REPRESENTATIONS = ("lr_rep", "spike", "tfp", "tfi", "ast", "amim", "sali", "wgse1d")
 INTERVALS = ("gisi", "lisi")
 LR_SCHEDULES = ("multistep", "cosine")
 DEFORM_BACKENDS = ("auto", "torch", "torchvision")
@@ -58,7 +58,9 @@ class ModelConfig:
 
     representation: "lr_rep" (LR-Rep: spike branch + interval branch + attention), "spike" (the
       spike-window branch alone: "without LR-Rep"), "tfp" / "tfi" (that map through a conv in
-      LR-Rep's place, paper Table 3).
+      LR-Rep's place, paper Table 3), or a published method's representation in LR-Rep's place
+      (paper Table 3, model/published_reps.py): "ast" (RSIR), "amim" (SSML), "sali" (Spk2ImgNet),
+      "wgse1d" (WGSE).
     interval: "gisi" (carried across windows) or "lisi" (window-local), for lr_rep only.
     interval_transform: "raw" (authors) or "inverse" (1/interval) before the interval branch.
     adf: adjacent deep temporal features, i.e. the recurrent state carried between windows; off,

@@ -1,5 +1,6 @@
 """The per-window representation in front of the feature extractor (paper, Light-robust
-Representation; docs/design.md section 5), and its ablation stand-ins (spike branch alone, TFP, TFI)."""
+Representation; docs/design.md section 5), and its ablation stand-ins (spike branch alone, TFP, TFI;
+the published methods' representations are in model/published_reps.py)."""
 from __future__ import annotations
 
 import torch
@@ -7,6 +8,7 @@ from torch import nn
 
 from .blocks import LEAKY_SLOPE, conv3x3, conv_lrelu
 from .config import ModelConfig
+from .published_reps import PUBLISHED_REPS
 
 
 class LRRep(nn.Module):
@@ -62,4 +64,6 @@ def build_representation(cfg: ModelConfig) -> nn.Module:
         return LRRep(cfg.window, cfg.num_features)
     if cfg.representation == "spike":
         return SpikeRep(cfg.window, cfg.num_features)
+    if cfg.representation in PUBLISHED_REPS:  # AST, AMIM, SALI, WGSE-1d (model/published_reps.py)
+        return PUBLISHED_REPS[cfg.representation](cfg.window, cfg.num_features)
     return MapRep(cfg.num_features)

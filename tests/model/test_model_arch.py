@@ -87,7 +87,7 @@ def test_parameter_count_scales_with_width():
 @pytest.mark.parametrize("field,value,msg", [
     ("window", 40, "odd"),
     ("num_features", 0, "num_features"),
-    ("representation", "ast", "representation"),
+    ("representation", "rsir_ast", "representation"),
     ("interval", "isi", "interval"),
     ("interval_transform", "log", "interval_transform"),
     ("deform_groups", 5, "deform_groups"),
