@@ -6,6 +6,8 @@ from __future__ import annotations
 
 from typing import Any
 
+from . import published_nets  # noqa: F401  registers the Table-1 networks (spk2imgnet, wgse, rsir, ssml) in ARCH_REGISTRY
+
 
 def __getattr__(name: str) -> Any:  # lazy: `import model.config` must not load the weights' module
     if name == "load_pretrained":

@@ -52,5 +52,32 @@ def l1_sum_relative(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     return per_sample_window.mean(dim=0).sum()
 
 
+#: The loss of networks trained from spikes alone (SSML, model/published_nets/ssml.py): the model
+#: computes it, `model.self_supervised_loss(spikes)`, with no ground truth; the training step
+#: calls it through SelfSupervisedObjective instead of comparing a prediction with a target.
+SELF_SUPERVISED = "self_supervised"
+
+
+@LOSS_REGISTRY.register(SELF_SUPERVISED)
+def self_supervised(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    raise TypeError("the self_supervised loss comes from the model (model.self_supervised_loss(spikes)), "
+                    "not from a prediction and a target")
+
+
+class SelfSupervisedObjective(torch.nn.Module):
+    """forward(spikes) -> model.self_supervised_loss(spikes): the training objective of a network
+    that learns from spikes alone, as a module so that DDP wraps it as it wraps a forward pass."""
+
+    def __init__(self, model: torch.nn.Module) -> None:
+        super().__init__()
+        if not callable(getattr(model, "self_supervised_loss", None)):
+            raise ValueError(f"train.loss {SELF_SUPERVISED!r} needs a network that learns from spikes alone "
+                             f"(one with self_supervised_loss, e.g. arch \"ssml\"); {type(model).__name__} has none")
+        self.model = model
+
+    def forward(self, spikes: torch.Tensor) -> torch.Tensor:
+        return self.model.self_supervised_loss(spikes)
+
+
 def build_loss(name: str) -> Loss:
     return LOSS_REGISTRY.get(name)

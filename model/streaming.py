@@ -18,6 +18,10 @@ computed in two passes over the stream, each holding one chunk of C windows:
 Kept boundary states (one feature map and two int64 maps per chunk) go to a temporary directory
 on disk, so memory is O(C) and disk O(M / C). The price is one extra encode + backward pass
 (about 1.6x the one-shot work). With M <= C it is the one-shot computation.
+
+The re-implemented published networks (model/published_nets) need less: a per-window network
+(Spk2ImgNet, WGSE, SSML) maps each chunk's windows on their own, and a forward-only recurrent
+one (RSIR) carries its hidden state from chunk to chunk; one pass, memory O(C), nothing on disk.
 """
 from __future__ import annotations
 
@@ -30,6 +34,7 @@ import numpy as np
 import torch
 
 from .arch import ReconNet
+from .published_nets.common import PublishedNet
 from .representations import LastSpike, NextSpike, forward_spike_times
 
 
@@ -100,7 +105,7 @@ class _DiskStore:
 
 
 @torch.no_grad()
-def stream_reconstruct(model: ReconNet, source: WindowSource, chunk: int = 8,
+def stream_reconstruct(model: ReconNet | PublishedNet, source: WindowSource, chunk: int = 8,
                        device: torch.device | str = "cpu",
                        spill_dir: str | Path | None = None) -> Iterator[tuple[int, torch.Tensor]]:
     """Yield (window index, reconstruction float32 (H, W) on the CPU) for every window, in order.
@@ -113,6 +118,9 @@ def stream_reconstruct(model: ReconNet, source: WindowSource, chunk: int = 8,
         raise ValueError(f"source windows have {source.window} steps, model expects {model.cfg.window}")
     device = torch.device(device)
     model.eval()
+    if isinstance(model, PublishedNet):
+        yield from _stream_published(model, source, chunk, device)
+        return
     m, t = source.num_windows, source.window
     starts = list(range(0, m, chunk))
     gisi_carry = model.cfg.carries_spike_times
@@ -180,7 +188,27 @@ def stream_reconstruct(model: ReconNet, source: WindowSource, chunk: int = 8,
             del feats, bwd
 
 
-def reconstruct_windows(model: ReconNet, spikes: torch.Tensor, chunk: int | None = None,
+def _stream_published(model: PublishedNet, source: WindowSource, chunk: int,
+                      device: torch.device) -> Iterator[tuple[int, torch.Tensor]]:
+    """One forward pass over chunks of C windows: per-window networks need no carry; a
+    forward-recurrent one carries its state (one feature map) across chunks."""
+    state: torch.Tensor | None = None
+    for a in range(0, source.num_windows, chunk):
+        b = min(a + chunk, source.num_windows)
+        spk = source.windows(a, b).to(device)
+        h, w = spk.shape[-2:]
+        x = model.pad(spk.to(torch.float32))
+        if model.recurrent:
+            for i in range(b - a):
+                y, state = model.step(x[i:i + 1], state)
+                yield a + i, y[0, :h, :w].float().cpu()
+        else:
+            frames = model.frames(x)
+            for i in range(b - a):
+                yield a + i, frames[i, :h, :w].float().cpu()
+
+
+def reconstruct_windows(model: ReconNet | PublishedNet, spikes: torch.Tensor, chunk: int | None = None,
                         device: torch.device | str = "cpu") -> torch.Tensor:
     """All frames (M, H, W) of M windows (M, T, H, W); chunked when chunk < M."""
     src = TensorWindows(spikes)

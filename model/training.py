@@ -31,7 +31,7 @@ from .arch import build_model, count_parameters
 from .checkpoint import load_checkpoint, save_checkpoint, state_fingerprint
 from .config import ExperimentConfig
 from .data import Scene, SequenceDataset, TimeSlice
-from .losses import build_loss
+from .losses import SELF_SUPERVISED, SelfSupervisedObjective, build_loss
 from .metrics import psnr, psnr_aligned, ssim
 from .precision import autocast, grad_scaler, resolve_precision
 from .representations import tfp_windows
@@ -314,6 +314,8 @@ class _Run:
     scaler: Any
     loss_fn: Any
     precision: str
+    self_supervised: bool = False
+    """`forward` returns the model's own loss from spikes alone (train.loss "self_supervised")."""
 
 
 def initial_weights(spec: str, experiment: ExperimentConfig) -> tuple[dict[str, Any], dict[str, str]]:
@@ -343,14 +345,16 @@ def _build_run(experiment: ExperimentConfig, dev: torch.device, dist: _Distribut
     model = model.to(dev)
     if tc.channels_last:
         model = model.to(memory_format=torch.channels_last)
-    forward = model
+    self_supervised = tc.loss == SELF_SUPERVISED
+    forward = SelfSupervisedObjective(model) if self_supervised else model
     if dist.world > 1:
         from torch.nn.parallel import DistributedDataParallel
-        forward = DistributedDataParallel(model, device_ids=[dev.index] if dev.type == "cuda" else None)
+        forward = DistributedDataParallel(forward, device_ids=[dev.index] if dev.type == "cuda" else None)
     opt = torch.optim.Adam(model.parameters(), lr=tc.lr, betas=tuple(tc.betas))
     sched = torch.optim.lr_scheduler.MultiStepLR(opt, milestones=list(tc.lr_milestones), gamma=tc.lr_gamma)
     precision = resolve_precision(tc.precision, dev)
-    return _Run(model, forward, opt, sched, grad_scaler(precision, dev), build_loss(tc.loss), precision)
+    return _Run(model, forward, opt, sched, grad_scaler(precision, dev), build_loss(tc.loss), precision,
+                self_supervised)
 
 
 def _datasets(experiment: ExperimentConfig, train_scenes: Sequence[Scene],
@@ -482,8 +486,8 @@ def _train_step(run: _Run, batch: dict, dev: torch.device, tc: Any, step: int, d
     spikes = batch["spikes"].to(dev, non_blocking=True)
     gt = batch["gt"].to(dev, non_blocking=True)
     with autocast(run.precision, dev):
-        pred = run.forward(spikes)
-    loss = run.loss_fn(pred.float(), gt)
+        out = run.forward(spikes)
+    loss = out.float() if run.self_supervised else run.loss_fn(out.float(), gt)
     if not torch.isfinite(loss):
         raise TrainingDiverged(f"the loss became {loss.item()} at step {step} (learning rate "
                                f"{run.opt.param_groups[0]['lr']:g}): lower --lr; last.pt holds the last good state")
