@@ -1,5 +1,6 @@
 """Reconstruction methods behind one interface, for the evaluate and reconstruct pipelines:
-the TFP and TFI baselines and any trained checkpoint, each turning windows into frames."""
+the TFP and TFI baselines, the traditional STP and SNM (model/classic_methods.py) and any trained
+checkpoint, each turning windows into frames."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -9,6 +10,7 @@ from typing import Iterator, Protocol
 import torch
 
 from .checkpoint import for_inference, model_from_checkpoint
+from .classic_methods import CLASSIC_METHODS, classic_method
 from .representations import tfi_windows, tfp_windows
 from .streaming import WindowSource, stream_reconstruct
 
@@ -159,13 +161,16 @@ def pretrained_label(name: str) -> str:
 
 
 def method_from_spec(spec: str, window: int = 41, chunk: int = 8, device: str = "cpu") -> Method:
-    """"tfp", "tfi", "black", "mean", "tfp:N" (TFP over N steps), "lrrep" (the shipped weights; any
+    """"tfp", "tfi", "stp", "snm" (the traditional STP and SNM), "black", "mean", "tfp:N" (TFP over
+    N steps), "lrrep" (the shipped weights; any
     name of model.pretrained.PRETRAINED, e.g. the earlier lrrep_v1) or
     a checkpoint path; "label=..." names the method in tables."""
     # a checkpoint path may hold "=" (runs/lr=3e-4/best.pt): an existing file is a path, not label=spec
     label, _, body = spec.partition("=") if "=" in spec and not Path(spec).is_file() else ("", "", spec)
     if body in MAP_METHODS:
         return MapMethod(label or (body.upper() if body in ("tfp", "tfi") else body), body, window)
+    if body in CLASSIC_METHODS:
+        return classic_method(body, label, window, chunk, device)
     span = span_method_spec(body, window)
     if span is not None:
         return SpanTFPMethod(label or f"TFP-{span}", span, window)
@@ -174,6 +179,7 @@ def method_from_spec(spec: str, window: int = 41, chunk: int = 8, device: str = 
         return ModelMethod(label or pretrained_label(body), None, chunk, device, pretrained=body)
     path = Path(body.removeprefix("ckpt:"))
     if not path.is_file():
-        raise ValueError(f"method {spec!r}: expected one of {', '.join(MAP_METHODS)}, tfp:N, shipped weights "
+        raise ValueError(f"method {spec!r}: expected one of {', '.join([*MAP_METHODS, *CLASSIC_METHODS])}, tfp:N, "
+                         f"shipped weights "
                          f"({', '.join(PRETRAINED)}) or an existing checkpoint file")
     return ModelMethod(label or path.parent.name or path.stem, path, chunk, device)

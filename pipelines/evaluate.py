@@ -107,7 +107,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--no-flip", action="store_true",
                    help="with --dat: rows stored top-down (SPCS/SCSim); default as recorded, else bottom-up")
     p.add_argument("--methods", nargs="+", default=["tfp", "tfi"],
-                   help="tfp, tfi, tfp:N (TFP over N steps centred on each frame, N an odd number of windows: "
+                   help="tfp, tfi, stp, snm (the traditional STP and SNM), tfp:N (TFP over N steps centred on each "
+                        "frame, N an odd number of windows: "
                         "the span a network sees), lrrep (the shipped network), black, mean (floors), or checkpoint "
                         "paths; 'label=spec' names a column")
     p.add_argument("--json", action="store_true", help="print the scores as JSON (every metric convention)")

@@ -123,7 +123,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("input", help=".dat spike stream")
     p.add_argument("-o", "--out", type=output_file, required=True, help="the panel PNG to write")
     p.add_argument("--methods", nargs="+", default=["tfp", "tfp:205", "lrrep"],
-                   help="methods as evaluate takes them (tfp, tfi, tfp:N, lrrep, checkpoint paths; label=spec)")
+                   help="methods as evaluate takes them (tfp, tfi, stp, snm, tfp:N, lrrep, checkpoint paths; label=spec)")
     p.add_argument("--frame", type=nonnegative_int, help="which window to show (default: the middle one)")
     p.add_argument("--start", type=nonnegative_int, default=0, help="first step of the first window")
     p.add_argument("--num-windows", type=positive_int, help="windows read (default: every whole window)")

@@ -2,11 +2,12 @@
 recording) to PNG frames and a GIF (and an MP4 with the `video` extra: imageio-ffmpeg).
 
 The stream is cut into consecutive windows of T steps from --start; each window gives one frame
-at its centre step. Methods: tfp, tfi, or a trained checkpoint (exact chunked inference, memory
-bounded by --chunk). Display: y * scale, clipped, 1/gamma encoded; --enhance stretch maps a
-percentile of each frame to white for very dark results (as the paper does for display), and the
-default --enhance auto does so for the frames that would otherwise be near black. The
-enhancement touches only the pictures: --save-npy keeps the linear frames for metrics.
+at its centre step. Methods: tfp, tfi, the traditional stp and snm (causal recurrences over the
+stream), or a trained checkpoint (exact chunked inference, memory bounded by --chunk). Display:
+y * scale, clipped, 1/gamma encoded; --enhance stretch maps a percentile of each frame to white
+for very dark results (as the paper does for display), and the default --enhance auto does so for
+the frames that would otherwise be near black. The enhancement touches only the pictures:
+--save-npy keeps the linear frames for metrics.
 
 Geometry (--height, --width, row order) defaults to what the stream's sidecar or dataset
 meta.json records, else 250 x 400 bottom-up. A rerun into the same --out replaces the previous
@@ -241,7 +242,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("input", help=".dat spike stream")
     p.add_argument("-o", "--out", required=True, help="output folder")
     p.add_argument("--method", default="tfp",
-                   help="tfp, tfi, tfp:N (TFP over N steps), lrrep (the shipped network), black, mean (floors) or a "
+                   help="tfp, tfi, stp, snm (the traditional STP and SNM), tfp:N (TFP over N steps), lrrep (the "
+                        "shipped network), black, mean (floors) or a "
                         "checkpoint path")
     p.add_argument("--height", type=positive_int, help=f"rows (default: as recorded, else {PKU_HEIGHT})")
     p.add_argument("--width", type=positive_int,
@@ -257,7 +259,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--start", type=nonnegative_int, default=0, help="first step of the first window")
     p.add_argument("--num-windows", type=positive_int, help="frames to make (default: as many as fit)")
     p.add_argument("--window", type=positive_int, default=41,
-                   help="steps per window for tfp/tfi (a model uses its own)")
+                   help="steps per window for tfp/tfi/stp/snm (a model uses its own)")
     p.add_argument("--chunk", type=positive_int, default=8, help="windows held in memory by a network")
     p.add_argument("--device", default="auto", help="auto (CUDA when present), cpu, cuda, cuda:N or mps")
     add_threads_argument(p)
