@@ -185,7 +185,7 @@ def _run_parallel(fn: Any, tasks: Sequence[Any], jobs: int, on_done: Any) -> lis
     return results
 
 
-def train_seeds(configs: Sequence[tuple[str, Any]], seeds: Sequence[int], steps: int | None,
+def train_seeds(configs: Sequence[tuple[str, Any]], seeds: Sequence[int], steps: int | dict[str, int] | None,
                 train_scenes: Sequence[Any] | dict[str, Sequence[Any]], out: Path, device: str = "auto",
                 precision: str | None = None, progress: bool = False, budget_minutes: float | None = None,
                 init: str | None = None, jobs: int = 1,
@@ -196,6 +196,8 @@ def train_seeds(configs: Sequence[tuple[str, Any]], seeds: Sequence[int], steps:
     `steps` is refused. `train_scenes` is one dataset for every label, or {label: scenes} (a
     comparison of data); `init` starts every new run from those weights (fine-tuning).
 
+    `steps` may differ per label ({label: steps}: equal training FLOP, `equal_flop_steps`).
+
     jobs > 1 trains that many runs at once, each in its own process with `threads` torch threads
     (data_roots: where each process opens the data). Each run records the CPU seconds it took
     (COMPUTE_FILE), measured in the process that trained it."""
@@ -205,7 +207,9 @@ def train_seeds(configs: Sequence[tuple[str, Any]], seeds: Sequence[int], steps:
         raise ValueError("train_seeds: jobs > 1 needs data_roots (each worker process opens the data)")
     done: dict[tuple[str, int], Path] = {}
     tasks: list[RunTask] = []
+    per_label = steps if isinstance(steps, dict) else {label: steps for label, _ in configs}
     for (label, exp), seed in itertools.product(configs, seeds):
+        steps = per_label[label]
         limits = {"max_steps": steps} if steps is not None else {"budget_minutes": budget_minutes, "max_steps": None}
         train = dataclasses.replace(exp.train, seed=int(seed), **limits,
                                     **({"precision": precision} if precision else {}))
@@ -231,7 +235,8 @@ def train_seeds(configs: Sequence[tuple[str, Any]], seeds: Sequence[int], steps:
                 data = train_scenes[label] if isinstance(train_scenes, dict) else train_scenes
             tasks.append(RunTask(label, int(seed), run, folder, data, device, have is not None, init, steps,
                                  threads, progress and jobs <= 1))
-    what = f"{steps} steps" if steps is not None else f"{budget_minutes:g} minutes"
+    counts = sorted({n for n in per_label.values() if n is not None})
+    what = (f"{'/'.join(map(str, counts))} steps" if counts else f"{budget_minutes:g} minutes")
     if tasks:
         print(f"[compare] {len(tasks)} of {len(done)} runs to train ({what} each), {jobs} at a time", file=sys.stderr)
     import time
@@ -247,6 +252,17 @@ def train_seeds(configs: Sequence[tuple[str, Any]], seeds: Sequence[int], steps:
                   f"about {left / 60:.0f} min of training left", file=sys.stderr)
         _run_parallel(_train_task, tasks, jobs, finished)
     return done
+
+
+def equal_flop_steps(configs: Sequence[tuple[str, Any]], steps: int, reference: str) -> dict[str, int]:
+    """Steps per label with the training FLOP of `steps` steps of the `reference` label: a network
+    whose step costs twice as much trains half as many steps (model/flops.py; the frame size does not
+    enter: a training step's FLOP is at the config's crop)."""
+    from model.flops import network_cost
+    cost = {label: network_cost(exp, exp.train.crop, exp.train.crop).train_flop_per_step for label, exp in configs}
+    if reference not in cost:
+        raise ValueError(f"equal FLOP: the reference {reference!r} is not among the configs {list(cost)}")
+    return {label: max(1, round(steps * cost[reference] / c)) for label, c in cost.items()}
 
 
 def check_samples(configs: Sequence[tuple[str, Any]], train_scenes: Sequence[Any]) -> None:

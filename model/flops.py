@@ -107,6 +107,9 @@ def network_cost(experiment: Any, height: int, width: int) -> Cost:
         x = torch.zeros(tc.batch_size, tc.num_windows, t, crop, crop, dtype=torch.bool)
 
         def step() -> None:
-            model(x).float().sum().backward()
+            if getattr(tc, "loss", None) == "self_supervised":  # its training runs its own objective (SSML)
+                model.self_supervised_loss(x).float().backward()
+            else:
+                model(x).float().sum().backward()
         train, _ = _counted(step)
     return Cost(params, height, width, f3 - f2, s3 - s2, train)

@@ -64,9 +64,9 @@ def data_spec(text: str) -> tuple[str, Path]:
 
 
 def baseline_spec(text: str) -> str:
-    """argparse type: a seedless method evaluate knows (tfp, tfi, black, mean, tfp:N)."""
-    if not (text in ("tfp", "tfi", "black", "mean") or text.startswith("tfp:")):
-        raise argparse.ArgumentTypeError(f"{text!r}: a baseline is tfp, tfi, black, mean or tfp:N")
+    """argparse type: a seedless method evaluate knows (tfp, tfi, stp, snm, black, mean, tfp:N)."""
+    if not (text in ("tfp", "tfi", "stp", "snm", "black", "mean") or text.startswith("tfp:")):
+        raise argparse.ArgumentTypeError(f"{text!r}: a baseline is tfp, tfi, stp, snm, black, mean or tfp:N")
     try:
         baseline_label(text)  # tfp:N's own checks (an odd number of windows)
     except ValueError as exc:
@@ -77,6 +77,16 @@ def baseline_spec(text: str) -> str:
 def _study_names() -> list[str]:
     from model.studies import STUDIES
     return list(STUDIES)
+
+
+def _reference_label(args: argparse.Namespace, study: Any) -> str:
+    """The config whose steps set the FLOP budget: the study's shipped network (lrrep_cpu), else the
+    first config."""
+    if study is not None:
+        for label, name in study.configs:
+            if name == "lrrep_cpu" and label in dict(args.configs):
+                return label
+    return args.configs[0][0]
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
@@ -137,14 +147,25 @@ def cmd_compare(args: argparse.Namespace) -> int:
     roots: Any = data if by_data else next(iter(data.values()))
     import torch
     worker_threads = max(1, torch.get_num_threads() // args.jobs)  # --threads (or the free cores) shared out
-    checkpoints = train_seeds(args.configs, seeds, args.max_steps, train_scenes, out, str(dev), args.precision,
+    steps: Any = args.max_steps
+    if args.equal == "flop":
+        if not args.max_steps:
+            raise ValueError("--equal flop shares out --max-steps of the reference config by training FLOP; give --max-steps")
+        from model.comparison import equal_flop_steps
+        reference = _reference_label(args, study)
+        steps = equal_flop_steps(args.configs, args.max_steps, reference)
+        print(f"[compare] equal training FLOP: {args.max_steps} steps of {reference} -> "
+              + ", ".join(f"{k} {v}" for k, v in steps.items()), file=sys.stderr)
+    checkpoints = train_seeds(args.configs, seeds, steps, train_scenes, out, str(dev), args.precision,
                               progress=not args.quiet, budget_minutes=args.budget_minutes, init=args.init,
                               jobs=args.jobs, data_roots=roots, threads=worker_threads)
     rows = evaluate_runs(checkpoints, test_scenes, window, args.baselines, str(dev), progress=not args.quiet,
                          jobs=args.jobs, test_root=Path(args.test_data), out=out,
                          threads=worker_threads)
     stats = aggregate(rows, labels, args.baselines)
-    length = f"{args.max_steps} steps" if args.max_steps else f"{args.budget_minutes:g} minutes of wall time"
+    length = (f"{args.max_steps} steps" if args.max_steps and args.equal == "steps" else
+              f"the training FLOP of {args.max_steps} steps of {_reference_label(args, study)}" if args.max_steps else
+              f"{args.budget_minutes:g} minutes of wall time")
     costs = run_costs(args.configs, checkpoints, test_scenes[0].height, test_scenes[0].width)
     text = markdown(stats, labels, args.baselines, seeds, length, steps_per_run(checkpoints), costs)
     if study is not None:
@@ -154,7 +175,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     meta = {"command": "spikesim " + shlex.join(sys.argv[1:]), "data": {k: str(v) for k, v in data.items()},
             "init": args.init,
             "test_data": str(args.test_data), "seeds": seeds, "steps": args.max_steps,
-            "budget_minutes": args.budget_minutes, "steps_per_run": {f"{k[0]}#{k[1]}": v for k, v in
+            "budget_minutes": args.budget_minutes, "equal": args.equal, "steps_per_run": {f"{k[0]}#{k[1]}": v for k, v in
                                                                     steps_per_run(checkpoints).items()},
             "configs": {label: exp.to_dict() for label, exp in args.configs}, "study": args.study,
             "costs": costs, "jobs": args.jobs}
@@ -186,6 +207,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--study", choices=sorted(_study_names()),
                    help="one of the paper's comparisons (docs/comparisons.md): its configs, its seedless methods "
                         "and a table with the paper's figures beside ours")
+    p.add_argument("--equal", choices=("steps", "flop"), default="steps",
+                   help="what --max-steps makes equal: steps of every run (default), or training FLOP: --max-steps "
+                        "steps of the reference (the study's shipped network, else the first config) and for each "
+                        "other config the steps with the same FLOP (model/flops.py)")
     p.add_argument("--jobs", type=positive_int, default=1,
                    help="runs trained (and scored) at once, each in its own process with --threads / jobs torch "
                         "threads (default 1; 2 on a 2-core machine: one thread each scales better than two threads "
@@ -199,7 +224,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         help="wall minutes of every run (equal time, as train --budget-minutes: each config takes "
                              "the steps its speed allows)")
     p.add_argument("--baselines", nargs="*", type=baseline_spec, default=None,
-                   help="seedless baselines in the tables: tfp, tfi, black, mean, tfp:N (TFP over N steps, an odd "
+                   help="seedless baselines in the tables: tfp, tfi, stp, snm (the traditional STP and SNM), black, "
+                        "mean, tfp:N (TFP over N steps, an odd "
                         "number of windows: the span a network sees, e.g. tfp:205 for K = 5) (default: tfp tfi)")
     p.add_argument("-o", "--out", type=output_dir, required=True, help="folder for the runs and the tables")
     p.add_argument("--precision", choices=("bf16", "fp16", "fp32"),
