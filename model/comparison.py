@@ -398,9 +398,13 @@ def evaluate_runs(checkpoints: dict[tuple[str, int], Path], test_scenes: Sequenc
     return per_scene + pooled
 
 
-def baseline_label(spec: str, window: int = 41) -> str:
-    """The column a baseline spec gets in the tables (TFP, TFI, TFP-205, black, ...)."""
-    from model.methods import method_from_spec
+def baseline_label(spec: str, window: int | None = None) -> str:
+    """The column a baseline spec gets in the tables (TFP, TFI, TFP-205, black, ...); with a window,
+    the spec is also checked against it (tfp:N spans an odd number of windows)."""
+    from model.methods import method_from_spec, span_method_spec
+    if window is None:
+        span = span_method_spec(spec, 1)
+        return f"TFP-{span}" if span is not None else method_from_spec(spec).name
     return method_from_spec(spec, window).name
 
 

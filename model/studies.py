@@ -16,6 +16,15 @@ from dataclasses import dataclass, field
 from typing import Any, Sequence
 
 
+#: Stands for `tfp:N` with N the steps one training sample of the study's networks spans (K x T).
+SPAN_TFP = "tfp:span"
+
+
+def resolve_baselines(baselines: Sequence[str], span_steps: int) -> list[str]:
+    """The study's seedless methods with SPAN_TFP made `tfp:<span_steps>`."""
+    return [f"tfp:{span_steps}" if b == SPAN_TFP else b for b in baselines]
+
+
 @dataclass(frozen=True)
 class StudyRow:
     """One row: a label, the config it trains (None for a seedless method, `method` then), and the
@@ -33,10 +42,10 @@ class Study:
     name: str
     title: str
     rows: tuple[StudyRow, ...]
-    baselines: tuple[str, ...] = ("tfp", "tfp:205")
+    baselines: tuple[str, ...] = ("tfp", SPAN_TFP)
     """Seedless methods beside the rows: plain TFP, the floor any network must clear, and TFP over the
-    span a K = 5 network sees (the fair photon count); a study whose rows hold a TFP config leaves
-    plain TFP out (one label, one column)."""
+    span the networks see (SPAN_TFP: K windows, the fair photon count; tfp:205 for the shipped K = 5);
+    a study whose rows hold a TFP config leaves plain TFP out (one label, one column)."""
     orderings: tuple[tuple[str, str], ...] = field(default_factory=tuple)
     """The paper's claims as (better, worse) label pairs, each marked held / not held / within spread."""
 
@@ -52,7 +61,7 @@ def _paper_order(rows: Sequence[StudyRow]) -> tuple[tuple[str, str], ...]:
     return tuple((a.label, b.label) for a in ranked for b in ranked if a.paper_psnr > b.paper_psnr)
 
 
-def _study(name: str, title: str, rows: Sequence[StudyRow], baselines: Sequence[str] = ("tfp", "tfp:205")) -> Study:
+def _study(name: str, title: str, rows: Sequence[StudyRow], baselines: Sequence[str] = ("tfp", SPAN_TFP)) -> Study:
     methods = tuple(r.method for r in rows if r.method)
     return Study(name, title, tuple(rows), methods + tuple(b for b in baselines if b not in methods),
                  _paper_order(rows))
@@ -68,7 +77,7 @@ STUDIES: dict[str, Study] = {s.name: s for s in (
         StudyRow("SALI", "cpu_rep_sali", paper_psnr=43.314, paper_ssim=0.98304),
         StudyRow("WGSE-1d", "cpu_rep_wgse1d", paper_psnr=42.302, paper_ssim=0.97438),
         StudyRow("LR-Rep", "lrrep_cpu", paper_psnr=45.075, paper_ssim=0.98681),
-    ], baselines=("tfp:205",)),
+    ], baselines=(SPAN_TFP,)),
     _study("ablation", "The ablation at the shipped size (paper Table 4)", [
         StudyRow("A", "cpu_ablation_a", paper_psnr=42.743, paper_ssim=0.97403),
         StudyRow("B", "cpu_ablation_b", paper_psnr=44.151, paper_ssim=0.98514),

@@ -68,7 +68,7 @@ def baseline_spec(text: str) -> str:
     if not (text in ("tfp", "tfi", "stp", "snm", "black", "mean") or text.startswith("tfp:")):
         raise argparse.ArgumentTypeError(f"{text!r}: a baseline is tfp, tfi, stp, snm, black, mean or tfp:N")
     try:
-        baseline_label(text)  # tfp:N's own checks (an odd number of windows)
+        baseline_label(text)  # tfp:N's digits; its span against the configs' window is checked once they are read
     except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
     return text
@@ -102,7 +102,9 @@ def cmd_compare(args: argparse.Namespace) -> int:
         if not args.configs:
             args.configs = [config_spec(f"{label}={name}") for label, name in study.configs]
         if args.baselines is None:
-            args.baselines = list(study.baselines)
+            from model.studies import resolve_baselines
+            first = args.configs[0][1]
+            args.baselines = resolve_baselines(study.baselines, first.train.num_windows * first.model.window)
     if not args.configs:
         raise ValueError("--configs: name the configs to compare, or a --study")
     if args.baselines is None:
@@ -135,6 +137,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
     if len(windows) != 1:
         raise ValueError(f"--configs: all configs must use one window length to be compared, got {sorted(windows)}")
     window = windows.pop()
+    for b in args.baselines:  # before any run trains: a baseline the window cannot take is refused now
+        baseline_label(b, window)
     test_scenes = open_scenes(args.test_data)
     if by_data:
         train_scenes: Any = {label: open_scenes(root) for label, root in data.items()}
@@ -180,6 +184,12 @@ def cmd_compare(args: argparse.Namespace) -> int:
             "configs": {label: exp.to_dict() for label, exp in args.configs}, "study": args.study,
             "costs": costs, "jobs": args.jobs}
     write_comparison(stats, rows, text, meta, out)
+    if study is not None:  # one folder can hold every study (runs shared): each keeps its own table
+        from model.evaluation import json_safe
+        from spikesim.outputs import atomic_write_text, writable
+        atomic_write_text(writable(out, f"study_{study.name}.md"), text)
+        atomic_write_text(writable(out, f"study_{study.name}.json"), json.dumps(json_safe(
+            {**meta, "statistics": [{**dataclasses.asdict(s), "values": list(s.values)} for s in stats]}), indent=1))
     if args.json:
         from model.evaluation import json_safe
         print(json.dumps(json_safe({**meta, "statistics": [{**dataclasses.asdict(s), "values": list(s.values), "n": s.n}

@@ -153,3 +153,37 @@ def test_compare_names_an_unknown_study_and_asks_for_configs(tmp_path, capsys):
     assert "invalid choice: 'nope'" in capsys.readouterr().err
     assert main(["compare", "--data", "d", "--test-data", "d", "--max-steps", "1", "-o", str(tmp_path / "o")]) == 2
     assert "name the configs to compare, or a --study" in capsys.readouterr().err
+
+
+def test_a_study_with_its_rows_given_writes_its_table_and_equal_flop_shares_out_the_steps(tmp_path, capsys):
+    _write_dataset(tmp_path / "train", ["a_normal", "b_low"], 0)
+    _write_dataset(tmp_path / "test", ["c_low", "c_normal"], 10)
+    e = _config(tmp_path / "e.json", "e")
+    a = _config(tmp_path / "a.json", "a", representation="spike", adf=False, aif=False)
+    out = tmp_path / "cmp"
+    assert main(["compare", "--study", "ablation", "--equal", "flop", "--data", str(tmp_path / "train"),
+                 "--test-data", str(tmp_path / "test"), "--configs", f"E={e}", f"A={a}", "--seeds", "0", "1", "2",
+                 "--max-steps", "2", "--device", "cpu", "--quiet", "--threads", "1", "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    from model.comparison import equal_flop_steps
+    want = equal_flop_steps([("E", load_config(e)), ("A", load_config(a))], 2, "E")
+    assert want["E"] == 2 and want["A"] > 2  # (A) has no LR-Rep, no fusion state: a cheaper step, more of them
+    assert f"equal training FLOP: 2 steps of E -> E 2, A {want['A']}" in err
+    assert read_compute(out / "runs" / "A" / "seed0")["steps"] == want["A"]
+    table = (out / "study_ablation.md").read_text()
+    assert table.startswith("**The ablation at the shipped size (paper Table 4)**")
+    row_b = next(line for line in table.splitlines() if line.startswith("| B |"))
+    assert "n/a" in row_b and "44.15" in row_b  # not run here; the paper's figure beside it
+    assert "| E > A |" in table and "| TFP-21 |" in table  # K = 3 windows of 7 steps
+    meta = json.loads((out / "study_ablation.json").read_text())
+    assert meta["study"] == "ablation" and meta["equal"] == "flop" and meta["costs"]["A"]["steps"] == want["A"]
+
+
+def test_a_baseline_the_window_cannot_take_is_refused_before_any_run_trains(tmp_path, capsys):
+    _write_dataset(tmp_path / "train", ["a_normal"], 0)
+    e = _config(tmp_path / "e.json", "e")  # 7-step windows
+    out = tmp_path / "cmp"
+    assert main(["compare", "--data", str(tmp_path / "train"), "--test-data", str(tmp_path / "train"), "--configs",
+                 f"E={e}", "--baselines", "tfp:205", "--max-steps", "1", "--quiet", "--out", str(out)]) == 2
+    assert "tfp:205: the span must be an odd number of 7-step windows" in capsys.readouterr().err
+    assert not (out / "runs").exists()

@@ -171,7 +171,11 @@ def test_a_baseline_is_a_seedless_method_spec():
 
     from pipelines.compare import baseline_label, baseline_spec
     assert baseline_spec("tfp:205") == "tfp:205" and baseline_label("tfp:205") == "TFP-205"
-    for bad, why in (("lrrep", "a baseline is"), ("x=tfp", "a baseline is"), ("tfp:82", "odd number"),
+    for bad, why in (("lrrep", "a baseline is"), ("x=tfp", "a baseline is"), ("tfp:1_2", "digits"),
                      ("runs/best.pt", "a baseline is")):
         with pytest.raises(argparse.ArgumentTypeError, match=why):
             baseline_spec(bad)
+    # the span is checked against the configs' window once they are read, before any run trains
+    assert baseline_spec("tfp:82") == "tfp:82" and baseline_label("tfp:21", 7) == "TFP-21"
+    with pytest.raises(ValueError, match="odd number"):
+        baseline_label("tfp:82", 41)
