@@ -12,10 +12,9 @@ with a() the PCD alignment shared by both directions and g = conv 2C->C + leaky 
 from __future__ import annotations
 
 import torch
-import torch.nn.functional as F
 from torch import nn
 
-from .blocks import conv3x3, conv_lrelu, double_conv, residual_stack
+from .blocks import conv3x3, conv_lrelu, double_conv, pad_to_multiple, padded_size, residual_stack
 from .config import ModelConfig
 from .lrrep import build_representation
 from .pcd import PCDAlign
@@ -68,18 +67,11 @@ class ReconNet(nn.Module):
         return transform_interval(interval, cfg.interval_transform), last_out, next_out
 
     def padded_size(self, h: int, w: int) -> tuple[int, int]:
-        m = self.cfg.pad_multiple
-        return -(-h // m) * m, -(-w // m) * m
+        return padded_size(h, w, self.cfg.pad_multiple)
 
     def pad(self, x: torch.Tensor) -> torch.Tensor:
-        """Replicate-pad the last two dims up to multiples of pad_multiple (250 -> 252 rows)."""
-        h, w = x.shape[-2:]
-        ph, pw = self.padded_size(h, w)
-        if (ph, pw) == (h, w):
-            return x
-        lead = x.shape[:-2]
-        y = F.pad(x.reshape((-1, 1, h, w)), (0, pw - w, 0, ph - h), mode="replicate")
-        return y.reshape(lead + (ph, pw))
+        """Replicate-pad the last two dims up to multiples of pad_multiple."""
+        return pad_to_multiple(x, self.cfg.pad_multiple)
 
     # ---- per-window pieces ----------------------------------------------------------------
     def encode(self, spikes: torch.Tensor, maps: torch.Tensor | None) -> torch.Tensor:

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import torch
+import torch.nn.functional as F
 from torch import nn
 
 LEAKY_SLOPE = 0.1  # every leaky ReLU in the authors' network
@@ -43,3 +44,20 @@ class ResidualBlock(nn.Module):
 def residual_stack(channels: int, num_blocks: int) -> nn.Sequential:
     """The "16-layer ResNet" f (paper, Fusion and Reconstruction): num_blocks residual blocks."""
     return nn.Sequential(*(ResidualBlock(channels) for _ in range(num_blocks)))
+
+
+def padded_size(h: int, w: int, multiple: int) -> tuple[int, int]:
+    """(h, w) rounded up to multiples of `multiple` (the stride-2 levels of PCD or a U-Net need it)."""
+    return -(-h // multiple) * multiple, -(-w // multiple) * multiple
+
+
+def pad_to_multiple(x: torch.Tensor, multiple: int) -> torch.Tensor:
+    """Replicate-pad the last two dims up to multiples of `multiple` (250 -> 252 rows for 4); the
+    networks crop their output back, so padding never reaches a frame."""
+    h, w = x.shape[-2:]
+    ph, pw = padded_size(h, w, multiple)
+    if (ph, pw) == (h, w):
+        return x
+    lead = x.shape[:-2]
+    y = F.pad(x.reshape((-1, 1, h, w)), (0, pw - w, 0, ph - h), mode="replicate")
+    return y.reshape(lead + (ph, pw))

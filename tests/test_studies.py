@@ -9,25 +9,16 @@ import sys
 from pathlib import Path
 
 import pytest
-import torch
 
 sys.path.insert(0, str(Path(__file__).parent))
 
-from test_targets_compare import _config, _write_dataset  # noqa: E402
+from test_targets_compare import _config, _one_thread, _write_dataset  # noqa: E402,F401  (_one_thread: autouse)
 
 from model.comparison import COMPUTE_FILE, read_compute, seed_stat  # noqa: E402
 from model.config import load_config  # noqa: E402
 from model.flops import network_cost  # noqa: E402
 from model.studies import STUDIES, get_study, ordering_verdict, study_markdown  # noqa: E402
 from pipelines.cli import main  # noqa: E402
-
-
-@pytest.fixture(autouse=True)
-def _one_thread():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
 
 
 # ---- configs on a base ------------------------------------------------------------------------

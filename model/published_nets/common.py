@@ -19,6 +19,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from ..blocks import pad_to_multiple, padded_size
 from ..config import ModelConfig
 
 #: ModelConfig's default representation, taken as "the net's own" (configs name it explicitly).
@@ -60,18 +61,11 @@ class PublishedNet(nn.Module):
         return None if m is None else m.reshape(spikes.shape[0], 1, *spikes.shape[-2:])
 
     def padded_size(self, h: int, w: int) -> tuple[int, int]:
-        m = self.cfg.pad_multiple
-        return -(-h // m) * m, -(-w // m) * m
+        return padded_size(h, w, self.cfg.pad_multiple)
 
     def pad(self, x: torch.Tensor) -> torch.Tensor:
         """Replicate-pad the last two dims up to multiples of pad_multiple."""
-        h, w = x.shape[-2:]
-        ph, pw = self.padded_size(h, w)
-        if (ph, pw) == (h, w):
-            return x
-        lead = x.shape[:-2]
-        y = F.pad(x.reshape((-1, 1, h, w)), (0, pw - w, 0, ph - h), mode="replicate")
-        return y.reshape(lead + (ph, pw))
+        return pad_to_multiple(x, self.cfg.pad_multiple)
 
     def check_input(self, spikes: torch.Tensor) -> None:
         if spikes.dim() != 5:
