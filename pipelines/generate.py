@@ -113,6 +113,7 @@ def run(args: argparse.Namespace) -> int:
         report = generate(jobs, args.out, workers=args.workers, ray_address=args.ray,
                           info={"kind": args.kind, "preset": preset.to_dict(), "seed": args.seed},
                           overwrite_stale=args.overwrite, show_progress=not args.quiet, check=args.check,
+                          estimate_time=args.estimate_time,
                           command="spikesim " + shlex.join(sys.argv[1:]), device=device)
     except Terminated as exc:
         print(f"spikesim generate: {exc}: the scenes in progress were removed and finished ones kept; "
@@ -236,6 +237,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "when it was written (default: sizes only, which catches deleted and truncated files); "
                         "damaged scenes are rebuilt")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
+    est = p.add_mutually_exclusive_group()
+    est.add_argument("--estimate", dest="estimate_time", action="store_true", default=None,
+                     help="calibrate and estimate the time before starting even for a small plan (default: for "
+                          "plans of 2,000 renders or more; a few seconds)")
+    est.add_argument("--no-estimate", dest="estimate_time", action="store_false",
+                     help="start at once, without the calibration")
     p.add_argument("--json", action="store_true", help="print the settings and the run's report as JSON")
     p.set_defaults(func=run)
     v = sub.add_parser("verify", help="check a dataset against its manifest", epilog=VERIFY_EPILOG,

@@ -21,7 +21,7 @@ import threading
 import time
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Iterator, Sequence
 
 import numpy as np
 
@@ -292,14 +292,19 @@ def _remove_debris(root: Path, jobs: list[SceneJob]) -> None:
 
 def generate(jobs: list[SceneJob], root: str | Path, workers: int | None = None, ray_address: str | None = None,
              info: dict[str, Any] | None = None, overwrite_stale: bool = False, show_progress: bool = True,
-             check: bool = False, command: str | None = None, device: str = "auto") -> dict[str, Any]:
+             check: bool = False, command: str | None = None, device: str = "auto",
+             estimate_time: bool | None = None) -> dict[str, Any]:
     """Run the jobs that are not done yet, then write the manifest from the scenes that pass their
     checks. `check` hashes every file of the finished scenes (default: sizes only). Returns a report.
 
     The output root is locked for the run (`command` is recorded for a second run's error); an
     existing manifest.json that this package did not write is refused, not overwritten. A run that
     fails removes the output folder again if it created it and left nothing in it; SIGTERM stops
-    it like Ctrl-C (`Terminated`): the scenes in progress are removed, finished ones kept."""
+    it like Ctrl-C (`Terminated`): the scenes in progress are removed, finished ones kept.
+
+    Before the jobs start it logs the renders planned and, for a plan of ESTIMATE_MIN_RENDERS or more
+    (estimate_time None), always (True) or never (False), a time estimate from a calibration on the
+    first job (spikesim.generation.estimate)."""
     root = Path(root)
     names = [j.name for j in jobs]
     if len(set(names)) != len(names):
@@ -319,6 +324,11 @@ def generate(jobs: list[SceneJob], root: str | Path, workers: int | None = None,
             todo, rebuilt = _jobs_to_run(jobs, root, overwrite_stale, check, listed)
             log.info("%d scene(s) planned, %d already complete, %d to generate in %s",
                      len(jobs), len(jobs) - len(todo), len(todo), root)
+            if todo and estimate_time is not False and ray_address is None:
+                from spikesim.generation.estimate import estimate
+                est = estimate(todo, local_workers(todo, workers, device), device,
+                               calibrate_at=0 if estimate_time else None)
+                log.info("%s", est.summary())
             t0 = time.perf_counter()
             results = _run_jobs(todo, root, workers, ray_address, show_progress, device)
             fresh = {j.name for j in todo}
@@ -342,6 +352,13 @@ def generate(jobs: list[SceneJob], root: str | Path, workers: int | None = None,
             "seconds": time.perf_counter() - t0, "manifest": str(manifest), "saturation": saturation}
 
 
+def local_workers(todo: Sequence[SceneJob], workers: int | None, device: str) -> int:
+    """The processes a local run uses: as asked, else one per core; one process feeds a GPU best."""
+    if workers is not None:
+        return workers
+    return 1 if resolve_device(device) == "cuda" else max(1, min(len(todo), os.cpu_count() or 1))
+
+
 def _run_jobs(todo: list[SceneJob], root: Path, workers: int | None, ray_address: str | None, show_progress: bool,
               device: str) -> list[dict[str, Any]]:
     """Run `todo` locally or on Ray; on any failure, once the local workers have ended, what the
@@ -351,8 +368,7 @@ def _run_jobs(todo: list[SceneJob], root: Path, workers: int | None, ray_address
     from spikesim.generation.pool import generate_local, generate_ray
     if ray_address is not None:  # tasks on other machines cannot be stopped from here: each cleans up itself
         return generate_ray(todo, root, ray_address, show_progress, device)
-    if workers is None:  # one process per core; one process feeds a GPU best
-        workers = 1 if resolve_device(device) == "cuda" else min(len(todo), os.cpu_count() or 1)
+    workers = local_workers(todo, workers, device)
     try:
         return generate_local(todo, root, workers, show_progress, device)
     except BaseException:

@@ -1,0 +1,186 @@
+"""How long a generation will take, said before it starts: the renders it plans, counted from the
+jobs, and a time from a short calibration on one of its own scenes.
+
+Rendering is 96-99 % of generation at the paper's size (docs/tradeoff.md), and a render's cost is
+a fixed part (scene traversal, launch, readback: about 30 ms at 400 x 250 on the 2-core machine)
+plus a part that grows with samples x pixels. The calibration renders one step of the first job at
+its frame spp and one at its ground-truth spp (after a warm-up render that pays Dr.Jit's kernel
+compilation), solves those two costs, and times the sensor on a few steps of that frame; each job's
+time is then its frame renders, ground-truth renders and pixel-steps at those rates, scaled by its
+pixels, and the jobs are shared out over the workers, largest first. It costs a few seconds, so it
+runs only for plans large enough to be worth estimating (ESTIMATE_MIN_RENDERS).
+"""
+from __future__ import annotations
+
+import logging
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Sequence
+
+from spikesim.keyframes import keyframe_count
+
+if TYPE_CHECKING:
+    from spikesim.generation.plan import SceneJob
+
+log = logging.getLogger("spikesim.generate")
+
+#: Plans with fewer renders than this start without an estimate: the calibration (a few seconds)
+#: would be a large part of their time. The paper's LLR plans 8,820 renders, its RLLR 100,000+.
+ESTIMATE_MIN_RENDERS = 2000
+SENSOR_CALIBRATION_STEPS = 64
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Costs measured on one scene: a render's fixed seconds and seconds per sample per pixel, and
+    the sensor's seconds per pixel-step."""
+
+    scene: str
+    pixels: int
+    startup_s: float
+    """Per job: loading its scene and compiling its kernels (the first render)."""
+    fixed_s: float
+    per_sample_pixel_s: float
+    sensor_per_pixel_step_s: float
+
+    def render_s(self, spp: int, pixels: int) -> float:
+        return self.fixed_s + self.per_sample_pixel_s * spp * pixels
+
+
+@dataclass(frozen=True)
+class PlannedWork:
+    """One job's renders and pixel-steps."""
+
+    name: str
+    frame_renders: int
+    gt_renders: int
+    spp: int
+    gt_spp: int
+    pixels: int
+    steps: int
+
+    def seconds(self, cal: Calibration) -> float:
+        return (cal.startup_s + self.frame_renders * cal.render_s(self.spp, self.pixels)
+                + self.gt_renders * cal.render_s(self.gt_spp, self.pixels)
+                + self.steps * self.pixels * cal.sensor_per_pixel_step_s)
+
+
+def _render_spp(job: "SceneJob") -> tuple[int, int]:
+    from spikesim.render_settings import RenderSettings
+    settings = RenderSettings.from_dict(job.render)
+    if job.quality is not None:
+        from spikesim.quality import QualitySettings
+        settings = settings.replace(**QualitySettings.from_name(job.quality).render_kwargs())
+    return int(settings.spp), int(settings.gt_spp)
+
+
+def planned_work(job: "SceneJob") -> PlannedWork:
+    """The renders a job will make (frames at its keyframe spacing, ground truth), as run_job
+    counts them; a built-in pattern renders nothing."""
+    pixels = int(job.camera["height"]) * int(job.camera["width"])
+    if job.source.get("type") == "pattern":
+        return PlannedWork(job.name, 0, 0, 0, 0, pixels, job.num_steps)
+    spp, gt_spp = _render_spp(job)
+    return PlannedWork(job.name, keyframe_count(job.num_steps, job.keyframe_every), len(job.gt_steps), spp, gt_spp,
+                       pixels, job.num_steps)
+
+
+def calibrate(job: "SceneJob", device: str = "auto") -> Calibration:
+    """Time one job's renders and sensor (a few seconds); see the module docstring."""
+    import numpy as np
+
+    from spikesim.camera import SpikeCamera
+    from spikesim.generation.job import _FrameSource
+    from spikesim.simulate import Simulator
+
+    work = planned_work(job)
+    with tempfile.TemporaryDirectory(prefix="spikesim-calibrate-") as tmp:
+        t0 = time.perf_counter()
+        source = _FrameSource(job, Path(tmp), device)
+        renderer = source.renderer
+        fixed, per = 0.0, 0.0
+        if renderer is not None:
+            renderer.render_step(0, spp=1)  # warm-up: the scene's kernels compile on the first render
+        startup = time.perf_counter() - t0
+        if renderer is not None:
+            times = {}
+            for spp in sorted({1, max(work.spp, 1), max(work.gt_spp, 1)}):
+                t0 = time.perf_counter()
+                renderer.render_step(1, spp=spp)
+                times[spp] = time.perf_counter() - t0
+            lo, hi = min(times), max(times)
+            if hi > lo:  # two sample counts: the fixed part and the part that grows with samples
+                per = max(0.0, (times[hi] - times[lo]) / ((hi - lo) * work.pixels))
+                fixed = max(0.0, times[lo] - per * lo * work.pixels)
+            else:
+                fixed = times[lo]
+            frame = np.asarray(renderer.render_step(0, spp=1), dtype=np.float32) * np.float32(source.scale)
+        else:
+            frame = np.full((job.camera["height"], job.camera["width"]), 0.1, np.float32)
+        sim = Simulator(SpikeCamera.from_dict(job.camera), seed=job.seed)
+        for _ in sim.stream(iter([frame] * 8)):  # warm-up: the sensor kernel compiles
+            pass
+        t0 = time.perf_counter()
+        for _ in sim.stream(iter([frame] * SENSOR_CALIBRATION_STEPS)):
+            pass
+        sensor = (time.perf_counter() - t0) / (SENSOR_CALIBRATION_STEPS * work.pixels)
+    return Calibration(job.name, work.pixels, startup, fixed, per, sensor)
+
+
+def share_out(seconds: Sequence[float], workers: int) -> float:
+    """Wall seconds of jobs run by `workers` processes, each taking the next job when free (largest
+    first: the order that bounds the finish best)."""
+    free = [0.0] * max(1, workers)
+    for s in sorted(seconds, reverse=True):
+        i = free.index(min(free))
+        free[i] += s
+    return max(free) if seconds else 0.0
+
+
+@dataclass(frozen=True)
+class Estimate:
+    renders: int
+    gt_renders: int
+    seconds: float
+    workers: int
+    calibration: Calibration | None
+
+    def summary(self) -> str:
+        what = f"{self.renders:,} frame renders and {self.gt_renders:,} ground-truth renders"
+        if self.calibration is None:
+            return f"plan: {what}; no time estimate for a plan this small (--estimate for one)"
+        c = self.calibration
+        return (f"plan: {what}; estimate {self.seconds / 60:.1f} min on {self.workers} worker(s) "
+                f"(calibrated on {c.scene}: {c.startup_s:.1f} s to load a scene, a render "
+                f"{c.fixed_s * 1e3:.0f} ms + {c.per_sample_pixel_s * 1e9:.1f} ns "
+                f"per sample per pixel, the sensor {c.sensor_per_pixel_step_s * 1e9:.1f} ns per pixel-step; "
+                "other scenes may render faster or slower)")
+
+
+def estimate(jobs: Sequence["SceneJob"], workers: int, device: str = "auto", calibrate_at: int | None = None,
+             calibration: Calibration | None = None) -> Estimate:
+    """The plan's renders and, for a plan of at least `calibrate_at` renders (ESTIMATE_MIN_RENDERS),
+    its wall time from a calibration on its first job."""
+    works = [planned_work(j) for j in jobs]
+    renders, gts = sum(w.frame_renders for w in works), sum(w.gt_renders for w in works)
+    threshold = ESTIMATE_MIN_RENDERS if calibrate_at is None else calibrate_at
+    if calibration is None and (not jobs or renders + gts < threshold):
+        return Estimate(renders, gts, 0.0, workers, None)
+    cal = calibration or calibrate(jobs[0], device)
+    # the calibration rendered with every core; W workers share them, so each job takes about
+    # min(W, cores) times its calibrated time (Dr.Jit's renders scale with cores, measured 1.6-1.9x on 2)
+    import os
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    slow = min(workers, cores)
+    seconds = share_out([w.seconds(cal) * slow for w in works], workers)
+    return Estimate(renders, gts, seconds, workers, cal)
+
+
+def log_estimate(est: Estimate) -> None:
+    log.info("%s", est.summary())
+
+
+__all__ = ["Calibration", "PlannedWork", "Estimate", "ESTIMATE_MIN_RENDERS", "planned_work", "calibrate",
+           "share_out", "estimate"]
