@@ -24,6 +24,9 @@ import numpy as np
 from spikesim.outputs import atomic_write_text, output_folder, writable
 
 MIN_SEEDS = 3
+#: Windows a run is scored on in one pass: the paper's LLR sequences have 21, and a chunk that holds
+#: the whole sequence is the one-shot computation (chunked streaming costs about 1.6x, model/streaming.py).
+EVAL_CHUNK_WINDOWS = 32
 BASELINES = ("tfp", "tfi")
 
 
@@ -340,7 +343,7 @@ def _eval_task(task: EvalTask) -> list[Any]:
 
 
 def evaluate_runs(checkpoints: dict[tuple[str, int], Path], test_scenes: Sequence[Any], window: int,
-                  baselines: Sequence[str] = BASELINES, device: str = "cpu", chunk: int = 8,
+                  baselines: Sequence[str] = BASELINES, device: str = "cpu", chunk: int | None = None,
                   progress: bool = False, jobs: int = 1, test_root: Path | None = None, out: Path | None = None,
                   threads: int = 1) -> list[Any]:
     """evaluate's rows for every run (method names label#seed) and the baselines.
@@ -351,6 +354,8 @@ def evaluate_runs(checkpoints: dict[tuple[str, int], Path], test_scenes: Sequenc
     more configs scores only what is new. jobs > 1 scores that many methods at once, each process
     opening `test_root`."""
     from model.training import data_identity
+    if chunk is None:  # a test sequence in one pass: streaming in chunks would redo the backward half (1.6x)
+        chunk = EVAL_CHUNK_WINDOWS
     if jobs > 1 and test_root is None:
         raise ValueError("evaluate_runs: jobs > 1 needs test_root (each worker process opens the test data)")
     test_id = data_identity(test_scenes, [])
