@@ -160,6 +160,11 @@ def pretrained_label(name: str) -> str:
     return "LR-Rep" if name == PRETRAINED_METHOD else "LR-Rep " + name.removeprefix(PRETRAINED_METHOD + "_")
 
 
+#: The published networks this project builds but ships no weights of (a name -> their CPU config).
+UNSHIPPED_NETWORKS = {"s2i": "cpu_s2i", "spk2imgnet": "cpu_s2i", "wgse": "cpu_wgse", "rsir": "cpu_rsir",
+                      "ssml": "cpu_ssml"}
+
+
 def method_from_spec(spec: str, window: int = 41, chunk: int = 8, device: str = "cpu") -> Method:
     """"tfp", "tfi", "stp", "snm" (the traditional STP and SNM), "black", "mean", "tfp:N" (TFP over
     N steps), "lrrep" (the shipped weights; any
@@ -178,6 +183,11 @@ def method_from_spec(spec: str, window: int = 41, chunk: int = 8, device: str = 
     if body in PRETRAINED:
         return ModelMethod(label or pretrained_label(body), None, chunk, device, pretrained=body)
     path = Path(body.removeprefix("ckpt:"))
+    if not path.is_file() and body.lower() in UNSHIPPED_NETWORKS:
+        config = UNSHIPPED_NETWORKS[body.lower()]
+        raise ValueError(f"method {spec!r}: no weights of {body} ship with this project; train them "
+                         f"(spikesim train --config {config} --data RLLR --out runs/{body.lower()}, or take a run of "
+                         f"`compare --study table1`) and name the checkpoint: {body.upper()}=runs/{body.lower()}/last.pt")
     if not path.is_file():
         raise ValueError(f"method {spec!r}: expected one of {', '.join([*MAP_METHODS, *CLASSIC_METHODS])}, tfp:N, "
                          f"shipped weights "

@@ -178,3 +178,11 @@ def test_a_baseline_the_window_cannot_take_is_refused_before_any_run_trains(tmp_
                  f"E={e}", "--baselines", "tfp:205", "--max-steps", "1", "--quiet", "--out", str(out)]) == 2
     assert "tfp:205: the span must be an odd number of 7-step windows" in capsys.readouterr().err
     assert not (out / "runs").exists()
+
+
+def test_a_published_network_by_name_says_how_to_get_its_weights():
+    from model.methods import method_from_spec
+    with pytest.raises(ValueError, match=r"no weights of s2i ship .*--config cpu_s2i .*S2I=runs/s2i/last.pt"):
+        method_from_spec("s2i")
+    with pytest.raises(ValueError, match="expected one of"):
+        method_from_spec("nonsense")
