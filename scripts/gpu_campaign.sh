@@ -2,9 +2,10 @@
 # Every GPU measurement and a training run, for a lent GPU machine (docs/gpu_campaign.md): installs
 # what the machine lacks from the carried wheel folder (.whl, filled by scripts/gpu_wheels.sh),
 # then runs each stage under its own time box into $OUT (or -o): summary.json, logs.txt, report.md
-# and the trained weights. On the device, from the repository root, in two calls:
-#   bash scripts/gpu_campaign.sh --part 1
-#   bash scripts/gpu_campaign.sh --part 2
+# and the trained weights. On the device, from the repository root, in one call of 9 minutes
+# (part one: the stages in order of value, each later one skipped with its reason when time is short):
+#   bash scripts/gpu_campaign.sh
+# or, for a longer lease, in two calls: --part 1, then --part 2.
 # Rehearsal on the CPU at a tiny size: bash scripts/gpu_campaign.sh --dry-run -o out/campaign
 # The Python is $PYTHON, else this checkout's .venv for --dry-run, else python3 (a GPU image's,
 # which holds CUDA torch). The logic is pipelines/gpu_campaign/; this only picks the interpreter.

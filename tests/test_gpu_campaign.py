@@ -16,7 +16,8 @@ from pathlib import Path
 
 import pytest
 
-from pipelines.gpu_campaign import PARTS, STAGE_NAMES, STATUSES
+from pipelines.gpu_campaign import (DEFAULT_PART, OPTIONAL, PART_DEADLINE_S, PARTS, PROFILES, STAGE_NAMES, STATUSES,
+                                    Options)
 from pipelines.gpu_campaign.outputs import (MAX_FILES, combined_logs, join_weight_parts, out_problems,
                                             write_weights)
 from pipelines.gpu_campaign.stages import install_wheels
@@ -148,7 +149,7 @@ def test_weights_too_large_for_one_file_come_back_as_bf16_and_fp32_parts(dry_run
 @needs_llvm
 def test_a_failing_and_a_hanging_stage_are_recorded_and_later_stages_still_run(tmp_path):
     out, work = tmp_path / "out", tmp_path / "work"
-    proc = _campaign("--dry-run", "-o", str(out), "--work", str(work), "--json", "--quiet",
+    proc = _campaign("--dry-run", "--part", "1", "-o", str(out), "--work", str(work), "--json", "--quiet",
                      "--stages", "install", "gpu_tests", "bench_sensor",
                      "--inject", "install=fail", "--inject", "gpu_tests=timeout", timeout=120)
     assert proc.returncode == 0, proc.stderr[-3000:]
@@ -167,8 +168,144 @@ def test_a_failing_and_a_hanging_stage_are_recorded_and_later_stages_still_run(t
 
 def test_the_parts_cover_every_stage_once_in_order():
     assert sorted(set(PARTS["1"]) | set(PARTS["2"])) == sorted(STAGE_NAMES)
-    for part in PARTS.values():
-        assert list(part) == sorted(part, key=STAGE_NAMES.index)
+    for name in ("1", "2", "all"):  # the two-call parts and `all`: in stage order
+        assert list(PARTS[name]) == sorted(PARTS[name], key=STAGE_NAMES.index)
+    # the one-call part: every stage once, in order of value, the ones run only where time is left last
+    one = PARTS["one"]
+    assert sorted(one) == sorted(STAGE_NAMES)
+    assert one[:7] == ("install", "bench_sensor", "bench_render", "llr", "rllr", "train", "export")
+    assert one[7:] == OPTIONAL["one"] == ("gpu_tests", "evaluate")
+
+
+# ---- the one-call part (part `one`): its plan, its default, its skips -------------------------------
+def test_the_default_part_is_the_one_call_part_with_its_deadline(tmp_path, monkeypatch):
+    from pipelines.cli import build_parser
+    from pipelines.gpu_campaign.cmd import options_from_args
+
+    assert DEFAULT_PART == "one" and PART_DEADLINE_S["one"] == 540
+    args = build_parser().parse_args(["gpu-campaign", "-o", str(tmp_path / "o"), "--work", str(tmp_path / "w")])
+    o = options_from_args(args)
+    assert o.part == "one" and o.deadline_s == 540 and o.profile.name == "gpu" and o.rllr_target == 2
+    assert Options(out=tmp_path / "o", work=tmp_path / "w", profile=PROFILES["gpu"]).part == "one"
+    for part in ("1", "2", "all"):  # the two-call parts keep their 9.25 minutes
+        args = build_parser().parse_args(["gpu-campaign", "-o", str(tmp_path / "o"), "--part", part])
+        assert options_from_args(args).deadline_s == 555
+    args = build_parser().parse_args(["gpu-campaign", "-o", str(tmp_path / "o"), "--deadline-minutes", "8"])
+    assert options_from_args(args).deadline_s == 480  # given, it wins over the part's
+
+
+def test_the_one_call_parts_boxes_and_time_line_fit_its_deadline():
+    """Part one on the GPU: the least boxes of the valued stages fit its 540 s, so does the
+    planned time line (each stage within its box), and even when every stage before training uses
+    its whole box, training and export keep their least."""
+    p, deadline = PROFILES["gpu"], PART_DEADLINE_S["one"]
+    assert deadline <= 540  # 9 minutes of the call's 10
+    boxes, plan = p.boxes_of("one"), p.part_plan_s["one"]
+    valued = [s for s in PARTS["one"] if s not in OPTIONAL["one"]]
+    assert sum(boxes[s][0] for s in valued) <= deadline
+    assert list(plan) == valued and sum(plan.values()) <= deadline
+    for s in valued:
+        least, most = boxes[s]
+        assert least <= plan[s] <= most, s
+    before_train = valued[:valued.index("train")]
+    assert sum(boxes[s][1] for s in before_train) + boxes["train"][0] + boxes["export"][0] <= deadline
+    assert 60 <= boxes["rllr"][0] <= boxes["rllr"][1] <= 90 and p.part_rllr_count["one"] in (1, 2)
+    # training's box is what is left but export's least: the plan gives it exactly that
+    assert plan["train"] <= deadline - sum(plan[s] for s in before_train) - boxes["export"][0]
+    # the two-call parts keep the profile's own boxes
+    assert p.boxes_of("1") == p.boxes == p.boxes_of("2")
+
+
+def test_a_stage_is_skipped_with_its_reason_when_time_left_is_below_its_least(tmp_path, monkeypatch):
+    """The runner on a clock that the stages advance (no child process): part one with the GPU
+    profile's boxes. On plan, every valued stage runs and the ones run only where time is left are
+    skipped; when the benches overran (their grace, a slow start), the stages whose least no longer
+    fits are skipped, each with its reason in summary.json and report.md, and the later ones that
+    still fit run."""
+    from pipelines.gpu_campaign import runner, stages
+
+    p = PROFILES["gpu"]
+    plan = p.part_plan_s["one"]
+
+    def run(took: dict[str, float], name: str, overran: dict[str, float] | None = None):
+        clock = [0.0]
+
+        def fake(stage):
+            def work(c):  # a stage takes its seconds, or is cut at the end of its box, unless it overran it
+                clock[0] += (overran or {}).get(stage) or min(took.get(stage, 1.0), max(c.left() - 1.0, 0.0))
+                return {"took": took.get(stage, 1.0)}
+            return work
+
+        monkeypatch.setattr(stages.Campaign, "elapsed", lambda self: clock[0])
+        for stage in STAGE_NAMES:
+            monkeypatch.setitem(runner.STAGES, stage, fake(stage))
+        o = Options(out=tmp_path / name / "out", work=tmp_path / name / "work", profile=p)
+        summary = runner.run_campaign(o)
+        return {s["name"]: s for s in summary["stages"]}, o
+
+    by, o = run(plan, "on_plan")
+    assert all(by[s]["status"] == "ok" for s in plan), {s: by[s]["note"] for s in plan}
+    # training got what was left but export's least
+    assert by["train"]["time_box_s"] == pytest.approx(540 - sum(plan[s] for s in plan if s not in ("train", "export"))
+                                                      - p.boxes_of("one")["export"][0], abs=0.5)
+    for s in OPTIONAL["one"]:
+        assert by[s]["status"] == "skipped" and "runs only where time is left" in by[s]["note"], by[s]
+        assert by[s]["seconds"] == 0 and not by[s]["commands"]
+
+    # the benches ran far past their boxes (the clock jumps: a child slow to die, a machine stalled):
+    # the LLR's and the RLLR's least no longer fit before training's and export's
+    by, o = run(plan, "late", overran={"bench_sensor": 200.0, "bench_render": 150.0})
+    assert by["bench_render"]["status"] == "ok"
+    for s in ("llr", "rllr"):
+        assert by[s]["status"] == "skipped" and by[s]["note"].startswith("not started:"), by[s]
+        assert f"needs {p.boxes_of('one')[s][0]:.0f} s" in by[s]["note"] and "540 s deadline" in by[s]["note"]
+    assert by["train"]["status"] == "ok" and by["export"]["status"] == "ok"
+    summary = json.loads((o.out / "summary.json").read_text())
+    assert {s["name"]: s["status"] for s in summary["stages"]}["llr"] == "skipped"
+    report = (o.out / "report.md").read_text()
+    assert f"| llr | skipped | 0.0 | {by['llr']['note']} |" in report
+
+
+@needs_llvm
+def test_the_one_call_dry_run_runs_every_stage_in_order_of_value(tmp_path):
+    """What a lent GPU now runs, rehearsed: the default part in one call (about 30-45 s here).
+    With the dry run's time to spare, gpu_tests and evaluate run too, after the weights."""
+    out = tmp_path / "out"
+    proc = _campaign("--dry-run", "-o", str(out), "--work", str(tmp_path / "work"), "--json", "--quiet")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    summary = json.loads(proc.stdout)
+    assert summary["part"] == "one" and summary["deadline_s"] == 540 and summary["selected"] == list(PARTS["one"])
+    by = {s["name"]: s for s in summary["stages"]}
+    assert all(by[n]["status"] == "ok" and by[n]["part"] == "one" for n in STAGE_NAMES), \
+        {n: (by[n]["status"], by[n]["note"]) for n in STAGE_NAMES}
+    started = [by[n]["started"] for n in PARTS["one"]]
+    assert started == sorted(started)  # ISO times to the second: run in the part's order
+    assert by["rllr"]["figures"]["scenes"] == 2 and by["train"]["figures"]["precision"] == "bf16"
+    assert "tiny" in by["evaluate"]["figures"]["methods"]
+    assert {f.name for f in _files(out)} == {"summary.json", "logs.txt", "report.md", "weights.pt"}
+    assert out_problems(out) == []
+
+
+@needs_llvm
+def test_the_dry_run_skips_a_stage_that_time_no_longer_fits(tmp_path):
+    """The real command, dry-run profile, part one (the default) with a 6 s deadline: install (an
+    injected hang, cut at 1 s) runs, then gpu_tests and evaluate, which run only where time is left,
+    find less than their least (5 s) and are skipped cleanly, their reason in summary.json and report.md."""
+    out = tmp_path / "out"
+    proc = _campaign("--dry-run", "-o", str(out), "--work", str(tmp_path / "work"), "--json", "--quiet",
+                     "--deadline-minutes", "0.1", "--stages", "install", "gpu_tests", "evaluate",
+                     "--inject", "install=timeout", timeout=60)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["part"] == "one" and summary["deadline_s"] == pytest.approx(6)
+    by = {s["name"]: s for s in summary["stages"]}
+    assert by["install"]["status"] == "timeout"
+    report = (out / "report.md").read_text()
+    for s in ("gpu_tests", "evaluate"):
+        assert by[s]["status"] == "skipped" and by[s]["seconds"] == 0 and not by[s]["commands"], by[s]
+        assert by[s]["note"].startswith("not started:") and "needs 5 s" in by[s]["note"], by[s]["note"]
+        assert f"| {s} | skipped | 0.0 | {by[s]['note']} |" in report
+    assert out_problems(out) == []
 
 
 def test_the_output_check_names_every_file_that_would_not_come_back(tmp_path):

@@ -1,5 +1,6 @@
-"""The GPU campaign: every GPU measurement and a training run, in one or two calls of a lent GPU
-machine (docs/gpu_campaign.md; `spikesim gpu-campaign`, `scripts/gpu_campaign.sh`).
+"""The GPU campaign: every GPU measurement and a training run, in one 9-minute call of a lent GPU
+machine by default (part `one`; parts `1` and `2` split it over two calls for a longer lease)
+(docs/gpu_campaign.md; `spikesim gpu-campaign`, `scripts/gpu_campaign.sh`).
 
 One job per module, each importing only those above it in this list, so data flows one way:
 
@@ -13,10 +14,11 @@ One job per module, each importing only those above it in this list, so data flo
 """
 from __future__ import annotations
 
-from pipelines.gpu_campaign.options import DATA_STAGES, INJECTIONS, PARTS, PROFILES, ROOT, STAGE_NAMES, Options, Profile
+from pipelines.gpu_campaign.options import (DATA_STAGES, DEFAULT_PART, INJECTIONS, OPTIONAL, PART_DEADLINE_S, PARTS,
+                                            PROFILES, ROOT, STAGE_NAMES, Options, Profile)
 from pipelines.gpu_campaign.outputs import join_weight_parts
 from pipelines.gpu_campaign.records import STATUSES, StageRecord
 from pipelines.gpu_campaign.runner import SCHEMA_VERSION, earlier_outputs, run_campaign, summary_of
 
-__all__ = ["Options", "Profile", "PROFILES", "PARTS", "STAGE_NAMES", "STATUSES", "DATA_STAGES", "INJECTIONS", "ROOT",
-           "StageRecord", "run_campaign", "summary_of", "earlier_outputs", "join_weight_parts", "SCHEMA_VERSION"]
+__all__ = ["Options", "Profile", "PROFILES", "PARTS", "DEFAULT_PART", "OPTIONAL", "PART_DEADLINE_S", "STAGE_NAMES",
+           "STATUSES", "DATA_STAGES", "INJECTIONS", "ROOT", "StageRecord", "run_campaign", "summary_of", "earlier_outputs", "join_weight_parts", "SCHEMA_VERSION"]

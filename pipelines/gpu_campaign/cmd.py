@@ -1,4 +1,4 @@
-"""`spikesim gpu-campaign`: every GPU measurement and a training run in one or two device calls
+"""`spikesim gpu-campaign`: every GPU measurement and a training run in one device call (or two)
 (the run is pipelines/gpu_campaign/runner.py, the stages pipelines/gpu_campaign/stages.py;
 docs/gpu_campaign.md says how to run it). This module only parses and prints.
 `scripts/gpu_campaign.sh` runs it as `python -m pipelines.gpu_campaign.cmd`, which needs nothing
@@ -17,8 +17,12 @@ from pipelines.argtypes import seed_int, output_dir, positive_float, positive_in
 
 DESCRIPTION = __doc__ + """
 On a lent GPU, from the repository root, with .whl (scripts/gpu_wheels.sh) carried:
-  scripts/gpu_campaign.sh --part 1      # install, gpu tests, bench, LLR, an RLLR slice (one call)
-  scripts/gpu_campaign.sh --part 2      # train `full` in bf16 on it, evaluate on LLR, weights (a second call)
+  scripts/gpu_campaign.sh               # part one, 9 minutes: install, bench, LLR, 1-2 RLLR scenes,
+                                        # a short `full` bf16 training, its weights; gpu tests and
+                                        # evaluate only where time is left
+For a longer lease, two calls:
+  scripts/gpu_campaign.sh --part 1      # install, gpu tests, bench, LLR, an RLLR slice
+  scripts/gpu_campaign.sh --part 2      # train `full` in bf16 on it, evaluate on LLR, weights
 Rehearsal on the CPU (tiny sizes, the same stages and files):
   scripts/gpu_campaign.sh --dry-run -o out/campaign
 """
@@ -46,8 +50,9 @@ def options_from_args(args: argparse.Namespace):
     # every path absolute before it is handed on: the stages run from the repository, not the user's folder
     out, work = Path(out).resolve(), Path(work).resolve()
     wheels = Path(args.wheels).resolve() if args.wheels else ROOT / ".whl"
+    deadline_s = None if args.deadline_minutes is None else 60.0 * args.deadline_minutes  # None: the part's
     return Options(out=out, work=work, profile=profile, part=args.part, stages=tuple(args.stages or ()),
-                   deadline_s=60.0 * args.deadline_minutes, wheels=wheels, seed=args.seed,
+                   deadline_s=deadline_s, wheels=wheels, seed=args.seed,
                    rllr_count=args.rllr_count, inject=dict(args.inject or ()), fresh=args.fresh)
 
 
@@ -80,7 +85,7 @@ def minutes_in_a_day(text: str) -> float:
 
 
 def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    from pipelines.gpu_campaign.options import PARTS, STAGE_NAMES
+    from pipelines.gpu_campaign.options import DEFAULT_PART, PART_DEADLINE_S, PARTS, STAGE_NAMES
 
     p = sub.add_parser("gpu-campaign", help="every GPU measurement and a training run, each stage time-boxed, "
                                             "into at most 8 files (--dry-run: rehearse on the CPU)",
@@ -92,18 +97,22 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                         "(default: runs/gpu_campaign, runs/gpu_campaign_dry with --dry-run)")
     p.add_argument("--dry-run", action="store_true",
                    help="every stage on the CPU (Dr.Jit LLVM, torch CPU) at a tiny size, into the same files")
-    p.add_argument("--part", choices=list(PARTS), default="all",
-                   help="1: install, gpu tests, bench, LLR, RLLR slice; 2: install, train, evaluate, export "
-                        "(remaking a dataset the machine lost); all: every stage")
+    p.add_argument("--part", choices=list(PARTS), default=DEFAULT_PART,
+                   help="one (default): every stage in one call, in order of value (install, bench, LLR, 1-2 RLLR "
+                        "scenes, train, export; gpu tests and evaluate only where time is left); for a longer lease, "
+                        "1: install, gpu tests, bench, LLR, RLLR slice; 2: install, train, evaluate, export "
+                        "(remaking a dataset the machine lost); all: every stage in stage order")
     p.add_argument("--stages", nargs="+", choices=STAGE_NAMES, metavar="STAGE",
                    help=f"only these of the part's stages ({', '.join(STAGE_NAMES)})")
-    p.add_argument("--deadline-minutes", type=minutes_in_a_day, default=9.25,
+    deadlines = ", ".join(f"{k}: {v / 60:g}" for k, v in PART_DEADLINE_S.items())
+    p.add_argument("--deadline-minutes", type=minutes_in_a_day, default=None,
                    help="wall-clock minutes this call may take in all; each stage's box is cut to leave the later "
-                        "stages their least (a device call is killed at 10: 9.25 leaves a stage's 20 s of grace "
-                        "and the last writes)")
+                        f"stages their least (default by part, {deadlines}: a device call is killed at 10, and "
+                        "this leaves a stage's 20 s of grace and the last writes)")
     p.add_argument("--wheels", type=Path, help="the folder scripts/gpu_wheels.sh filled (default: .whl)")
     p.add_argument("--rllr-count", type=positive_int,
-                   help="RLLR scenes to make (default: 10 on a GPU, 2 with --dry-run; fewer if the box ends first)")
+                   help="RLLR scenes to make (default: 2 in part one, 10 in the others on a GPU, 2 with --dry-run; "
+                        "fewer if the box ends first)")
     p.add_argument("--seed", type=seed_int, default=0, help="seed of the datasets and of training")
     p.add_argument("--fresh", action="store_true",
                    help="forget the stage records an earlier call left in the work folder")

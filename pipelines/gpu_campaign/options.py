@@ -1,6 +1,11 @@
 """What one GPU campaign is asked to do: its stages and parts, the profiles (`gpu` at the paper's
 sizes, `dry-run` on the CPU at a tiny size) and the options of one invocation.
 
+The default part is `one`: every stage in one device call of at most 9 minutes, in order of value
+(the device budget is 15 minutes a task, the machine's start included, so a second call cannot
+follow); parts `1` and `2` split them over two calls, and `all` runs them in stage order, for a
+longer lease.
+
 The bottom of the package (pipelines/gpu_campaign/): it imports nothing of the campaign, and the
 stages (stages.py), the run (runner.py) and the command line (cmd.py) all read it.
 """
@@ -14,10 +19,19 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 STAGE_NAMES = ("install", "gpu_tests", "bench_sensor", "bench_render", "llr", "rllr", "train", "evaluate", "export")
 PARTS = {
+    # one call, in order of value: what only a GPU can measure first, then a short training and its
+    # weights; gpu_tests and evaluate last, only where time is left (OPTIONAL below)
+    "one": ("install", "bench_sensor", "bench_render", "llr", "rllr", "train", "export", "gpu_tests", "evaluate"),
     "1": ("install", "gpu_tests", "bench_sensor", "bench_render", "llr", "rllr"),
     "2": ("install", "llr", "rllr", "train", "evaluate", "export"),
     "all": STAGE_NAMES,
 }
+DEFAULT_PART = "one"
+#: Stages of a part that run only where time is left: no earlier stage keeps its least box for them.
+OPTIONAL = {"one": ("gpu_tests", "evaluate")}
+#: Seconds a call of each part may take by default (`--deadline-minutes`): a device call is killed
+#: at 600; part `one` leaves 60 of them for a stage's grace (20 s), the last writes and the start.
+PART_DEADLINE_S = {"one": 540.0, "1": 555.0, "2": 555.0, "all": 555.0}
 #: Stages whose data a later call reuses instead of measuring again (resumable datasets).
 DATA_STAGES = ("llr", "rllr")
 INJECTIONS = ("fail", "timeout")
@@ -52,19 +66,39 @@ class Profile:
     """Windows per LLR sequence: `tfp:N` takes N = windows x 41 steps (a network sees as much)."""
     boxes: dict[str, tuple[float, float]]
     """Per stage (least seconds worth starting it with, most seconds it may take)."""
+    part_boxes: dict[str, dict[str, tuple[float, float]]]
+    """Per part, the boxes that differ from `boxes` (part `one` fits every stage in one call)."""
+    part_rllr_count: dict[str, int]
+    """Per part, RLLR scenes to make where it differs from `rllr_count`."""
+    part_plan_s: dict[str, dict[str, float]]
+    """Per part, the seconds each stage is planned to take (docs/gpu_campaign.md's time line; the
+    tests check that it fits the boxes and the part's deadline)."""
     catch_up_s: dict[str, float]
     """Most seconds a later call spends remaking a dataset the machine lost between calls."""
     grace_s: float
     """Seconds between SIGTERM and SIGKILL when a stage's box ends (train writes last.pt)."""
+
+    def boxes_of(self, part: str) -> dict[str, tuple[float, float]]:
+        """Every stage's (least, most) seconds in a call of `part`."""
+        return {**self.boxes, **self.part_boxes.get(part, {})}
 
     def __post_init__(self) -> None:
         if self.drjit_device not in ("cuda", "llvm") or self.torch_device not in ("cuda", "cpu"):
             raise ValueError(f"profile {self.name}: devices {self.drjit_device}/{self.torch_device}")
         if set(self.boxes) != set(STAGE_NAMES):
             raise ValueError(f"profile {self.name}: time boxes for {sorted(self.boxes)}, expected {STAGE_NAMES}")
-        for stage, (least, most) in self.boxes.items():
-            if not 0 < least <= most:
-                raise ValueError(f"profile {self.name}: stage {stage}: box ({least}, {most}) must have 0 < least <= most")
+        for part, boxes in {"": self.boxes, **self.part_boxes}.items():
+            if part and (part not in PARTS or not set(boxes) <= set(STAGE_NAMES)):
+                raise ValueError(f"profile {self.name}: part {part!r}: boxes for {sorted(boxes)}")
+            for stage, (least, most) in boxes.items():
+                if not 0 < least <= most:
+                    raise ValueError(f"profile {self.name}: stage {stage}: box ({least}, {most}) must have "
+                                     "0 < least <= most")
+        if not set(self.part_plan_s) <= set(PARTS) or any(not set(p) <= set(STAGE_NAMES)
+                                                          for p in self.part_plan_s.values()):
+            raise ValueError(f"profile {self.name}: part_plan_s for {sorted(self.part_plan_s)}")
+        if not set(self.part_rllr_count) <= set(PARTS) or min(self.part_rllr_count.values(), default=1) < 1:
+            raise ValueError(f"profile {self.name}: part_rllr_count {self.part_rllr_count}")
         if self.rllr_count < 1 or self.llr_windows < 1 or self.grace_s < 0 or self.train_overhead_s < 0:
             raise ValueError(f"profile {self.name}: counts must be positive, times non-negative")
 
@@ -89,6 +123,19 @@ PROFILES: dict[str, Profile] = {
         boxes={"install": (30, 90), "gpu_tests": (30, 120), "bench_sensor": (30, 90), "bench_render": (30, 90),
                "llr": (60, 240), "rllr": (60, 600), "train": (150, 3600), "evaluate": (90, 180),
                "export": (15, 60)},
+        # part `one` (docs/gpu_campaign.md, "On the GPU: one call of 9 minutes"): the expected seconds of docs/gpu_campaign.md
+        # (install 15-30, bench_sensor 30-60, bench_render 20-40, LLR under 2 min) as the mosts, so
+        # that even when every stage before training uses its whole box (60 + 60 + 45 + 135 + 90 =
+        # 390 s) training keeps its least (120 s) and export its own (15 s) within the 540 s; the
+        # RLLR slice is one or two scenes in 60-90 s; training takes what is left but export's least
+        part_boxes={"one": {"install": (30, 60), "bench_sensor": (20, 60), "bench_render": (20, 45),
+                            "llr": (60, 135), "rllr": (60, 90), "train": (120, 3600), "export": (15, 60)}},
+        part_rllr_count={"one": 2},
+        # the time line: the expected seconds above (mid-range, the LLR at its 2-minute goal, one RLLR
+        # scene at a pace that fits 75 s), training then given what is left of 540 but export's least
+        # (540 - 300 - 15 = 225 s of box, of which 220 used), 5 s for the writes between stages
+        part_plan_s={"one": {"install": 30, "bench_sensor": 45, "bench_render": 30, "llr": 120, "rllr": 75,
+                             "train": 220, "export": 15}},
         # a bare machine in part 2 (the first call's datasets lost): the LLR (under 2 min is the
         # goal) and 1-3 RLLR scenes, which leaves training about 3 minutes
         catch_up_s={"llr": 150, "rllr": 90}, grace_s=20.0),
@@ -108,6 +155,7 @@ PROFILES: dict[str, Profile] = {
         train_config="tiny", train_overhead_s=10.0, train_max_minutes=0.1, llr_windows=3,
         boxes={"install": (5, 60), "gpu_tests": (5, 120), "bench_sensor": (5, 120), "bench_render": (5, 120),
                "llr": (5, 180), "rllr": (5, 180), "train": (10, 180), "evaluate": (5, 120), "export": (2, 60)},
+        part_boxes={}, part_rllr_count={}, part_plan_s={},
         catch_up_s={"llr": 180, "rllr": 180}, grace_s=5.0),
 }
 
@@ -119,11 +167,12 @@ class Options:
     out: Path
     work: Path
     profile: Profile
-    part: str = "all"
+    part: str = DEFAULT_PART
     stages: tuple[str, ...] = ()
     """Only these of the part's stages (empty: all of them)."""
-    deadline_s: float = 555.0
-    """Seconds this invocation may take in all (a device call is killed at 600)."""
+    deadline_s: float | None = None
+    """Seconds this invocation may take in all (a device call is killed at 600); None: the part's
+    default (PART_DEADLINE_S: 540 for part `one`)."""
     wheels: Path = ROOT / ".whl"
     seed: int = 0
     rllr_count: int | None = None
@@ -143,6 +192,8 @@ class Options:
             if stage not in STAGE_NAMES or what not in INJECTIONS:
                 raise ValueError(f"--inject {stage}={what}: expected STAGE=fail or STAGE=timeout, STAGE one of "
                                  f"{', '.join(STAGE_NAMES)}")
+        if self.deadline_s is None:
+            object.__setattr__(self, "deadline_s", PART_DEADLINE_S[self.part])
         if not (math.isfinite(self.deadline_s) and self.deadline_s > 0):
             raise ValueError(f"the deadline must be a positive number of seconds, got {self.deadline_s}")
         if self.rllr_count is not None and self.rllr_count < 1:
@@ -156,5 +207,20 @@ class Options:
     def selected(self) -> tuple[str, ...]:
         return tuple(s for s in PARTS[self.part] if not self.stages or s in self.stages)
 
+    @property
+    def boxes(self) -> dict[str, tuple[float, float]]:
+        """Every stage's (least, most) seconds in this call: the profile's, with its part's overrides."""
+        return self.profile.boxes_of(self.part)
 
-__all__ = ["ROOT", "STAGE_NAMES", "PARTS", "DATA_STAGES", "INJECTIONS", "Profile", "PROFILES", "Options"]
+    @property
+    def optional(self) -> tuple[str, ...]:
+        """The stages of this call that run only where time is left (no earlier stage keeps time for them)."""
+        return OPTIONAL.get(self.part, ())
+
+    @property
+    def rllr_target(self) -> int:
+        """RLLR scenes to make: --rllr-count, else the profile's for this part."""
+        return self.rllr_count or self.profile.part_rllr_count.get(self.part, self.profile.rllr_count)
+
+
+__all__ = ["ROOT", "STAGE_NAMES", "PARTS", "DEFAULT_PART", "OPTIONAL", "PART_DEADLINE_S", "DATA_STAGES", "INJECTIONS", "Profile", "PROFILES", "Options"]

@@ -1,24 +1,28 @@
 """Every GPU measurement and a training run, as one campaign that runs the first time on a lent GPU.
 
-A lent machine (docs/gpu_campaign.md) comes rarely, for at most 30 minutes of device time in calls
-of at most 10 minutes, without network and without Dr.Jit, Mitsuba, OpenEXR, colour-science and
-trimesh. So the campaign is written and rehearsed beforehand (`--dry-run`: every stage on the CPU at
-a tiny size, in the default test suite), and on the day it:
+A lent machine (docs/gpu_campaign.md) comes rarely, for 15 minutes of device time a task (its
+start and idle waits included) in calls of at most 10 minutes, without network and without
+Dr.Jit, Mitsuba, OpenEXR, colour-science and trimesh. So the campaign is written and rehearsed
+beforehand (`--dry-run`: every stage on the CPU at a tiny size, in the default test suite), and on
+the day it:
 
 1. installs the missing packages from the wheels carried with the working tree (scripts/gpu_wheels.sh);
 2. runs each stage as a child process under its own time box, cut to what is left of the call's
-   deadline after the time the later stages need, so that one stage that hangs or fails costs only
-   itself: the later ones still run, and each stage's record (status, seconds, figures, log) is
-   written to the output folder as soon as it ends, so a call killed at its limit still returns
-   everything before it;
+   deadline after the least the later stages need, so that one stage that hangs or fails costs only
+   itself: the later ones still run (a stage whose least no longer fits is skipped, the reason in
+   its note), and each stage's record (status, seconds, figures, log) is written to the output
+   folder as soon as it ends, so a call killed at its limit still returns everything before it;
 3. hands back at most 8 files (outputs.py): summary.json, logs.txt, report.md and the trained
    weights.
 
-Stages, in order: install, gpu_tests, bench_sensor, bench_render, llr, rllr, train, evaluate,
-export. Two device calls split them (`--part 1`: up to the datasets; `--part 2`: training,
-evaluation, weights); the second finds the first's datasets and records in the work folder when
-the machine is still the same, and regenerates what is missing when it is not. Each stage is a
-`spikesim` command, so what is measured is what users run.
+Stages: install, gpu_tests, bench_sensor, bench_render, llr, rllr, train, evaluate, export. The
+default part, `one`, runs them in one call of 9 minutes in order of value (install, the benches,
+the LLR, a one- or two-scene RLLR slice, a short training, its weights), then gpu_tests and
+evaluate only where time is left. For a longer lease, `--part 1` (up to the datasets) and `--part
+2` (training, evaluation, weights) split them over two calls, the second finding the first's
+datasets and records in the work folder when the machine is still the same and regenerating what
+is missing when it is not; `--part all` runs them in stage order. Each stage is a `spikesim`
+command, so what is measured is what users run.
 
 This module is the run: it puts the stages (stages.py) in order and in their boxes and writes the
 records (records.py) of an invocation (options.py) into the output folder (outputs.py). Nothing
@@ -65,17 +69,20 @@ def _injected(c: Campaign, what: str) -> dict[str, Any]:
 
 def _run_stage(c: Campaign, name: str, later: Sequence[str], catch_up: bool) -> StageRecord:
     """Run one stage in its box and return its record, whatever happens inside."""
-    least, most = c.p.boxes[name]
+    boxes = c.o.boxes
+    least, most = boxes[name]
     if catch_up:
         most = min(most, c.p.catch_up_s.get(name, most))
-    reserve = sum(c.p.boxes[s][0] for s in later)
+    # the later stages' least boxes are kept for them, but for those that run only where time is left
+    reserve = sum(boxes[s][0] for s in later if s not in c.o.optional)
     box = min(most, c.o.deadline_s - c.elapsed() - reserve)
     rec = StageRecord(name, log="logs.txt", started=_now(), part=c.o.part, time_box_s=round(box, 1))
     c.records[name] = rec
     outputs.atomic_write_text(c.log_path(name), f"stage {name}, started {rec.started}, time box {box:.0f} s\n")
     if box < least:
-        rec.note = (f"not started: {max(box, 0):.0f} s left of the deadline after the {reserve:.0f} s the later "
-                    f"stages need, and it needs {least:.0f} s")
+        kept = f" after the {reserve:.0f} s the later stages need" if reserve else ""
+        rec.note = (f"not started: {max(box, 0):.0f} s left of the {c.o.deadline_s:.0f} s deadline{kept}, and it "
+                    f"needs {least:.0f} s{' (it runs only where time is left)' if name in c.o.optional else ''}")
         return rec
     c.current, c.box_end = rec, time.monotonic() + box
     t = time.monotonic()
