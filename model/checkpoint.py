@@ -69,11 +69,27 @@ def atomic_torch_save(obj: Any, path: str | Path) -> None:
         path.parent.mkdir(parents=True, exist_ok=True)
 
     def write(f: BinaryIO) -> None:
-        torch.save(obj, f)
+        try:
+            torch.save(obj, f)
+        except RuntimeError as exc:  # torch's zip writer reports a short write (a full disk) as a RuntimeError
+            raise OSError(_write_errno(path.parent), f"writing the checkpoint failed ({_first_line(exc)})",
+                          str(path)) from exc
         f.flush()
         os.fsync(f.fileno())
 
     atomic_write_file(path, write)
+
+
+def _write_errno(folder: Path) -> int:
+    """ENOSPC where the folder's file system has (next to) no room left, else EIO."""
+    import errno
+    try:
+        st = os.statvfs(folder)
+        if st.f_bavail * st.f_frsize < (1 << 20):
+            return errno.ENOSPC
+    except OSError:
+        pass
+    return errno.EIO
 
 
 def save_checkpoint(path: str | Path, model: torch.nn.Module, experiment: ExperimentConfig,

@@ -21,6 +21,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from spikesim.config_io import read_small_file
 from spikesim.outputs import atomic_write_text, output_folder, writable
 
 MIN_SEEDS = 3
@@ -93,10 +94,9 @@ def _process_cpu_seconds() -> float:
 
 def read_compute(folder: Path) -> dict[str, Any]:
     """A run's compute record ({} when it has none: trained before the record existed)."""
-    path = folder / COMPUTE_FILE
     try:
-        data = json.loads(path.read_text())
-    except (OSError, ValueError):
+        data = json.loads(read_small_file(folder / COMPUTE_FILE, "a run's compute record"))
+    except (OSError, ValueError):  # none, damaged, or not a regular file (a FIFO is not read)
         return {}
     return data if isinstance(data, dict) else {}
 
@@ -118,7 +118,7 @@ def _same_run(out: Path, run: Any, seed: int, steps: int | None) -> Path | None:
     want = json.loads(json.dumps({k: v for k, v in run.to_dict().items() if k not in ("name", "description")}))
     for cfg in sorted((out / "runs").glob(f"*/seed{seed}/config.json")):
         try:
-            have = json.loads(cfg.read_text())
+            have = json.loads(read_small_file(cfg, "a run's config"))
         except (OSError, ValueError):
             continue
         if isinstance(have, dict) and {k: v for k, v in have.items() if k not in ("name", "description")} == want:
@@ -295,8 +295,8 @@ def _checkpoint_stamp(path: Path) -> list[Any]:
 def _read_scores(path: Path, stamp: list[Any]) -> list[Any] | None:
     """Cached rows of one method on one test set, None unless written for this very checkpoint."""
     from model.evaluation import Score
-    try:
-        data = json.loads(path.read_text())
+    try:  # a damaged cache, or one that is not a regular file (a FIFO is not read), is scored again
+        data = json.loads(read_small_file(path, "a score cache", limit=64 << 20))
         if data.get("checkpoint") != stamp:
             return None
         return [Score(**{k: (math.nan if v is None else v) for k, v in row.items()}) for row in data["rows"]]

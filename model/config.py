@@ -29,6 +29,9 @@ DEFORM_BACKENDS = ("auto", "torch", "torchvision")
 #: or hostile, and building it would run until killed. model.arch.check_model_size also bounds the
 #: weights' memory as a whole.
 MAX_FEATURES, MAX_BLOCKS, MAX_WINDOW, MAX_PAD_MULTIPLE = 4096, 1024, 4095, 1024
+#: Bound on the recipe's counts (epochs, steps, samples per epoch): far past any run, inside the
+#: 64-bit indices torch and NumPy take (a larger count overflowed them with a traceback).
+MAX_COUNT = 2 ** 62
 
 
 def _int_in(value: Any, low: int, high: int) -> bool:
@@ -179,8 +182,8 @@ class TrainConfig:
             v = getattr(self, name)
             if allow_none and v is None:
                 return
-            _require(isinstance(v, int) and not isinstance(v, bool) and v >= 1,
-                     f"train.{name} must be a positive integer, got {v!r}")
+            _require(isinstance(v, int) and not isinstance(v, bool) and 1 <= v <= MAX_COUNT,
+                     f"train.{name} must be a positive integer (at most 2**62), got {v!r}")
         for name in ("num_windows", "crop", "batch_size", "epochs", "start_stride", "val_max_samples",
                      "val_every", "min_validations", "ckpt_every"):
             pos_int(name)
@@ -302,9 +305,18 @@ def _read_with_base(p: Path, chain: tuple[str, ...] = ()) -> dict[str, Any]:
     if key in chain or len(chain) >= MAX_BASE_DEPTH:
         raise ValueError(f"{p}: \"base\" chain {' -> '.join(chain + (key,))} loops or is longer than "
                          f"{MAX_BASE_DEPTH} configs")
-    beside = p.parent / base  # a file named relative to this config's folder; else a name or a path as given
-    parent = _read_with_base(beside if base.endswith(".json") and beside.is_file() else _config_path(base),
-                             chain + (key,))
+    # a file is taken relative to this config's folder (never the folder the command runs in: what a
+    # config means must not depend on it); any other value names a shipped config
+    if base.endswith(".json"):
+        target = p.parent / base
+        if not (target.exists() or target.is_symlink()):
+            raise ValueError(f"{p}: \"base\" {base!r} is not a file beside it ({target} does not exist)")
+    else:
+        target = CONFIG_DIR / f"{base}.json"
+        if not target.exists():
+            raise ValueError(f"{p}: \"base\" {base!r} names no shipped config (known: {', '.join(available_configs())}); "
+                             "a file is named with its .json, relative to this config's folder")
+    parent = _read_with_base(Path(target), chain + (key,))
     merged = {k: v for k, v in parent.items() if k not in ("name", "description")}
     for k, v in data.items():
         if k == "base":

@@ -37,6 +37,7 @@ from .precision import autocast, grad_scaler, resolve_precision
 from .representations import tfp_windows
 from .threads import describe_threads
 from spikesim._optional import require
+from spikesim.config_io import file_problem, read_small_file
 from spikesim.outputs import (append_text, atomic_write_json, atomic_write_text, make_dirs, output_folder, remove,
                               writable)
 
@@ -99,20 +100,39 @@ class _CsvLog:
     """Append-only CSV with a fixed header (kept across resumes); never written through a link,
     and a full disk names the file (spikesim.outputs)."""
 
+    #: A run's log is a row per step: 100 MiB is millions of steps; a larger "log" is not one.
+    LIMIT = 100 << 20
+
     def __init__(self, path: Path, fields: Sequence[str]) -> None:
         self.path, self.fields = path, list(fields)
-        if not path.exists():
+        if not (path.exists() or path.is_symlink()):
             atomic_write_text(path, _csv_text([self.fields]))
+        else:
+            problem = file_problem(path)
+            if problem is not None:  # a FIFO would block the first append forever
+                raise ValueError(f"{path} {problem}; a run's log is a regular file: remove it to start a fresh log")
 
     def write(self, row: dict[str, Any]) -> None:
         append_text(self.path, _csv_text([[row.get(k, "") for k in self.fields]]))
 
     def keep_steps_up_to(self, step: int) -> None:
         """Drop rows a cut run wrote after its last checkpoint (the resumed run writes them again),
-        replacing the file whole."""
-        with self.path.open(newline="") as f:
-            rows = list(csv.reader(f))
-        kept = rows[:1] + [r for r in rows[1:] if int(r[self.fields.index("step")]) <= step]
+        replacing the file whole. A log that is not this run's CSV (another header, a row without
+        a step number) is refused, naming it, rather than appended to."""
+        text = read_small_file(self.path, "the run's log", limit=self.LIMIT)
+        rows = list(csv.reader(io.StringIO(text, newline="")))
+        damaged = f"{self.path} is damaged"
+        fix = "remove it (the checkpoints keep the run; a fresh log starts) or restore it"
+        if not rows or rows[0] != self.fields:
+            raise ValueError(f"{damaged}: its header is {rows[0] if rows else 'missing'}, expected {self.fields}; {fix}")
+        at = self.fields.index("step")
+        kept = rows[:1]
+        for n, r in enumerate(rows[1:], start=2):
+            try:
+                if int(r[at]) <= step:
+                    kept.append(r)
+            except (IndexError, ValueError):
+                raise ValueError(f"{damaged}: line {n} has no step number ({','.join(r)[:60]!r}); {fix}") from None
         atomic_write_text(self.path, _csv_text(kept))
 
 

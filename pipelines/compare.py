@@ -34,7 +34,7 @@ from model.comparison import (BASELINES, COMPARE_FILES, MIN_SEEDS, SeedStat, agg
                               check_samples, difference_holds, evaluate_runs, markdown, run_costs, run_dir, run_name,
                               seed_stat, steps_per_run, train_seeds, write_comparison)
 from model.threads import set_cpu_threads
-from pipelines.argtypes import add_threads_argument, nonnegative_int, output_dir, positive_float, positive_int
+from pipelines.argtypes import add_threads_argument, output_dir, positive_float, positive_int, seed_int
 
 def config_spec(text: str) -> tuple[str, Any]:
     """argparse type: LABEL=CONFIG or CONFIG (a named config or a JSON file); (label, config)."""
@@ -45,10 +45,16 @@ def config_spec(text: str) -> tuple[str, Any]:
     except (OSError, ValueError, TypeError) as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
     label = label or exp.name
-    if not label or any(c in label for c in "/\\#") or label.startswith(".") or label.upper().startswith("ALL"):
-        raise argparse.ArgumentTypeError(f"{text!r}: a label is a plain name (no /, \\ or #, not starting "
-                                         "with a dot or ALL)")
+    _check_label(text, label)
     return label, exp
+
+
+def _check_label(text: str, label: str) -> None:
+    """A label names a run's folder and a table's column: a plain name, printable, no |."""
+    if (not label or any(c in label for c in "/\\#|") or label.startswith(".") or label.upper().startswith("ALL")
+            or any(not c.isprintable() for c in label)):
+        raise argparse.ArgumentTypeError(f"{text!r}: a label is a plain, printable name (no /, \\, # or |, not "
+                                         "starting with a dot or ALL)")
 
 
 def data_spec(text: str) -> tuple[str, Path]:
@@ -57,9 +63,7 @@ def data_spec(text: str) -> tuple[str, Path]:
     path = Path(root)
     if not label:
         return "", path  # unlabelled: one dataset for every config, or named by its folder (cmd_compare)
-    if any(c in label for c in "/\\#") or label.startswith(".") or label.upper().startswith("ALL"):
-        raise argparse.ArgumentTypeError(f"{text!r}: a label is a plain name (no /, \\ or #, not starting "
-                                         "with a dot or ALL)")
+    _check_label(text, label)
     return label, path
 
 
@@ -128,9 +132,10 @@ def cmd_compare(args: argparse.Namespace) -> int:
     if by_data:
         args.configs = [(label, args.configs[0][1]) for label in data]
     labels = [label for label, _ in args.configs]
-    if len(set(labels)) != len(labels):
-        raise ValueError(f"--configs: labels must be unique, got {labels}; name them with LABEL=CONFIG")
-    taken = sorted(set(labels) & {baseline_label(b) for b in args.baselines})
+    if len({label.casefold() for label in labels}) != len(labels):  # folders and columns differ in case only
+        raise ValueError(f"--configs: labels must be unique (case aside), got {labels}; name them with LABEL=CONFIG")
+    named = {baseline_label(b).casefold(): baseline_label(b) for b in args.baselines}
+    taken = sorted(label for label in labels if label.casefold() in named)
     if taken:
         raise ValueError(f"--configs: label(s) {', '.join(taken)} name a baseline; choose others with LABEL=CONFIG")
     windows = {exp.model.window for _, exp in args.configs}
@@ -225,7 +230,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                    help="runs trained (and scored) at once, each in its own process with --threads / jobs torch "
                         "threads (default 1; 2 on a 2-core machine: one thread each scales better than two threads "
                         "on one run)")
-    p.add_argument("--seeds", nargs="+", type=nonnegative_int, default=[0, 1, 2],
+    p.add_argument("--seeds", nargs="+", type=seed_int, default=[0, 1, 2],
                    help=f"training seeds, at least {MIN_SEEDS} (default: 0 1 2)")
     length = p.add_mutually_exclusive_group(required=True)
     length.add_argument("--max-steps", type=positive_int,

@@ -242,7 +242,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                      help="calibrate and estimate the time before starting even for a small plan (default: for "
                           "plans of 2,000 renders or more; a few seconds)")
     est.add_argument("--no-estimate", dest="estimate_time", action="store_false",
-                     help="start at once, without the calibration")
+                     help="start at once, without the calibration (default: calibrate for plans of 2,000 renders or more)")
     p.add_argument("--json", action="store_true", help="print the settings and the run's report as JSON")
     p.set_defaults(func=run)
     v = sub.add_parser("verify", help="check a dataset against its manifest", epilog=VERIFY_EPILOG,

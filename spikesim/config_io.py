@@ -76,7 +76,12 @@ def read_small_file(path: str | Path, what: str, limit: int = SMALL_FILE_LIMIT) 
 def check_numbers(data: Any, where: str, finite: bool = True, _field: str = "") -> None:
     """Refuse integers of more than MAX_INT_DIGITS digits and (with `finite`) NaN or infinite
     numbers anywhere in parsed JSON/TOML, naming the field (`a.b[2]`): no setting needs them, and
-    a 400-digit integer overflows every float conversion after it."""
+    a 400-digit integer overflows every float conversion after it. Data nested deeper than
+    MAX_NESTING (a damaged or hostile checkpoint's stored config) is refused first: walking it
+    would exhaust the interpreter's recursion."""
+    if not _field and nesting_depth(data) > MAX_NESTING:
+        raise ValueError(f"{where}: nested deeper than {MAX_NESTING} levels; no setting nests that deep "
+                         "(the file is damaged or not a config)")
     if isinstance(data, dict):
         for k, v in data.items():
             check_numbers(v, where, finite, f"{_field}.{k}" if _field else str(k))

@@ -37,12 +37,16 @@ def test_a_config_on_a_base_takes_its_fields_and_overrides_some(tmp_path):
 @pytest.mark.parametrize("text, msg", [
     ('{"name": "x", "base": "x.json", "model": {}}', "loops"),
     ('{"name": "x", "base": 3, "model": {}}', "must name a config"),
-    ('{"name": "x", "base": "no_such_config", "model": {}}', "no config 'no_such_config'"),
+    ('{"name": "x", "base": "no_such_config", "model": {}}', "x.json: \"base\" 'no_such_config' names no shipped"),
+    ('{"name": "x", "base": "y.json", "model": {}}', "x.json: \"base\" 'y.json' is not a file beside it"),
 ])
-def test_a_bad_base_is_refused_with_its_reason(tmp_path, text, msg):
-    (tmp_path / "x.json").write_text(text)
+def test_a_bad_base_is_refused_with_its_reason(tmp_path, monkeypatch, text, msg):
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "sub" / "x.json").write_text(text)
+    (tmp_path / "y.json").write_text('{"name": "y", "model": {"num_features": 8}}')
+    monkeypatch.chdir(tmp_path)  # a y.json in the folder the command runs in is not the one beside x.json
     with pytest.raises((ValueError, FileNotFoundError), match=msg):
-        load_config(tmp_path / "x.json")
+        load_config(tmp_path / "sub" / "x.json")
 
 
 def test_every_study_config_that_ships_loads_at_the_shipped_size():
@@ -186,3 +190,29 @@ def test_a_published_network_by_name_says_how_to_get_its_weights():
         method_from_spec("s2i")
     with pytest.raises(ValueError, match="expected one of"):
         method_from_spec("nonsense")
+
+
+@pytest.mark.parametrize("argv, msg", [
+    (["--configs", "x|y=tiny"], "a label is a plain, printable name"),
+    (["--configs", "n\nl=tiny"], "a label is a plain, printable name"),
+    (["--configs", "tfp=tiny"], "name a baseline"),
+    (["--configs", "a=tiny", "A=tiny_ablation_a"], "unique (case aside)"),
+    (["--configs", "tiny", "--seeds", "0", "1", "100000000000000000000000000000"], "a seed is at most 2**63 - 1"),
+])
+def test_compare_refuses_labels_and_seeds_that_cannot_be(tmp_path, capsys, argv, msg):
+    _write_dataset(tmp_path / "d", ["a_normal"], 0)
+    rc = main(["compare", "--data", str(tmp_path / "d"), "--test-data", str(tmp_path / "d"), "--max-steps", "1",
+               "--quiet", "--out", str(tmp_path / "o"), *argv])
+    assert rc == 2 and msg in capsys.readouterr().err
+    assert not (tmp_path / "o" / "runs").exists()
+
+
+def test_a_score_cache_or_compute_record_that_is_not_a_file_is_not_read(tmp_path):
+    import os
+
+    from model.comparison import _read_scores
+    fifo = tmp_path / "scores.json"
+    os.mkfifo(fifo)
+    assert _read_scores(fifo, [1, 2]) is None  # would block on open without the guard
+    os.mkfifo(tmp_path / COMPUTE_FILE)
+    assert read_compute(tmp_path) == {}
