@@ -85,6 +85,12 @@ class SpanTFPMethod:
         their counts (tfp:205: five maps), so each window is read once; a longer one reads the
         leaving window again, so memory stays at one map."""
         half, total = self.span // self.window // 2, source.num_windows
+        if 2 * half + 1 > total:
+            import logging
+            logging.getLogger("spikesim.methods").warning(
+                "%s: the span (%d steps) is longer than the stream (%d windows of %d steps): each frame averages "
+                "the windows within reach, at most all %d steps", self.name, self.span, total, self.window,
+                total * self.window)
         keep = 2 * half + 1 <= self.KEPT_WINDOWS  # a short span keeps its windows' counts: each read once
         kept: dict[int, torch.Tensor] = {}
         running: torch.Tensor | None = None  # spikes per pixel in windows lo..hi, exact integers

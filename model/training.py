@@ -558,8 +558,10 @@ def _train(experiment: ExperimentConfig, train_scenes: Sequence[Scene], val_scen
     identity = data_identity(train_scenes, val_scenes)
     if resume and saved.get("data_identity") not in (None, identity):
         # best.pt would compare scores from other validation data, and the schedule continue on other samples
-        raise ValueError(f"--resume: {out / 'last.pt'} trained on other data ({saved.get('data_scenes', '?')} scenes) "
-                         f"than given now ({len(train_scenes)} training + {len(val_scenes)} validation scenes); resume "
+        now = f"{len(train_scenes)} training + {len(val_scenes)} validation"
+        what = (f"the same number of scenes ({now}) with other content or frames (a dataset regenerated in place?)"
+                if saved.get("data_scenes") == now else f"{saved.get('data_scenes', '?')} scenes, not the {now} given now")
+        raise ValueError(f"--resume: {out / 'last.pt'} trained on other data: {what}; resume "
                          "with the same --data and --val-data, or start a new run from its weights (--init "
                          f"{out / 'last.pt'})")
     init_record = init_record or saved.get("init_weights")  # a resumed fine-tuning run keeps saying where it began
@@ -582,6 +584,9 @@ def _train(experiment: ExperimentConfig, train_scenes: Sequence[Scene], val_scen
               f"{f' x {dist.world} processes' if dist.world > 1 else ''}, {run.precision}, {len(train_ds)} "
               f"samples/epoch from {len(train_scenes)} scenes, {len(val_ds) if val_ds else 0} validation samples",
               file=sys.stderr)
+        if tc.batch_size > len(train_ds):
+            print(f"[train] the batch size {tc.batch_size} is more than the {len(train_ds)} samples of an epoch: each step "
+                  f"takes those {len(train_ds)} (more samples per epoch with --samples-per-epoch)", file=sys.stderr)
         if val_ds is None:
             print(f"[train] no validation scenes (a scene is never both trained on and validated on, and one scene "
                   f"too short to split in time gives none: give more scenes, longer ones or --val-data): best.pt will "

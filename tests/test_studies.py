@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 import pytest
+import torch
 
 sys.path.insert(0, str(Path(__file__).parent))
 
@@ -216,3 +217,14 @@ def test_a_score_cache_or_compute_record_that_is_not_a_file_is_not_read(tmp_path
     assert _read_scores(fifo, [1, 2]) is None  # would block on open without the guard
     os.mkfifo(tmp_path / COMPUTE_FILE)
     assert read_compute(tmp_path) == {}
+
+
+def test_a_span_longer_than_the_stream_is_said(caplog):
+    from model.methods import method_from_spec
+    from model.streaming import TensorWindows
+    spikes = torch.rand(4, 41, 3, 5) < 0.3
+    with caplog.at_level("WARNING", logger="spikesim.methods"):
+        frames = [f for _, f in method_from_spec("tfp:861").frames(TensorWindows(spikes))]
+    assert "longer than the stream (4 windows of 41 steps)" in caplog.text
+    whole = spikes.float().mean(dim=(0, 1))
+    assert all(torch.allclose(f, whole) for f in frames)  # every frame reaches all 4 windows
