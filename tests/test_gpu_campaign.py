@@ -446,3 +446,14 @@ def test_relative_paths_are_resolved_before_the_stages_run(tmp_path, monkeypatch
                               deadline_minutes=9.0, wheels=Path("wh"), seed=0, rllr_count=None, inject=None, fresh=False)
     o = options_from_args(args)
     assert o.out == tmp_path / "o" and o.work == tmp_path / "scratch" and o.wheels == tmp_path / "wh"
+
+
+def test_the_trained_run_carries_the_token_its_state_records(dry_run):
+    """The run the campaign trains is marked as its own (the token state.json records), so a later
+    call may replace it; a run without that mark is never removed (tests/test_campaign_hostile.py)."""
+    from pipelines.gpu_campaign.stages import RUN_MARKER
+
+    _, work, _ = dry_run
+    token = json.loads((work / "state.json").read_text())["run_token"]
+    assert token and (work / "run" / RUN_MARKER).read_text().strip() == token
+    assert (work / "run" / "best.pt").is_file() or (work / "run" / "last.pt").is_file()

@@ -9,6 +9,8 @@ import dataclasses
 from typing import Any
 
 STATUSES = ("ok", "failed", "skipped", "timeout")
+#: The schema of summary.json and of the work folder's state.json.
+SCHEMA_VERSION = 1
 
 
 @dataclasses.dataclass
@@ -35,4 +37,4 @@ class StageRecord:
         return cls(**{f.name: data[f.name] for f in dataclasses.fields(cls) if f.name in data})
 
 
-__all__ = ["STATUSES", "StageRecord"]
+__all__ = ["STATUSES", "SCHEMA_VERSION", "StageRecord"]

@@ -46,10 +46,9 @@ from typing import Any, Callable, Sequence
 from spikesim import outputs
 from pipelines.gpu_campaign.options import DATA_STAGES, ROOT, STAGE_NAMES, Options
 from pipelines.gpu_campaign.outputs import check_out, combined_logs, file_record, report_markdown
-from pipelines.gpu_campaign.records import STATUSES, StageRecord
-from pipelines.gpu_campaign.stages import STAGES, Campaign, SkipStage, StageFailed, check_command, complete_scenes
-
-SCHEMA_VERSION = 1
+from pipelines.gpu_campaign.records import SCHEMA_VERSION, STATUSES, StageRecord
+from pipelines.gpu_campaign.stages import (STAGES, Campaign, SkipStage, StageFailed, check_command, check_work,
+                                           complete_scenes, read_state_doc)
 #: The files a campaign writes in its output folder, besides the weights (weights*.pt).
 OUT_FILES = ("summary.json", "logs.txt", "report.md")
 
@@ -136,9 +135,10 @@ def _load_state(o: Options) -> dict[str, StageRecord]:
     path = o.work / "state.json"
     if o.fresh or not path.is_file():
         return {}
-    from spikesim.config_io import read_json_object
     try:
-        doc = read_json_object(path, "campaign state")  # a small regular file, bounded nesting
+        doc = read_state_doc(o.work)  # a small regular file, bounded nesting
+        if doc is None:
+            return {}
         if doc.get("schema") != SCHEMA_VERSION or doc.get("mode") != o.profile.name or doc.get("seed") != o.seed:
             return {}  # another kind of campaign ran here: its records do not describe this one
         stages = doc.get("stages", {})
@@ -149,6 +149,17 @@ def _load_state(o: Options) -> dict[str, StageRecord]:
         print(f"[gpu-campaign] {path} is damaged ({str(exc).splitlines()[0][:160]}); its stages run again",
               file=sys.stderr)
         return {}
+
+
+def _load_run_token(o: Options) -> str | None:
+    """The token state.json records for the training runs this campaign made in the work folder
+    (kept with --fresh and across modes: it says whose run/ is, not what the stages measured)."""
+    try:
+        doc = read_state_doc(o.work)
+    except ValueError:
+        return None  # damaged: _load_state says so; a run folder can no longer be told ours
+    token = doc.get("run_token") if doc is not None and doc.get("schema") == SCHEMA_VERSION else None
+    return token if isinstance(token, str) and token else None
 
 
 def _machine() -> dict[str, Any]:
@@ -210,8 +221,8 @@ def write_outputs(c: Campaign, summary: dict[str, Any]) -> dict[str, Any]:
     outputs.atomic_write_text(out / "report.md", report_markdown(summary))
     summary["files"] = [file_record(p) for p in sorted(out.iterdir()) if p.is_file() and p.name != "summary.json"]
     outputs.atomic_write_text(out / "summary.json", json.dumps(summary, indent=2, default=str) + "\n")
-    outputs.atomic_write_text(c.o.work / "state.json", json.dumps(
-        {"schema": SCHEMA_VERSION, "mode": c.p.name, "seed": c.o.seed,
+    outputs.atomic_write_text(outputs.writable(c.o.work, "state.json"), json.dumps(
+        {"schema": SCHEMA_VERSION, "mode": c.p.name, "seed": c.o.seed, "run_token": c.run_token,
          "stages": {s["name"]: s for s in summary["stages"] if s["name"] in c.records or s.get("started")}},
         indent=2, default=str))
     check_out(out)
@@ -223,6 +234,9 @@ def run_campaign(options: Options, progress: Callable[[str], None] | None = None
     rewritten whole, so what a killed call leaves in the output folder is complete up to there."""
     say = progress or (lambda text: None)
     out = options.out
+    # before anything is written or removed: no link on the way to what the campaign writes under
+    # --work, and no folder, FIFO or device where it keeps a file (state.json, a log)
+    check_work(options.work)
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out}: exists and is not a folder")
     if out.is_dir():
@@ -236,8 +250,9 @@ def run_campaign(options: Options, progress: Callable[[str], None] | None = None
             outputs.remove(out, p.name)
     options.work.mkdir(parents=True, exist_ok=True)
     c = Campaign(options)
-    c.logs.mkdir(parents=True, exist_ok=True)
+    outputs.make_dirs(options.work, "logs")
     state = _load_state(options)
+    c.run_token = _load_run_token(options)
     started = _now()
     selected = options.selected
     for i, name in enumerate(selected):

@@ -4,6 +4,10 @@ function of the running `Campaign` that returns its figures, or raises StageFail
 commands (or pytest) as children through `Campaign.command`, which holds them to the stage's box,
 so what is measured is what users run and a stage that hangs is stopped.
 
+Under --work the campaign writes only through `spikesim.outputs` (`check_work` refuses, before
+anything runs, a link on the way to anything it writes there, or a folder or FIFO where it keeps a
+file), and it removes a training run only when its own record says it trained it (`RUN_MARKER`).
+
 It reads the invocation (options.py) and fills the stages' records (records.py); the run
 (runner.py) imports it, never the other way round.
 """
@@ -16,8 +20,10 @@ import math
 import os
 import platform
 import re
+import secrets
 import shlex
 import signal
+import stat
 import subprocess
 import sys
 import tarfile
@@ -25,15 +31,83 @@ import time
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
-from pipelines.gpu_campaign.options import ROOT, Options
+from pipelines.gpu_campaign.options import ROOT, STAGE_NAMES, Options
 from pipelines.gpu_campaign.outputs import write_weights
-from pipelines.gpu_campaign.records import StageRecord
+from pipelines.gpu_campaign.records import SCHEMA_VERSION, StageRecord
 from spikesim import outputs
 
 #: The packages a lent machine lacks (scripts/gpu_wheels.sh), by import name and distribution.
 CARRIED = (("drjit", "drjit"), ("mitsuba", "mitsuba"), ("OpenEXR", "OpenEXR"), ("colour", "colour-science"),
            ("trimesh", "trimesh"))
 WINDOW = 41
+#: What the campaign makes in its work folder: the folders (the datasets and the training run are
+#: written by `spikesim` children, which take the folder they are given as their root and guard
+#: only what lies inside it) and the records.
+WORK_FOLDERS = ("logs", "site", "llr", "rllr", "run", "evaluate", "export")
+STATE_FILE = "state.json"
+#: In a training run the campaign made: the token its state.json records (`Campaign.owns_run`).
+RUN_MARKER = ".gpu_campaign_run"
+
+
+# ---- the work folder ----------------------------------------------------------------------------
+def _not_a(mode: int) -> str | None:
+    """What a file of `mode` is, when it is not a plain file."""
+    for test, what in ((stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a FIFO"), (stat.S_ISCHR, "a character device"),
+                       (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket")):
+        if test(mode):
+            return what
+    return None if stat.S_ISREG(mode) else "not a plain file"
+
+
+def _work_files() -> list[tuple[str, ...]]:
+    """Every file the campaign itself writes, truncates or removes under --work."""
+    logs = [("logs", f"{n}{ext}") for n in (*STAGE_NAMES, "campaign") for ext in (".log", ".stdout")]
+    return [(STATE_FILE,), *logs, ("run", RUN_MARKER)]
+
+
+def check_work(work: Path) -> None:
+    """Refuse, before anything is written, a work folder where the campaign would follow a link or
+    meet something of the wrong kind: a symlink at any of its folders (logs/, the datasets, run/,
+    site/, ...) or files, or on the way to them, would carry its writes, truncations and deletes
+    outside --work (the children it runs take the folder they are given as their root and follow
+    it); a folder, FIFO or device where it keeps a file (state.json, a log) would fail or block
+    after the stages ran. A ValueError names the first such path."""
+    def refuse(path: Path, why: str) -> None:
+        raise ValueError(f"--work {work}: {path}: {why}")
+
+    for parts in [(f,) for f in WORK_FOLDERS] + _work_files():
+        try:
+            for i in range(len(parts)):  # the link itself named, even one that leads outside
+                outputs.check_not_link(work.joinpath(*parts[:i + 1]))
+            path = outputs.writable(work, *parts)  # and nothing that resolves outside
+        except ValueError as exc:
+            raise ValueError(f"--work {work}: {exc}") from None
+        shown = work.joinpath(*parts)
+        try:
+            mode = os.lstat(shown).st_mode
+        except FileNotFoundError:
+            continue
+        except NotADirectoryError:  # a file where a folder on the way should be: named by its own entry
+            continue
+        except OSError as exc:
+            raise outputs.naming(exc, shown) from exc
+        if len(parts) == 1 and parts[0] in WORK_FOLDERS:
+            if not stat.S_ISDIR(mode):
+                refuse(path, f"is {_not_a(mode)}, where the campaign keeps a folder (remove it, or choose another "
+                             "--work)")
+        elif (what := _not_a(mode)) is not None:
+            refuse(shown, f"is {what}, where the campaign keeps a file{' (its records)' if parts == (STATE_FILE,) else ''}"
+                          " (remove it, or choose another --work)")
+
+
+def read_state_doc(work: Path) -> dict[str, Any] | None:
+    """The JSON object in `work`/state.json (a ValueError if it is damaged), None when there is none."""
+    from spikesim.config_io import read_json_object
+
+    path = outputs.writable(work, STATE_FILE)
+    if not path.is_file() or path.is_symlink():
+        return None
+    return read_json_object(path, "campaign state")  # a small regular file, bounded nesting
 
 
 class StageFailed(Exception):
@@ -67,6 +141,9 @@ class Campaign:
         self.records: dict[str, StageRecord] = {}
         self.current: StageRecord | None = None
         self.box_end = math.inf
+        self.run_token: str | None = None
+        """The token state.json records for the training runs this campaign made in --work/run
+        (the run holds it in RUN_MARKER); None until it first trains there."""
 
     # the clock
     def elapsed(self) -> float:
@@ -87,8 +164,41 @@ class Campaign:
         env["PYTHONUNBUFFERED"] = "1"
         return env
 
+    def work_path(self, *parts: str) -> Path:
+        """`parts` under --work, reached without a link on the way (a ValueError naming one)."""
+        return outputs.writable(self.o.work, *parts)
+
     def log_path(self, stage: str) -> Path:
-        return self.logs / f"{stage}.log"
+        return self.work_path("logs", f"{stage}.log")
+
+    def owns_run(self) -> bool:
+        """Whether --work/run is a training run this campaign made: its RUN_MARKER (a plain file,
+        no link on the way) holds the token state.json records. A user's run, or one copied from
+        elsewhere, has no such marker."""
+        if not self.run_token:
+            return False
+        try:
+            marker = self.work_path("run", RUN_MARKER)
+            if marker.is_symlink() or not marker.is_file() or marker.stat().st_size > 1024:
+                return False
+            return marker.read_text(errors="replace").strip() == self.run_token
+        except (OSError, ValueError):
+            return False
+
+    def record_run_token(self) -> None:
+        """Give this work folder's runs a token (kept if it has one) and write it into state.json
+        now, before the run exists, so that even a call killed during training leaves a run the
+        next call recognises as its own."""
+        if not self.run_token:
+            self.run_token = secrets.token_hex(16)
+        try:
+            doc = read_state_doc(self.o.work) or {}
+        except ValueError:
+            doc = {}
+        if doc.get("schema") != SCHEMA_VERSION or not isinstance(doc.get("stages"), dict):
+            doc = {"schema": SCHEMA_VERSION, "mode": self.p.name, "seed": self.o.seed, "stages": {}}
+        doc["run_token"] = self.run_token
+        outputs.atomic_write_text(self.work_path(STATE_FILE), json.dumps(doc, indent=2, default=str))
 
     def note_log(self, text: str, stage: str | None = None) -> None:
         """Append a line to a stage's log (default: the running stage's)."""
@@ -104,10 +214,13 @@ class Campaign:
         argv = [str(a) for a in argv]
         self.current.commands.append(shlex.join(argv))
         self.note_log(f"$ {shlex.join(argv)}   (time box {box:.0f} s)")
-        out_path = self.logs / f"{self.current.name}.stdout"
+        out_parts = ("logs", f"{self.current.name}.stdout")
+        out_path = self.work_path(*out_parts)
         t = time.monotonic()
+        # read back through the descriptor the child wrote, never by name again
         with outputs.open_in_place(self.log_path(self.current.name), "ab") as err, \
-                outputs.open_in_place(out_path, "wb") as out:
+                os.fdopen(outputs.in_place_fd(out_path, os.O_RDWR | os.O_CREAT), "rb+") as out:
+            os.ftruncate(out.fileno(), 0)
             proc = subprocess.Popen(argv, cwd=ROOT, env=self.env(), stdin=subprocess.DEVNULL, stdout=out,
                                     stderr=err, start_new_session=True)
             timed_out = False
@@ -125,8 +238,9 @@ class Campaign:
                 if proc.poll() is None:  # interrupted ourselves: take the child with us
                     _signal_group(proc.pid, signal.SIGKILL)
                     proc.wait()
-        stdout = out_path.read_text(errors="replace")
-        out_path.unlink()
+            out.seek(0)
+            stdout = out.read().decode(errors="replace")
+        outputs.remove(self.o.work, *out_parts)
         seconds = time.monotonic() - t
         self.note_log(f"[stdout]\n{stdout}" if stdout.strip() else "[no stdout]")
         self.note_log(f"[exit status {rc}{', killed at the end of its time box' if timed_out else ''}, {seconds:.1f} s]")
@@ -273,7 +387,7 @@ def stage_install(c: Campaign) -> dict[str, Any]:
 
         def run(argv: list[str]) -> None:
             check_command(c.command(argv, box_s=max(c.left() - 30, 10)), "pip install")
-        figures["installed"] = install_wheels(c.o.wheels, c.site, c.python, run)
+        figures["installed"] = install_wheels(c.o.wheels, outputs.make_dirs(c.o.work, "site"), c.python, run)
         figures["site"] = str(c.site)
         found = probe()
     figures.update(found)
@@ -359,7 +473,7 @@ def _generate_args(c: Campaign) -> tuple[str, ...]:
 
 def stage_llr(c: Campaign) -> dict[str, Any]:
     """The LLR test set (the five scenes under both lights at the paper's size, `balanced`)."""
-    out = c.o.work / "llr"
+    out = c.work_path("llr")  # generate takes it as its root: no link on the way
     result = c.spikesim("generate", "llr", *c.p.llr, *_generate_args(c), "-o", str(out))
     # cut by its box: the scenes complete so far stay usable (evaluate reads them; generation resumes)
     check_command(result, "spikesim generate llr", {"root": str(out), "scenes": len(complete_scenes(out))})
@@ -373,7 +487,7 @@ def stage_rllr(c: Campaign) -> dict[str, Any]:
     one scene first (its time sets the pace), then as many of the rest as the box allows
     (generation resumes, so the second run makes only the new scenes). The time for the paper's
     100 scenes is extrapolated from the seconds per scene."""
-    out = c.o.work / "rllr"
+    out = c.work_path("rllr")
     target = c.o.rllr_target
     runs: list[dict[str, Any]] = []
     count = min(len(complete_scenes(out)) + 1, target)  # one new scene first: its time sets the pace
@@ -427,7 +541,10 @@ def _steady_rate(log: Path) -> dict[str, Any]:
 
 
 def _checkpoint(c: Campaign) -> Path | None:
+    """The checkpoint of the training run this campaign made in --work/run (none in a run it did not)."""
     run = c.o.work / "run"
+    if not c.owns_run():
+        return None
     for name in ("best.pt", "last.pt"):  # best.pt needs a validation scene; last.pt is always written
         if (run / name).is_file():
             return run / name
@@ -437,16 +554,25 @@ def _checkpoint(c: Campaign) -> Path | None:
 def stage_train(c: Campaign) -> dict[str, Any]:
     """The profile's config on the RLLR slice, bf16, its step count planned from the measured step
     rate to fill what is left of the box (`--budget-minutes`), cosine schedule to that step."""
-    run = c.o.work / "run"  # checked first: a folder that is not ours is never removed
-    if run.exists() or run.is_symlink():  # a rerun trains afresh, in a folder an earlier call of this campaign made
-        if not (c.o.work / "state.json").is_file() or not (run / "config.json").is_file():
-            raise StageFailed(f"{run} exists and is not an earlier campaign's training run (no state.json beside it, "
-                              "or no config.json in it): move it, or give another --work")
-        outputs.remove(c.o.work, "run")  # never through a link
+    run = c.work_path("run")  # a link there (or above) is refused, naming it
+    # a run folder is removed only when this campaign's record says it trained it (state.json's
+    # token in the run's marker), and only once training starts; an empty folder is simply used
+    existing = run.is_dir() and any(run.iterdir())
+    ours = existing and c.owns_run()
+    if existing and not ours:
+        raise StageFailed(f"{run} exists and is not an earlier campaign's training run (state.json in {c.o.work} "
+                          f"records no run whose token {run / RUN_MARKER} holds): left as it was; move it, or give "
+                          "another --work")
     data = c.o.work / "rllr"
     scenes = complete_scenes(data)
     if not scenes:
-        raise SkipStage(f"no RLLR scene in {data} (stage rllr made none)")
+        kept = f"; {run} (this campaign's earlier run) left as it was" if ours else ""
+        raise SkipStage(f"no RLLR scene in {data} (stage rllr made none){kept}")
+    if ours:  # a rerun trains afresh
+        outputs.remove(c.o.work, "run")  # never through a link
+    c.record_run_token()  # in state.json before the run exists
+    outputs.make_dirs(c.o.work, "run")
+    outputs.atomic_write_text(c.work_path("run", RUN_MARKER), c.run_token + "\n")
     minutes = max(c.left() - c.p.train_overhead_s, 6.0) * 0.85 / 60
     if c.p.train_max_minutes is not None:
         minutes = min(minutes, c.p.train_max_minutes)
@@ -497,7 +623,7 @@ def stage_evaluate(c: Campaign) -> dict[str, Any]:
     else:
         notes.append("no network trained by this campaign (stage train made no checkpoint): baselines only")
     result = c.spikesim("evaluate", *c.p.evaluate, "--data", str(data), "--methods", *methods, "--json", "--quiet",
-                        "--device", c.p.torch_device, "-o", str(c.o.work / "evaluate"))
+                        "--device", c.p.torch_device, "-o", str(c.work_path("evaluate")))
     check_command(result, "spikesim evaluate")
     doc = _json_of(result.stdout)
     return {"methods": doc["methods"], "groups": doc.get("groups", {}), "method_specs": methods,
@@ -510,7 +636,7 @@ def stage_export(c: Campaign) -> dict[str, Any]:
         raise SkipStage("no checkpoint to export (stage train made none)")
     provenance = {"campaign": c.p.name, "config": c.p.train_config, "data": "RLLR slice of stage rllr",
                   "seed": c.o.seed, "source": ckpt.name}
-    files = write_weights(ckpt, c.o.out, c.o.work / "export", provenance=provenance)
+    files = write_weights(ckpt, c.o.out, outputs.make_dirs(c.o.work, "export"), provenance=provenance)
     return {"checkpoint": str(ckpt), "files": files}
 
 
@@ -522,4 +648,5 @@ STAGES: dict[str, Callable[[Campaign], dict[str, Any]]] = {
 
 
 __all__ = ["Campaign", "CommandResult", "StageFailed", "SkipStage", "STAGES", "CARRIED", "ROOT", "install_wheels",
-           "probe_environment", "check_command", "complete_scenes"]
+           "probe_environment", "check_command", "complete_scenes", "check_work", "read_state_doc", "WORK_FOLDERS",
+           "STATE_FILE", "RUN_MARKER"]
