@@ -110,20 +110,48 @@ def _record_compute(folder: Path, cpu_s: float, wall_s: float, steps: int, threa
     atomic_write_text(writable(folder, COMPUTE_FILE), json.dumps(record, indent=1))
 
 
-def _same_run(out: Path, run: Any, seed: int, steps: int | None) -> Path | None:
-    """A finished run in `out` of the very same network, recipe and seed under another label (the
-    ablation's E is the representations' LR-Rep), or None. Only step-budgeted runs are shared."""
+def _comparable(experiment: dict[str, Any]) -> dict[str, Any]:
+    """A stored or asked-for experiment without its names: what makes two runs the same training."""
+    return json.loads(json.dumps({k: v for k, v in experiment.items() if k not in ("name", "description")}))
+
+
+def run_mismatch(last: Path, run: Any, identity: str, init: str | None) -> str | None:
+    """How a kept run differs from the run asked for (its network and recipe, its training data, the
+    weights it started from), or None: compare keeps a run only for the very run it would train
+    (the checks `train --resume` makes)."""
+    from model.checkpoint import load_checkpoint
+    state = load_checkpoint(last)
+    stored = state.get("experiment")
+    if not isinstance(stored, dict) or _comparable(stored) != _comparable(run.to_dict()):
+        have = _comparable(stored) if isinstance(stored, dict) else {}
+        want = _comparable(run.to_dict())
+        fields = [f"{sec}.{k}" for sec in ("model", "train") for k in sorted(set(want.get(sec, {})) | set(have.get(sec, {})))
+                  if want.get(sec, {}).get(k) != have.get(sec, {}).get(k)]
+        return "another network or recipe (" + (", ".join(fields[:4]) or "its config") + ")"
+    extra = state.get("extra") if isinstance(state.get("extra"), dict) else {}
+    if extra.get("data_identity") not in (None, identity):
+        return "other training data"
+    started = (extra.get("init_weights") or {}).get("spec") if isinstance(extra.get("init_weights"), dict) else None
+    if started != init:
+        return f"other starting weights ({started or 'a random draw'}, not {init or 'a random draw'})"
+    return None
+
+
+def _same_run(out: Path, run: Any, seed: int, steps: int | None, identity: str) -> Path | None:
+    """A finished run in `out` of the very same network, recipe, seed and training data under another
+    label (the ablation's E is the representations' LR-Rep), or None. Only step-budgeted runs trained
+    from a random draw are shared."""
     if steps is None:
         return None
-    want = json.loads(json.dumps({k: v for k, v in run.to_dict().items() if k not in ("name", "description")}))
+    want = _comparable(run.to_dict())
     for cfg in sorted((out / "runs").glob(f"*/seed{seed}/config.json")):
         try:
             have = json.loads(read_small_file(cfg, "a run's config"))
         except (OSError, ValueError):
             continue
-        if isinstance(have, dict) and {k: v for k, v in have.items() if k not in ("name", "description")} == want:
+        if isinstance(have, dict) and _comparable(have) == want:
             last = cfg.parent / "last.pt"
-            if _steps_done(last)[0] == steps:
+            if _steps_done(last)[0] == steps and run_mismatch(last, run, identity, None) is None:
                 return last
     return None
 
@@ -143,6 +171,7 @@ class RunTask:
     steps: int | None
     threads: int
     progress: bool
+    overwrite: bool = False
 
 
 def _train_task(task: RunTask) -> tuple[str, int, int]:
@@ -160,7 +189,7 @@ def _train_task(task: RunTask) -> tuple[str, int, int]:
         scenes = open_scenes(scenes)
     cpu0, wall0 = _process_cpu_seconds(), time.monotonic()
     summary = run_training(task.experiment, scenes, [], task.folder, task.device, resume=task.resume,
-                           progress=task.progress, init=None if task.resume else task.init)
+                           progress=task.progress, init=None if task.resume else task.init, overwrite=task.overwrite)
     _record_compute(task.folder, _process_cpu_seconds() - cpu0, time.monotonic() - wall0, int(summary["steps"]),
                     torch.get_num_threads())
     if task.steps is not None and summary["steps"] != task.steps:
@@ -210,6 +239,8 @@ def train_seeds(configs: Sequence[tuple[str, Any]], seeds: Sequence[int], steps:
         raise ValueError("train_seeds: jobs > 1 needs data_roots (each worker process opens the data)")
     done: dict[tuple[str, int], Path] = {}
     tasks: list[RunTask] = []
+    from model.training import data_identity
+    identities: dict[int, str] = {}
     per_label = steps if isinstance(steps, dict) else {label: steps for label, _ in configs}
     for (label, exp), seed in itertools.product(configs, seeds):
         steps = per_label[label]
@@ -219,8 +250,16 @@ def train_seeds(configs: Sequence[tuple[str, Any]], seeds: Sequence[int], steps:
         run = dataclasses.replace(exp, name=f"{label}_seed{seed}", train=train)
         folder = run_dir(out, label, seed)
         last = folder / "last.pt"
+        scenes = train_scenes[label] if isinstance(train_scenes, dict) else train_scenes
+        identity = identities.setdefault(id(scenes), data_identity(scenes, []))
+        if last.exists():
+            differs = run_mismatch(last, run, identity, init)
+            if differs is not None:
+                raise ValueError(f"{folder} holds a run trained with {differs} than asked for now; compare keeps a run "
+                                 "only for the very config, data, seed and --init it would train: remove that folder "
+                                 "or choose another --out")
         if not last.exists() and init is None:
-            same = _same_run(out, run, seed, steps)
+            same = _same_run(out, run, seed, steps, identity)
             if same is not None:  # this config and seed trained under another label: one run serves both
                 print(f"[compare] {label} seed {seed}: the same config and seed already trained as {same.parent}",
                       file=sys.stderr)
@@ -236,8 +275,10 @@ def train_seeds(configs: Sequence[tuple[str, Any]], seeds: Sequence[int], steps:
                 data: Any = data_roots[label] if isinstance(data_roots, dict) else data_roots
             else:
                 data = train_scenes[label] if isinstance(train_scenes, dict) else train_scenes
+            # a folder without last.pt is a run cut before its first checkpoint: nothing to keep, start it again
+            fresh_again = have is None and folder.exists()
             tasks.append(RunTask(label, int(seed), run, folder, data, device, have is not None, init, steps,
-                                 threads, progress and jobs <= 1))
+                                 threads, progress and jobs <= 1, fresh_again))
     counts = sorted({n for n in per_label.values() if n is not None})
     what = (f"{'/'.join(map(str, counts))} steps" if counts else f"{budget_minutes:g} minutes")
     if tasks:

@@ -312,6 +312,9 @@ def _read_with_base(p: Path, chain: tuple[str, ...] = ()) -> dict[str, Any]:
         if not (target.exists() or target.is_symlink()):
             raise ValueError(f"{p}: \"base\" {base!r} is not a file beside it ({target} does not exist)")
     else:
+        if any(c in base for c in "/\\") or base.startswith("."):
+            raise ValueError(f"{p}: \"base\" {base!r}: a shipped config is a plain name; a file is named with its "
+                             ".json, relative to this config's folder")
         target = CONFIG_DIR / f"{base}.json"
         if not target.exists():
             raise ValueError(f"{p}: \"base\" {base!r} names no shipped config (known: {', '.join(available_configs())}); "

@@ -120,9 +120,12 @@ class _CsvLog:
         replacing the file whole. A log that is not this run's CSV (another header, a row without
         a step number) is refused, naming it, rather than appended to."""
         text = read_small_file(self.path, "the run's log", limit=self.LIMIT)
-        rows = list(csv.reader(io.StringIO(text, newline="")))
         damaged = f"{self.path} is damaged"
         fix = "remove it (the checkpoints keep the run; a fresh log starts) or restore it"
+        try:
+            rows = list(csv.reader(io.StringIO(text, newline="")))
+        except csv.Error as exc:  # a field past csv's limit, a NUL byte: not a ValueError
+            raise ValueError(f"{damaged}: {exc}; {fix}") from None
         if not rows or rows[0] != self.fields:
             raise ValueError(f"{damaged}: its header is {rows[0] if rows else 'missing'}, expected {self.fields}; {fix}")
         at = self.fields.index("step")
@@ -223,7 +226,7 @@ def _epoch_order(n: int, seed: int, epoch: int) -> Sequence[int]:
     (a range, no memory)."""
     if n > SHUFFLE_LIMIT:
         return range(n)
-    g = torch.Generator().manual_seed(seed * 1_000_003 + epoch)
+    g = torch.Generator().manual_seed((seed * 1_000_003 + epoch) % 2 ** 63)  # any seed up to 2**63 - 1
     return torch.randperm(n, generator=g).tolist()
 
 

@@ -119,9 +119,12 @@ def output_file(text: str) -> Path:
 def output_dir(text: str) -> Path:
     """A folder to write in: an existing folder, or one that can be made (not an existing file)."""
     p = Path(text)
-    if p.exists() and not p.is_dir():
-        raise argparse.ArgumentTypeError(f"{text}: exists and is not a directory")
-    _check_writable_parent(p)
+    try:
+        if p.exists() and not p.is_dir():
+            raise argparse.ArgumentTypeError(f"{text}: exists and is not a directory")
+        _check_writable_parent(p)
+    except OSError as exc:  # a name too long for the file system, a path through a file
+        raise argparse.ArgumentTypeError(f"{text[:80]}{'...' if len(text) > 80 else ''}: {exc.strerror}") from None
     return p
 
 

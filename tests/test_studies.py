@@ -228,3 +228,33 @@ def test_a_span_longer_than_the_stream_is_said(caplog):
     assert "longer than the stream (4 windows of 41 steps)" in caplog.text
     whole = spikes.float().mean(dim=(0, 1))
     assert all(torch.allclose(f, whole) for f in frames)  # every frame reaches all 4 windows
+
+
+def test_compare_keeps_a_run_only_for_the_run_it_would_train(tmp_path, capsys):
+    _write_dataset(tmp_path / "train", ["a_normal", "b_low"], 0)
+    _write_dataset(tmp_path / "other", ["a_normal"], 5)
+    e = _config(tmp_path / "e.json", "e")
+    out = tmp_path / "cmp"
+    argv = ["compare", "--data", str(tmp_path / "train"), "--test-data", str(tmp_path / "train"), "--configs", f"E={e}",
+            "--max-steps", "1", "--quiet", "--threads", "1", "--out", str(out)]
+    assert main(argv) == 0
+    capsys.readouterr()
+    # the config edited under the same label: refused, naming the field, not scored as the new config
+    _config(e, "e", num_features=4, deform_groups=2)
+    assert main(argv) == 2
+    assert "holds a run trained with another network or recipe (model.num_features)" in capsys.readouterr().err
+    _config(e, "e")
+    # other data, or other starting weights: refused
+    assert main(argv[:2] + [str(tmp_path / "other")] + argv[3:]) == 2
+    assert "other training data" in capsys.readouterr().err
+    assert main(argv + ["--init", str(out / "runs" / "E" / "seed0" / "last.pt")]) == 2
+    assert "other starting weights" in capsys.readouterr().err
+    # a run cut before its first checkpoint (a folder without last.pt) is started again
+    (out / "runs" / "E" / "seed1" / "last.pt").unlink()
+    assert main(argv) == 0 and (out / "runs" / "E" / "seed1" / "last.pt").exists()
+
+
+def test_a_named_base_is_a_plain_name(tmp_path):
+    (tmp_path / "x.json").write_text('{"name": "x", "base": "../../../../tmp/evil", "model": {}}')
+    with pytest.raises(ValueError, match="a shipped config is a plain name"):
+        load_config(tmp_path / "x.json")

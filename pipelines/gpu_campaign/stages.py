@@ -93,7 +93,7 @@ def check_work(work: Path) -> None:
             raise outputs.naming(exc, shown) from exc
         if len(parts) == 1 and parts[0] in WORK_FOLDERS:
             if not stat.S_ISDIR(mode):
-                refuse(path, f"is {_not_a(mode)}, where the campaign keeps a folder (remove it, or choose another "
+                refuse(path, f"is {_not_a(mode) or 'a file'}, where the campaign keeps a folder (remove it, or choose another "
                              "--work)")
         elif (what := _not_a(mode)) is not None:
             refuse(shown, f"is {what}, where the campaign keeps a file{' (its records)' if parts == (STATE_FILE,) else ''}"

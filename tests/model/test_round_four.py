@@ -88,3 +88,21 @@ def test_a_full_disk_while_a_checkpoint_is_written_is_an_oserror_naming_it(tmp_p
     assert err.value.errno == errno.ENOSPC and str(tmp_path / "last.pt") in str(err.value)
     assert "writing the checkpoint failed" in str(err.value)
     assert not (tmp_path / "last.pt").exists() and not list(tmp_path.glob(".*.part"))
+
+
+def test_a_log_field_past_the_csv_limit_is_damage_not_a_traceback(finished, tmp_path):
+    src, scenes = finished
+    run = _copy(src, tmp_path / "r")
+    with open(run / "train_log.csv", "a") as f:
+        f.write("1,0,1," + "9" * 300_000 + ",0.001,1,0\n")
+    with pytest.raises(ValueError, match="train_log.csv is damaged: field larger than field limit"):
+        run_training(tiny_experiment(max_steps=4), scenes[:2], scenes[2:], run, device="cpu", resume=True,
+                     progress=False)
+
+
+def test_an_output_name_too_long_is_a_parser_error():
+    import argparse
+
+    from pipelines.argtypes import output_dir
+    with pytest.raises(argparse.ArgumentTypeError, match="File name too long"):
+        output_dir("/tmp/" + "o" * 300)
