@@ -254,6 +254,9 @@ def train_seeds(configs: Sequence[tuple[str, Any]], seeds: Sequence[int], steps:
         identity = identities.setdefault(id(scenes), data_identity(scenes, []))
         if last.exists():
             differs = run_mismatch(last, run, identity, init)
+            if differs == "another network or recipe (train.max_steps)":  # the schedule was planned for its steps
+                raise ValueError(f"{folder} holds a run trained for {_steps_done(last)[0]} steps; --max-steps {steps} "
+                                 "plans another learning-rate schedule, so it is a new run: choose another --out")
             if differs is not None:
                 raise ValueError(f"{folder} holds a run trained with {differs} than asked for now; compare keeps a run "
                                  "only for the very config, data, seed and --init it would train: remove that folder "

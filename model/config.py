@@ -202,7 +202,8 @@ class TrainConfig:
         _require(isinstance(self.num_workers, int) and self.num_workers >= 0,
                  f"train.num_workers must be an integer >= 0, got {self.num_workers!r}")
         _require(self.grad_clip is None or self.grad_clip > 0, f"train.grad_clip must be > 0, got {self.grad_clip}")
-        _require(isinstance(self.seed, int), f"train.seed must be an integer, got {self.seed!r}")
+        _require(isinstance(self.seed, int) and not isinstance(self.seed, bool) and 0 <= self.seed <= 2 ** 63 - 1,
+                 f"train.seed must be an integer in 0..2**63 - 1 (torch seeds with 64 bits), got {self.seed!r}")
         _require(self.precision in PRECISIONS, f"train.precision must be one of {PRECISIONS}, got {self.precision!r}")
         _require(self.lr_schedule in LR_SCHEDULES,
                  f"train.lr_schedule must be one of {LR_SCHEDULES}, got {self.lr_schedule!r}")

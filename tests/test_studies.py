@@ -16,7 +16,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 from test_targets_compare import _config, _one_thread, _write_dataset  # noqa: E402,F401  (_one_thread: autouse)
 
 from model.comparison import COMPUTE_FILE, read_compute, seed_stat  # noqa: E402
-from model.config import load_config  # noqa: E402
+from model.config import TrainConfig, load_config  # noqa: E402
 from model.flops import network_cost  # noqa: E402
 from model.studies import STUDIES, get_study, ordering_verdict, study_markdown  # noqa: E402
 from pipelines.cli import main  # noqa: E402
@@ -258,3 +258,10 @@ def test_a_named_base_is_a_plain_name(tmp_path):
     (tmp_path / "x.json").write_text('{"name": "x", "base": "../../../../tmp/evil", "model": {}}')
     with pytest.raises(ValueError, match="a shipped config is a plain name"):
         load_config(tmp_path / "x.json")
+
+
+def test_a_seed_in_a_config_file_has_the_range_of_the_flag():
+    for bad in (2 ** 63, 10 ** 30, -5):
+        with pytest.raises(ValueError, match=r"train.seed must be an integer in 0..2\*\*63 - 1"):
+            TrainConfig(seed=bad)
+    assert TrainConfig(seed=2 ** 63 - 1).seed == 2 ** 63 - 1
