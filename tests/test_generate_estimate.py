@@ -64,3 +64,4 @@ def test_generate_logs_the_plan_before_it_starts(tmp_path, caplog):
         generate([dataclasses.replace(job, name="again")], tmp_path / "ds2", workers=1, show_progress=False,
                  estimate_time=False)
     assert not [r for r in caplog.records if r.getMessage().startswith("plan:")]
+

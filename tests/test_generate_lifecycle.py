@@ -97,3 +97,25 @@ def test_sigterm_stops_the_run_says_so_and_leaves_no_work_folders(tmp_path, work
         time.sleep(0.1)
     assert not [k for k in kids if _running(k)], "workers kept running"
     assert not root.exists()  # it created the folder and nothing in it was finished
+
+
+def test_a_sigterm_wrapped_by_a_library_is_still_a_termination():
+    import os
+    import signal
+
+    from spikesim.generation.run import Terminated, _sigterm_raises
+
+    def library_call():  # what Dr.Jit's frozen functions do with an exception raised inside them
+        try:
+            os.kill(os.getpid(), signal.SIGTERM)
+            for _ in range(10 ** 7):
+                pass
+        except BaseException as exc:
+            raise RuntimeError("FlatVariables::assign(): error encountered while processing an argument") from exc
+
+    with pytest.raises(Terminated, match="terminated"):
+        with _sigterm_raises():
+            library_call()
+    with pytest.raises(RuntimeError):  # without a signal a library's error stays what it is
+        with _sigterm_raises():
+            raise RuntimeError("a real failure")

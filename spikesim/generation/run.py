@@ -248,13 +248,22 @@ def _sigterm_raises() -> Iterator[None]:
         yield
         return
 
+    stopped: list[str] = []
+
     def handler(signum: int, frame: Any) -> None:
         signal.signal(signal.SIGTERM, signal.SIG_IGN)
-        raise Terminated(f"terminated ({signal.Signals(signum).name})")
+        stopped.append(f"terminated ({signal.Signals(signum).name})")
+        raise Terminated(stopped[-1])
 
     previous = signal.signal(signal.SIGTERM, handler)
     try:
         yield
+    except Terminated:
+        raise
+    except BaseException as exc:
+        if stopped:  # raised inside a library call, the signal's exception comes back wrapped (Dr.Jit's frozen
+            raise Terminated(stopped[-1]) from exc  # functions re-raise it as a RuntimeError): still a SIGTERM
+        raise
     finally:
         signal.signal(signal.SIGTERM, previous)
 
