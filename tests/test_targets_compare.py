@@ -117,9 +117,14 @@ def test_compare_training_data_with_one_config_and_init(tmp_path, capsys):
     assert "give one config" in capsys.readouterr().err
     # one labelled dataset: its runs take the data's label (two processes can share --out by data)
     assert main(["compare", "--data", f"TWO={tmp_path / 'two'}", "--test-data", str(tmp_path / "test"), "--configs",
-                 str(e), "--seeds", "0", "1", "2", "--max-steps", "2", "--device", "cpu", "--quiet", "--out",
-                 str(out)]) == 0
+                 str(e), "--init", str(base / "last.pt"), "--seeds", "0", "1", "2", "--max-steps", "2", "--device",
+                 "cpu", "--quiet", "--out", str(out)]) == 0
     assert sorted(p.name for p in (out / "runs").iterdir()) == ["ONE", "TWO"]
+    # the same without --init asks for other runs than those kept: refused, not scored as if they were
+    assert main(["compare", "--data", f"TWO={tmp_path / 'two'}", "--test-data", str(tmp_path / "test"), "--configs",
+                 str(e), "--seeds", "0", "1", "2", "--max-steps", "2", "--device", "cpu", "--quiet", "--out",
+                 str(out)]) == 2
+    assert "other starting weights" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("flags,msg", [
