@@ -208,12 +208,21 @@ def _run_parallel(fn: Any, tasks: Sequence[Any], jobs: int, on_done: Any) -> lis
         return results
     import concurrent.futures
     import multiprocessing
+    from concurrent.futures.process import BrokenProcessPool
     results = []
     with concurrent.futures.ProcessPoolExecutor(min(jobs, len(tasks)),
                                                 mp_context=multiprocessing.get_context("spawn")) as pool:
-        for fut in concurrent.futures.as_completed([pool.submit(fn, t) for t in tasks]):
-            results.append(fut.result())
-            on_done(results[-1])
+        futures = {pool.submit(fn, t): t for t in tasks}
+        try:
+            for fut in concurrent.futures.as_completed(futures):
+                results.append(fut.result())
+                on_done(results[-1])
+        except BrokenProcessPool:  # a worker killed from outside: most often the kernel, for memory
+            running = [getattr(t, "name", None) or f"{getattr(t, 'label', '?')} seed {getattr(t, 'seed', '?')}"
+                       for f, t in futures.items() if not f.done() or f.exception() is not None]
+            raise MemoryError(f"a worker process was killed while on {', '.join(running[:4])} (out of memory?); "
+                              f"what finished is kept: run the same command again to go on, with --jobs 1 if it "
+                              "happens again") from None
     return results
 
 

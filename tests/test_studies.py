@@ -265,3 +265,20 @@ def test_a_seed_in_a_config_file_has_the_range_of_the_flag():
         with pytest.raises(ValueError, match=r"train.seed must be an integer in 0..2\*\*63 - 1"):
             TrainConfig(seed=bad)
     assert TrainConfig(seed=2 ** 63 - 1).seed == 2 ** 63 - 1
+
+
+def test_a_worker_killed_from_outside_is_said_and_what_finished_is_kept():
+    from model.comparison import _run_parallel
+    done = []
+    with pytest.raises(MemoryError, match="a worker process was killed .* run the same command again"):
+        _run_parallel(_die_if_one, [0, 1], 2, done.append)
+
+
+def _die_if_one(x: int) -> int:  # a worker the kernel kills (SIGKILL), as the OOM killer does
+    import os
+    import signal
+    import time
+    if x == 1:
+        os.kill(os.getpid(), signal.SIGKILL)
+    time.sleep(0.5)
+    return x
