@@ -40,7 +40,7 @@ LINKS = [
     ("logs/bench_sensor.log", "outside/bench_sensor.log"),
     ("state.json", "outside/state.json"),
     ("llr", "outside"), ("rllr", "outside"), ("run", "outside"), ("site", "outside"), ("export", "outside"),
-    ("evaluate", "outside"),
+    ("evaluate", "outside"), ("table1", "outside"),
     ("run", "WORK/elsewhere"),  # even a link that stays inside --work
 ]
 

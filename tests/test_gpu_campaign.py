@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 
 from pipelines.gpu_campaign import (DEFAULT_PART, OPTIONAL, PART_DEADLINE_S, PARTS, PROFILES, STAGE_NAMES, STATUSES,
-                                    Options)
+                                    TABLE1_CALL, Options)
 from pipelines.gpu_campaign.outputs import (MAX_FILES, combined_logs, join_weight_parts, out_problems,
                                             write_weights)
 from pipelines.gpu_campaign.stages import install_wheels
@@ -27,6 +27,9 @@ ROOT = Path(__file__).resolve().parents[1]
 needs_llvm = pytest.mark.skipif(not HAS_LLVM, reason="the dry run renders and simulates with Dr.Jit's LLVM backend")
 STAGE_KEYS = {"name", "status", "seconds", "figures", "log", "note", "commands", "returncode", "time_box_s",
               "started", "part"}
+#: The stages the dry runs below run: all but table1, whose five trainings take about 45 s of their
+#: own; tests/test_campaign_table1.py runs it (slow) and checks its logic on stand-in commands (fast).
+RUN = tuple(s for s in STAGE_NAMES if s != "table1")
 
 
 def _campaign(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
@@ -39,14 +42,17 @@ def _campaign(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
 @pytest.fixture(scope="module")
 def dry_runs(tmp_path_factory):
     """The dry run as a lent GPU runs it: two calls sharing a work folder, part 1 then part 2
-    (about 30 s in all on the 2-core VM). Returns {part: (output folder, summary)} and the work folder."""
+    (about 30 s in all on the 2-core VM; part 2 without table1, see RUN). Returns {part: (output
+    folder, summary)} and the work folder."""
     if not HAS_LLVM:
         pytest.skip("the dry run renders and simulates with Dr.Jit's LLVM backend")
     base = tmp_path_factory.mktemp("campaign")
     work, runs = base / "work", {}
     for part in ("1", "2"):
         out = base / f"out{part}"
-        proc = _campaign("--dry-run", "--part", part, "-o", str(out), "--work", str(work), "--json", "--quiet")
+        stages = [s for s in PARTS[part] if s in RUN]
+        proc = _campaign("--dry-run", "--part", part, "-o", str(out), "--work", str(work), "--json", "--quiet",
+                         "--stages", *stages)
         assert proc.returncode == 0, proc.stderr[-3000:]
         runs[part] = (out, json.loads(proc.stdout))
     return runs, work
@@ -72,10 +78,13 @@ def test_the_dry_run_runs_every_stage_and_writes_the_summary_schema(dry_run):
     assert [s["name"] for s in summary["stages"]] == list(STAGE_NAMES)
     for s in summary["stages"]:
         assert set(s) == STAGE_KEYS, s["name"]
+        if s["name"] not in RUN:
+            assert s["status"] == "skipped" and s["note"].startswith("not run: not selected"), s
+            continue
         assert s["status"] == "ok", (s["name"], s["note"])
         assert s["seconds"] > 0 and s["log"] == "logs.txt" and s["commands"] or s["name"] == "export"
         assert isinstance(s["figures"], dict) and s["figures"], s["name"]
-    assert summary["counts"] == {"ok": len(STAGE_NAMES), "failed": 0, "skipped": 0, "timeout": 0}
+    assert summary["counts"] == {"ok": len(RUN), "failed": 0, "skipped": len(STAGE_NAMES) - len(RUN), "timeout": 0}
     fig = {s["name"]: s["figures"] for s in summary["stages"]}
     assert fig["install"]["versions"]["mitsuba"] and fig["install"]["drjit_llvm"] is True
     assert {r["stage"] for r in fig["bench_sensor"]["results"]} == {"sensor"}
@@ -109,9 +118,10 @@ def test_the_dry_run_returns_what_a_lent_machine_gives_back(dry_run):
     assert {f.name for f in files} == {"summary.json", "logs.txt", "report.md", "weights.pt"}
     assert {f["name"] for f in summary["files"]} == {"logs.txt", "report.md", "weights.pt"}
     logs = (out / "logs.txt").read_text()
-    assert all(f"===== {name} (ok" in logs for name in STAGE_NAMES)
+    assert all(f"===== {name} (ok" in logs for name in RUN)
     report = (out / "report.md").read_text()
     assert "| tiny, bf16 |" in report and "**All scenes**" in report
+    assert "## Table 1 networks at equal training FLOP (stage table1)" in report  # not measured: not selected
 
 
 @needs_llvm
@@ -174,7 +184,12 @@ def test_the_parts_cover_every_stage_once_in_order():
     one = PARTS["one"]
     assert sorted(one) == sorted(STAGE_NAMES)
     assert one[:7] == ("install", "bench_sensor", "bench_render", "llr", "rllr", "train", "export")
-    assert one[7:] == OPTIONAL["one"] == ("gpu_tests", "evaluate")
+    assert one[7:] == OPTIONAL["one"] == ("gpu_tests", "evaluate", "table1")
+    # table1 comes last wherever it runs, and only where time is left: nothing earlier keeps time for it
+    for name in ("one", "2", "all"):
+        assert PARTS[name][-1] == "table1" and "table1" in OPTIONAL[name]
+    part, stages = TABLE1_CALL  # its own call: part one's datasets, then table1
+    assert part == "one" and set(stages) <= set(PARTS[part]) and stages[-1] == "table1"
 
 
 # ---- the one-call part (part `one`): its plan, its default, its skips -------------------------------
@@ -216,6 +231,30 @@ def test_the_one_call_parts_boxes_and_time_line_fit_its_deadline():
     assert p.boxes_of("1") == p.boxes == p.boxes_of("2")
 
 
+@pytest.mark.parametrize("profile", ["gpu", "dry-run"])
+def test_the_table1_calls_time_line_fits_part_ones_deadline(profile):
+    """table1 runs only where time is left in a part (on part one's plan, 5 s are); its own call
+    (TABLE1_CALL: part one's datasets, then table1) gives it the rest of the 540 s. Its plan fits
+    the boxes and the deadline, and even when the datasets use their whole boxes table1 keeps its least."""
+    p, (part, stages) = PROFILES[profile], TABLE1_CALL
+    deadline, boxes, plan = PART_DEADLINE_S[part], p.boxes_of(part), p.table1_call_plan_s
+    assert list(plan) == list(stages) and sum(plan.values()) + 5 <= deadline  # 5 s: the writes between stages
+    for s in stages:
+        least, most = boxes[s]
+        assert least <= plan[s] <= most, s
+    before = [s for s in stages if s != "table1"]
+    on_plan_box = min(boxes["table1"][1], deadline - sum(plan[s] for s in before))
+    assert plan["table1"] <= on_plan_box
+    assert deadline - sum(boxes[s][1] for s in before) >= boxes["table1"][0]
+    if profile == "gpu":
+        # on part one's own plan, table1 finds the 5 s after the weights: below its least, so skipped
+        one = p.part_plan_s["one"]
+        assert deadline - sum(one.values()) < boxes["table1"][0]
+        # the box shared out: a cost count, then per network its overhead and a share of steps, then the scoring
+        steps_s = plan["table1"] - 15 - p.table1_eval_s - len(p.table1) * p.table1_overhead_s
+        assert steps_s / len(p.table1) >= 10  # a few seconds of steps each beyond train's calibration
+
+
 def test_a_stage_is_skipped_with_its_reason_when_time_left_is_below_its_least(tmp_path, monkeypatch):
     """The runner on a clock that the stages advance (no child process): part one with the GPU
     profile's boxes. On plan, every valued stage runs and the ones run only where time is left are
@@ -227,7 +266,7 @@ def test_a_stage_is_skipped_with_its_reason_when_time_left_is_below_its_least(tm
     p = PROFILES["gpu"]
     plan = p.part_plan_s["one"]
 
-    def run(took: dict[str, float], name: str, overran: dict[str, float] | None = None):
+    def run(took: dict[str, float], name: str, overran: dict[str, float] | None = None, only: tuple[str, ...] = ()):
         clock = [0.0]
 
         def fake(stage):
@@ -239,7 +278,7 @@ def test_a_stage_is_skipped_with_its_reason_when_time_left_is_below_its_least(tm
         monkeypatch.setattr(stages.Campaign, "elapsed", lambda self: clock[0])
         for stage in STAGE_NAMES:
             monkeypatch.setitem(runner.STAGES, stage, fake(stage))
-        o = Options(out=tmp_path / name / "out", work=tmp_path / name / "work", profile=p)
+        o = Options(out=tmp_path / name / "out", work=tmp_path / name / "work", profile=p, stages=only)
         summary = runner.run_campaign(o)
         return {s["name"]: s for s in summary["stages"]}, o
 
@@ -265,20 +304,30 @@ def test_a_stage_is_skipped_with_its_reason_when_time_left_is_below_its_least(tm
     report = (o.out / "report.md").read_text()
     assert f"| llr | skipped | 0.0 | {by['llr']['note']} |" in report
 
+    # table1's own call: the datasets at their plan, then table1 gets the rest of the 540 s
+    call = p.table1_call_plan_s
+    by, o = run(call, "table1_call", only=TABLE1_CALL[1])
+    assert all(by[s]["status"] == "ok" for s in call), {s: by[s]["note"] for s in call}
+    assert by["table1"]["time_box_s"] == pytest.approx(540 - sum(call[s] for s in call if s != "table1"), abs=0.5)
+    assert by["table1"]["time_box_s"] >= call["table1"]
+
 
 @needs_llvm
 def test_the_one_call_dry_run_runs_every_stage_in_order_of_value(tmp_path):
-    """What a lent GPU now runs, rehearsed: the default part in one call (about 30-45 s here).
-    With the dry run's time to spare, gpu_tests and evaluate run too, after the weights."""
+    """What a lent GPU now runs, rehearsed: the default part in one call (about 30-45 s here; table1,
+    which comes last, aside: see RUN). With the dry run's time to spare, gpu_tests and evaluate run
+    too, after the weights."""
     out = tmp_path / "out"
-    proc = _campaign("--dry-run", "-o", str(out), "--work", str(tmp_path / "work"), "--json", "--quiet")
+    selected = [s for s in PARTS["one"] if s in RUN]
+    proc = _campaign("--dry-run", "-o", str(out), "--work", str(tmp_path / "work"), "--json", "--quiet",
+                     "--stages", *selected)
     assert proc.returncode == 0, proc.stderr[-3000:]
     summary = json.loads(proc.stdout)
-    assert summary["part"] == "one" and summary["deadline_s"] == 540 and summary["selected"] == list(PARTS["one"])
+    assert summary["part"] == "one" and summary["deadline_s"] == 540 and summary["selected"] == selected
     by = {s["name"]: s for s in summary["stages"]}
-    assert all(by[n]["status"] == "ok" and by[n]["part"] == "one" for n in STAGE_NAMES), \
-        {n: (by[n]["status"], by[n]["note"]) for n in STAGE_NAMES}
-    started = [by[n]["started"] for n in PARTS["one"]]
+    assert all(by[n]["status"] == "ok" and by[n]["part"] == "one" for n in RUN), \
+        {n: (by[n]["status"], by[n]["note"]) for n in RUN}
+    started = [by[n]["started"] for n in selected]
     assert started == sorted(started)  # ISO times to the second: run in the part's order
     assert by["rllr"]["figures"]["scenes"] == 2 and by["train"]["figures"]["precision"] == "bf16"
     assert "tiny" in by["evaluate"]["figures"]["methods"]

@@ -18,8 +18,10 @@ from pipelines.argtypes import seed_int, output_dir, positive_float, positive_in
 DESCRIPTION = __doc__ + """
 On a lent GPU, from the repository root, with .whl (scripts/gpu_wheels.sh) carried:
   scripts/gpu_campaign.sh               # part one, 9 minutes: install, bench, LLR, 1-2 RLLR scenes,
-                                        # a short `full` bf16 training, its weights; gpu tests and
-                                        # evaluate only where time is left
+                                        # a short `full` bf16 training, its weights; gpu tests,
+                                        # evaluate and table1 only where time is left
+The Table-1 networks at their published sizes, at equal training FLOP, in a call of their own:
+  scripts/gpu_campaign.sh --stages install llr rllr table1
 For a longer lease, two calls:
   scripts/gpu_campaign.sh --part 1      # install, gpu tests, bench, LLR, an RLLR slice
   scripts/gpu_campaign.sh --part 2      # train `full` in bf16 on it, evaluate on LLR, weights
@@ -99,9 +101,10 @@ def add_parser(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
                    help="every stage on the CPU (Dr.Jit LLVM, torch CPU) at a tiny size, into the same files")
     p.add_argument("--part", choices=list(PARTS), default=DEFAULT_PART,
                    help="one (default): every stage in one call, in order of value (install, bench, LLR, 1-2 RLLR "
-                        "scenes, train, export; gpu tests and evaluate only where time is left); for a longer lease, "
-                        "1: install, gpu tests, bench, LLR, RLLR slice; 2: install, train, evaluate, export "
-                        "(remaking a dataset the machine lost); all: every stage in stage order")
+                        "scenes, train, export; gpu tests, evaluate and table1 only where time is left); for a longer "
+                        "lease, 1: install, gpu tests, bench, LLR, RLLR slice; 2: install, train, evaluate, export "
+                        "(remaking a dataset the machine lost), then table1 where time is left; all: every stage in "
+                        "stage order")
     p.add_argument("--stages", nargs="+", choices=STAGE_NAMES, metavar="STAGE",
                    help=f"only these of the part's stages ({', '.join(STAGE_NAMES)})")
     deadlines = ", ".join(f"{k}: {v / 60:g}" for k, v in PART_DEADLINE_S.items())

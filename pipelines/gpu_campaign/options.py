@@ -17,18 +17,26 @@ from pathlib import Path
 
 #: The repository root: the stages run their commands from it, and the carried wheels lie in it.
 ROOT = Path(__file__).resolve().parents[2]
-STAGE_NAMES = ("install", "gpu_tests", "bench_sensor", "bench_render", "llr", "rllr", "train", "evaluate", "export")
+STAGE_NAMES = ("install", "gpu_tests", "bench_sensor", "bench_render", "llr", "rllr", "train", "evaluate", "export",
+               "table1")
 PARTS = {
     # one call, in order of value: what only a GPU can measure first, then a short training and its
-    # weights; gpu_tests and evaluate last, only where time is left (OPTIONAL below)
-    "one": ("install", "bench_sensor", "bench_render", "llr", "rllr", "train", "export", "gpu_tests", "evaluate"),
+    # weights; gpu_tests, evaluate and table1 last, only where time is left (OPTIONAL below)
+    "one": ("install", "bench_sensor", "bench_render", "llr", "rllr", "train", "export", "gpu_tests", "evaluate",
+            "table1"),
     "1": ("install", "gpu_tests", "bench_sensor", "bench_render", "llr", "rllr"),
-    "2": ("install", "llr", "rllr", "train", "evaluate", "export"),
+    "2": ("install", "llr", "rllr", "train", "evaluate", "export", "table1"),
     "all": STAGE_NAMES,
 }
 DEFAULT_PART = "one"
 #: Stages of a part that run only where time is left: no earlier stage keeps its least box for them.
-OPTIONAL = {"one": ("gpu_tests", "evaluate")}
+#: table1 (the Table-1 networks at equal training FLOP) needs most of a call: in a part it runs
+#: after everything else, where time is left; a call of its own (TABLE1_CALL) gives it its time.
+OPTIONAL = {"one": ("gpu_tests", "evaluate", "table1"), "2": ("table1",), "all": ("table1",)}
+#: The call that gives table1 its time on a lent GPU: part one's datasets, then table1 alone
+#: (`--stages install llr rllr table1`, part `one`'s 540 s); `Profile.table1_call_plan_s` is its
+#: time line. With a warm machine after part 1 (or 2), `--part 2 --stages table1` gives it 555 s.
+TABLE1_CALL = ("one", ("install", "llr", "rllr", "table1"))
 #: Seconds a call of each part may take by default (`--deadline-minutes`): a device call is killed
 #: at 600; part `one` leaves 60 of them for a stage's grace (20 s), the last writes and the start.
 PART_DEADLINE_S = {"one": 540.0, "1": 555.0, "2": 555.0, "all": 555.0}
@@ -77,6 +85,20 @@ class Profile:
     """Most seconds a later call spends remaking a dataset the machine lost between calls."""
     grace_s: float
     """Seconds between SIGTERM and SIGKILL when a stage's box ends (train writes last.pt)."""
+    table1: tuple[tuple[str, str], ...] = ()
+    """Stage table1's networks, (label, config) in training order: the first that trains is the
+    reference whose steps, planned from the time left, set the training FLOP of all of them."""
+    table1_train: tuple[str, ...] = ()
+    """Arguments every table1 `train` takes besides the stage's own (the dry run's tiny crop and K)."""
+    table1_overhead_s: float = 30.0
+    """Seconds of each table1 training run that are not steps: start-up, data, the last validation, saving."""
+    table1_eval_s: float = 60.0
+    """Seconds table1 keeps for scoring every trained network on the LLR (one `evaluate`)."""
+    table1_max_minutes: float | None = None
+    """At most this many minutes of steps per table1 network (the dry run keeps its test short)."""
+    table1_call_plan_s: dict[str, float] = dataclasses.field(default_factory=dict)
+    """The seconds each stage of TABLE1_CALL is planned to take (the tests check that it fits the
+    boxes and part `one`'s deadline); empty where the profile has no such plan."""
 
     def boxes_of(self, part: str) -> dict[str, tuple[float, float]]:
         """Every stage's (least, most) seconds in a call of `part`."""
@@ -101,6 +123,11 @@ class Profile:
             raise ValueError(f"profile {self.name}: part_rllr_count {self.part_rllr_count}")
         if self.rllr_count < 1 or self.llr_windows < 1 or self.grace_s < 0 or self.train_overhead_s < 0:
             raise ValueError(f"profile {self.name}: counts must be positive, times non-negative")
+        labels = [label for label, _ in self.table1]
+        if not labels or len(set(labels)) != len(labels) or self.table1_overhead_s < 0 or self.table1_eval_s < 0:
+            raise ValueError(f"profile {self.name}: table1 needs networks with unique labels and non-negative times")
+        if not set(self.table1_call_plan_s) <= set(TABLE1_CALL[1]):
+            raise ValueError(f"profile {self.name}: table1_call_plan_s for {sorted(self.table1_call_plan_s)}")
 
 
 _TINY = ("--height", "16", "--width", "24", "--workers", "1", "--quality", "balanced")
@@ -122,7 +149,7 @@ PROFILES: dict[str, Profile] = {
         # RLLR slice and training take what is left of their call
         boxes={"install": (30, 90), "gpu_tests": (30, 120), "bench_sensor": (30, 90), "bench_render": (30, 90),
                "llr": (60, 240), "rllr": (60, 600), "train": (150, 3600), "evaluate": (90, 180),
-               "export": (15, 60)},
+               "export": (15, 60), "table1": (150, 3600)},
         # part `one` (docs/gpu_campaign.md, "On the GPU: one call of 9 minutes"): the expected seconds of docs/gpu_campaign.md
         # (install 15-30, bench_sensor 30-60, bench_render 20-40, LLR under 2 min) as the mosts, so
         # that even when every stage before training uses its whole box (60 + 60 + 45 + 135 + 90 =
@@ -138,7 +165,19 @@ PROFILES: dict[str, Profile] = {
                              "train": 220, "export": 15}},
         # a bare machine in part 2 (the first call's datasets lost): the LLR (under 2 min is the
         # goal) and 1-3 RLLR scenes, which leaves training about 3 minutes
-        catch_up_s={"llr": 150, "rllr": 90}, grace_s=20.0),
+        catch_up_s={"llr": 150, "rllr": 90}, grace_s=20.0,
+        # Table 1 at its published sizes (model/configs: 2.2-5.6 M parameters, 0.25-2.1 TFLOP per
+        # 400 x 250 frame), `full` first: its steps in the budget set the training FLOP of all five
+        table1=(("full", "full"), ("s2i", "s2i"), ("wgse", "wgse"), ("rsir", "rsir"), ("ssml", "ssml")),
+        table1_train=("--num-workers", "8"),
+        # estimates until a GPU has run them: a training process's CUDA start, the slice's scenes,
+        # one validation of 4 samples at 400 x 250 and the saving; one `evaluate` of five networks
+        # on the LLR's 10 sequences of 21 windows
+        table1_overhead_s=30.0, table1_eval_s=75.0,
+        # TABLE1_CALL in part one's 540 s: the datasets at part one's plan, then table1 takes what
+        # is left (540 - 225 - 5 s of writes = 310 s of box): 15 s of cost count, 5 x 30 s of
+        # overheads, 75 s of scoring and 5 x 12 s of steps (85 % of their 14 s share)
+        table1_call_plan_s={"install": 30, "llr": 120, "rllr": 75, "table1": 305}),
     "dry-run": Profile(
         "dry-run", "llvm", "cpu", False,
         bench_sensor=("--stages", "sensor", "--backends", "llvm", "--streams", "2", "--height", "16", "--width", "24",
@@ -154,9 +193,19 @@ PROFILES: dict[str, Profile] = {
         evaluate=("--threads", "1"),
         train_config="tiny", train_overhead_s=10.0, train_max_minutes=0.1, llr_windows=3,
         boxes={"install": (5, 60), "gpu_tests": (5, 120), "bench_sensor": (5, 120), "bench_render": (5, 120),
-               "llr": (5, 180), "rllr": (5, 180), "train": (10, 180), "evaluate": (5, 120), "export": (2, 60)},
+               "llr": (5, 180), "rllr": (5, 180), "train": (10, 180), "evaluate": (5, 120), "export": (2, 60),
+               "table1": (30, 240)},
         part_boxes={}, part_rllr_count={}, part_plan_s={},
-        catch_up_s={"llr": 180, "rllr": 180}, grace_s=5.0),
+        catch_up_s={"llr": 180, "rllr": 180}, grace_s=5.0,
+        # the same five rows at the tiny size: `tiny` for the paper's network, the published ones at
+        # the shipped network's compute (cpu_*), all on the dry run's 16 x 24 frames, K = 3
+        table1=(("full", "tiny"), ("s2i", "cpu_s2i"), ("wgse", "cpu_wgse"), ("rsir", "cpu_rsir"),
+                ("ssml", "cpu_ssml")),
+        table1_train=("--crop", "16", "--num-windows", "3", "--batch-size", "4", "--threads", "1"),
+        table1_overhead_s=6.0, table1_eval_s=20.0, table1_max_minutes=0.02,
+        # measured on the loaded 2-core VM (2026-11-26): 10 s of cost count, 5-7 s a training
+        # process, 6 s of scoring: 47 s
+        table1_call_plan_s={"install": 5, "llr": 5, "rllr": 8, "table1": 50}),
 }
 
 
@@ -223,4 +272,5 @@ class Options:
         return self.rllr_count or self.profile.part_rllr_count.get(self.part, self.profile.rllr_count)
 
 
-__all__ = ["ROOT", "STAGE_NAMES", "PARTS", "DEFAULT_PART", "OPTIONAL", "PART_DEADLINE_S", "DATA_STAGES", "INJECTIONS", "Profile", "PROFILES", "Options"]
+__all__ = ["ROOT", "STAGE_NAMES", "PARTS", "DEFAULT_PART", "OPTIONAL", "TABLE1_CALL", "PART_DEADLINE_S", "DATA_STAGES",
+           "INJECTIONS", "Profile", "PROFILES", "Options"]

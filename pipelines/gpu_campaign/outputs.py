@@ -308,7 +308,34 @@ def report_markdown(summary: dict[str, Any]) -> str:
             lines.append("")
         for note in ev.get("notes", []):
             lines.append(f"Note: {note}")
+    lines += _table1_lines(_stage(summary, "table1"))
     return "\n".join(lines).rstrip() + "\n"
+
+
+def _table1_lines(stage: dict[str, Any]) -> list[str]:
+    """Stage table1's table: per network its size, cost, training and aligned PSNR on the LLR."""
+    fig = stage.get("figures", {})
+    nets = fig.get("networks", {})
+    lines = ["", "## Table 1 networks at equal training FLOP (stage table1)", ""]
+    if not nets:
+        return lines + [NOT_MEASURED + (f" ({stage['note']})" if stage.get("note") else "")]
+    h, w = fig.get("frame") or ("?", "?")
+    each = fig.get("train_gflop_each")
+    lines += [f"Trained on {fig.get('data_scenes', '?')} RLLR scene(s) in {fig.get('precision', '?')}, each for "
+              f"{_fmt(each and each / 1e3, '.4g', ' TFLOP')} of training (the steps of {fig.get('reference') or 'none'} "
+              f"in its share of the box), scored on {fig.get('test_scenes', '?')} LLR scene-light(s).", "",
+              f"| network | config | parameters | GFLOP per {w} x {h} frame | steps | training TFLOP | seconds | "
+              "aligned PSNR low | aligned PSNR normal | note |", "|---|---|---|---|---|---|---|---|---|---|"]
+    for label, n in nets.items():
+        scores = n.get("scores", {})
+        note = n.get("error") or n.get("note") or ("" if n.get("equal_flop", True) else "not at equal FLOP")
+        params = n.get("parameters")
+        lines.append(f"| {label} | {n.get('config', '?')} | {NOT_MEASURED if params is None else f'{params:,}'} | "
+                     f"{_fmt(n.get('gflop_per_frame'), '.4g')} | {n.get('steps', NOT_MEASURED)} | "
+                     f"{_fmt(n.get('train_gflop') and n['train_gflop'] / 1e3, '.4g')} | {_fmt(n.get('seconds'), '.1f')} | "
+                     f"{_fmt(scores.get('low', {}).get('psnr_aligned'), '.2f', ' dB')} | "
+                     f"{_fmt(scores.get('normal', {}).get('psnr_aligned'), '.2f', ' dB')} | {note.replace('|', '/')} |")
+    return lines
 
 
 __all__ = ["MAX_FILES", "MAX_FILE_BYTES", "MAX_TOTAL_BYTES", "MAX_DEPTH", "LOGS_MAX_BYTES", "out_problems",

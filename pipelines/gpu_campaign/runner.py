@@ -15,10 +15,11 @@ the day it:
 3. hands back at most 8 files (outputs.py): summary.json, logs.txt, report.md and the trained
    weights.
 
-Stages: install, gpu_tests, bench_sensor, bench_render, llr, rllr, train, evaluate, export. The
-default part, `one`, runs them in one call of 9 minutes in order of value (install, the benches,
-the LLR, a one- or two-scene RLLR slice, a short training, its weights), then gpu_tests and
-evaluate only where time is left. For a longer lease, `--part 1` (up to the datasets) and `--part
+Stages: install, gpu_tests, bench_sensor, bench_render, llr, rllr, train, evaluate, export, table1
+(the Table-1 networks at equal training FLOP). The default part, `one`, runs them in one call of
+9 minutes in order of value (install, the benches, the LLR, a one- or two-scene RLLR slice, a
+short training, its weights), then gpu_tests, evaluate and table1 only where time is left;
+table1 has a call of its own (options.TABLE1_CALL). For a longer lease, `--part 1` (up to the datasets) and `--part
 2` (training, evaluation, weights) split them over two calls, the second finding the first's
 datasets and records in the work folder when the machine is still the same and regenerating what
 is missing when it is not; `--part all` runs them in stage order. Each stage is a `spikesim`

@@ -6,7 +6,8 @@ so what is measured is what users run and a stage that hangs is stopped.
 
 Under --work the campaign writes only through `spikesim.outputs` (`check_work` refuses, before
 anything runs, a link on the way to anything it writes there, or a folder or FIFO where it keeps a
-file), and it removes a training run only when its own record says it trained it (`RUN_MARKER`).
+file), and it removes a training run (run/, or table1/'s runs) only when its own record says it
+trained it (`RUN_MARKER`).
 
 It reads the invocation (options.py) and fills the stages' records (records.py); the run
 (runner.py) imports it, never the other way round.
@@ -43,7 +44,7 @@ WINDOW = 41
 #: What the campaign makes in its work folder: the folders (the datasets and the training run are
 #: written by `spikesim` children, which take the folder they are given as their root and guard
 #: only what lies inside it) and the records.
-WORK_FOLDERS = ("logs", "site", "llr", "rllr", "run", "evaluate", "export")
+WORK_FOLDERS = ("logs", "site", "llr", "rllr", "run", "evaluate", "export", "table1")
 STATE_FILE = "state.json"
 #: In a training run the campaign made: the token its state.json records (`Campaign.owns_run`).
 RUN_MARKER = ".gpu_campaign_run"
@@ -62,7 +63,7 @@ def _not_a(mode: int) -> str | None:
 def _work_files() -> list[tuple[str, ...]]:
     """Every file the campaign itself writes, truncates or removes under --work."""
     logs = [("logs", f"{n}{ext}") for n in (*STAGE_NAMES, "campaign") for ext in (".log", ".stdout")]
-    return [(STATE_FILE,), *logs, ("run", RUN_MARKER)]
+    return [(STATE_FILE,), *logs, ("run", RUN_MARKER), ("table1", RUN_MARKER)]
 
 
 def check_work(work: Path) -> None:
@@ -171,14 +172,14 @@ class Campaign:
     def log_path(self, stage: str) -> Path:
         return self.work_path("logs", f"{stage}.log")
 
-    def owns_run(self) -> bool:
-        """Whether --work/run is a training run this campaign made: its RUN_MARKER (a plain file,
-        no link on the way) holds the token state.json records. A user's run, or one copied from
-        elsewhere, has no such marker."""
+    def owns_run(self, folder: str = "run") -> bool:
+        """Whether --work/`folder` (run/, or table1/'s runs) is what this campaign trained: its
+        RUN_MARKER (a plain file, no link on the way) holds the token state.json records. A user's
+        run, or one copied from elsewhere, has no such marker."""
         if not self.run_token:
             return False
         try:
-            marker = self.work_path("run", RUN_MARKER)
+            marker = self.work_path(folder, RUN_MARKER)
             if marker.is_symlink() or not marker.is_file() or marker.stat().st_size > 1024:
                 return False
             return marker.read_text(errors="replace").strip() == self.run_token
@@ -630,6 +631,211 @@ def stage_evaluate(c: Campaign) -> dict[str, Any]:
             "checkpoint": None if ckpt is None else str(ckpt), "notes": notes}
 
 
+# ---- table1: the Table-1 networks at equal training FLOP ------------------------------------------
+#: Random samples per epoch of a table1 run: more than any run takes, so that a run is one epoch and
+#: validates once, when it stops (an epoch of the slice's few samples would validate every step or two).
+TABLE1_SAMPLES_PER_EPOCH = 1_000_000
+
+
+def table1_costs(networks: Sequence[Sequence[str]], train_args: Sequence[str], frames: str) -> dict[str, Any]:
+    """Per table1 network (label, config): its config as `spikesim train` reads it with
+    `train_args` (the same parser and overrides), its parameters, GFLOP per frame at the size of the
+    scenes in `frames` and GFLOP per training step (model/flops.py); a network whose config does not
+    load or build gets its error instead. Run in a child (stage table1), never in the campaign."""
+    from model.config import load_config
+    from model.data import open_scenes
+    from model.flops import network_cost
+    from pipelines.cli import build_parser
+    from pipelines.train import _apply_overrides
+
+    scene = open_scenes(frames)[0]
+    height, width = int(scene.height), int(scene.width)
+    out: dict[str, Any] = {"frame": [height, width], "networks": {}}
+    for label, config in networks:
+        try:
+            args = build_parser("train").parse_args(["train", "--config", config, "--data", frames, *train_args])
+            exp = _apply_overrides(load_config(config), args)
+            cost = network_cost(exp, height, width)
+            out["networks"][label] = {
+                "parameters": cost.parameters, "gflop_per_frame": cost.gflop_per_frame,
+                "sampling_gflop_per_frame": cost.sampling_flop_per_frame / 1e9,
+                "train_gflop_per_step": cost.train_flop_per_step / 1e9, "arch": exp.model.arch,
+                "crop": exp.train.crop, "num_windows": exp.train.num_windows, "batch_size": exp.train.batch_size,
+                "loss": exp.train.loss}
+        except (Exception, SystemExit) as exc:  # argparse exits; any failure is this network's, not the others'
+            out["networks"][label] = {"error": f"{type(exc).__name__}: {' '.join(str(exc).split())}"[:400]}
+    return out
+
+
+_TABLE1_COSTS = ("import json, sys; from pipelines.gpu_campaign.stages import table1_costs; "
+                 "print(json.dumps(table1_costs(**json.loads(sys.argv[1]))))")
+
+
+def _log_size(c: Campaign) -> int:
+    try:
+        return c.log_path(c.current.name).stat().st_size
+    except OSError:
+        return 0
+
+
+def _why(c: Campaign, since: int) -> str:
+    """The last line of what the last command wrote to stderr (its log from byte `since`): the
+    error line of a traceback, or the one-line refusal of a `spikesim` command."""
+    try:
+        with c.log_path(c.current.name).open("rb") as f:
+            f.seek(since)
+            text = f.read(4 << 20).decode(errors="replace")
+    except OSError:
+        return "its log could not be read"
+    stderr = re.split(r"^\[(?:stdout\]|no stdout\])", text, maxsplit=1, flags=re.M)[0]
+    lines = [ln.strip() for ln in stderr.splitlines()[1:] if ln.strip()]  # the first is the command
+    errors = [ln for ln in lines if re.search(r"(Error|Exception|error:)", ln)]
+    return ((errors or lines or ["no message (logs.txt has its output)"])[-1])[:400]
+
+
+def _table1_scores(doc: dict[str, Any], label: str) -> dict[str, Any]:
+    """A network's aligned PSNR, PSNR and SSIM on the LLR, low light, normal light and all, from
+    `evaluate --json`."""
+    out: dict[str, Any] = {}
+    for key, table in (("low", doc.get("groups", {}).get("ALL_low", {})),
+                       ("normal", doc.get("groups", {}).get("ALL_normal", {})), ("all", doc.get("methods", {}))):
+        row = table.get(label)
+        if row:
+            out[key] = {m: row.get(m) for m in ("psnr_aligned", "psnr", "ssim", "frames")}
+    return out
+
+
+def stage_table1(c: Campaign) -> dict[str, Any]:
+    """The Table-1 networks (the profile's: `full`, S2I, WGSE, RSIR, SSML at their published sizes
+    on a GPU) trained at equal training FLOP on the RLLR slice, each scored on the LLR.
+
+    The time left in the box, less the scoring's (`table1_eval_s`), is shared equally over the
+    networks. The first network, the reference, trains for its share (`--budget-minutes`: 85 % of
+    its share after `table1_overhead_s`, its step count planned from its measured step rate, as
+    stage train does); its steps times its FLOP per step (model/flops.py `network_cost`) are the
+    training FLOP of every network, so each other one trains `--max-steps` = that FLOP over its own
+    FLOP per step, in a box of its share of what is then left. A network that cannot train (out of
+    memory, a config that does not build) records why and the others go on (the next one becomes
+    the reference if the reference failed); one cut by its box is scored at the steps it reached,
+    marked `equal_flop: false`. Each run is `spikesim train` (bf16, cosine schedule to its last
+    step, random samples so that it validates once, at its end); the scoring one `spikesim
+    evaluate` of every trained network's last.pt (one per network if that fails)."""
+    llr, rllr = c.o.work / "llr", c.o.work / "rllr"
+    folder = c.work_path("table1")  # a link there (or above) is refused, naming it
+    existing = folder.is_dir() and any(folder.iterdir())
+    ours = existing and c.owns_run("table1")
+    if existing and not ours:
+        raise StageFailed(f"{folder} exists and is not an earlier campaign's table1 runs (state.json in {c.o.work} "
+                          f"records no token that {folder / RUN_MARKER} holds): left as it was; move it, or give "
+                          "another --work")
+    train_scenes, test_scenes = complete_scenes(rllr), complete_scenes(llr)
+    kept = f"; {folder} (this campaign's earlier runs) left as it was" if ours else ""
+    if not train_scenes:
+        raise SkipStage(f"no RLLR scene in {rllr} (stage rllr made none){kept}")
+    if not test_scenes:
+        raise SkipStage(f"no LLR scene in {llr} (stage llr made none){kept}")
+    if ours:  # a rerun trains afresh
+        outputs.remove(c.o.work, "table1")  # never through a link
+    c.record_run_token()  # in state.json before the runs exist
+    outputs.make_dirs(c.o.work, "table1")
+    outputs.atomic_write_text(c.work_path("table1", RUN_MARKER), c.run_token + "\n")
+
+    nets: dict[str, dict[str, Any]] = {label: {"config": config} for label, config in c.p.table1}
+    figures: dict[str, Any] = {"networks": nets, "data_scenes": len(train_scenes), "test_scenes": len(test_scenes),
+                               "precision": "bf16", "reference": None, "train_gflop_each": None, "failed": []}
+    result = c.command([c.python, "-c", _TABLE1_COSTS,
+                        json.dumps({"networks": [list(n) for n in c.p.table1], "train_args": list(c.p.table1_train),
+                                    "frames": str(llr)})], box_s=min(c.left(), 180.0))
+    check_command(result, "the FLOP count (model/flops.py)", figures)
+    costs = _json_of(result.stdout)
+    figures["frame"] = costs["frame"]
+    for label, cost in costs["networks"].items():
+        nets[label].update(cost)
+
+    flop: float | None = None  # GFLOP of training every network gets: the reference's
+    todo = [(label, config) for label, config in c.p.table1 if "error" not in nets[label]]
+    trained: dict[str, Path] = {}
+    for i, (label, config) in enumerate(todo):
+        rec = nets[label]
+        share = (c.left() - c.p.table1_eval_s) / (len(todo) - i)  # time unused by earlier runs goes to later ones
+        if share < 1.0:
+            rec["error"] = (f"not started: {max(c.left(), 0):.0f} s left of the box, and the scoring keeps "
+                            f"{c.p.table1_eval_s:.0f} s")
+            continue
+        if flop is None:  # the reference: its step count comes from its share of the time
+            minutes = max(share - c.p.table1_overhead_s, 1.0) * 0.85 / 60
+            if c.p.table1_max_minutes is not None:
+                minutes = min(minutes, c.p.table1_max_minutes)
+            length = ["--budget-minutes", f"{minutes:.4f}"]
+            rec.update(role="reference", budget_minutes=minutes)
+        else:
+            steps = max(1, round(flop / rec["train_gflop_per_step"]))
+            length = ["--max-steps", str(steps)]
+            rec.update(role="equal FLOP", planned_steps=steps)
+        run = c.work_path("table1", label)
+        since = _log_size(c)
+        result = c.spikesim("train", "--config", config, *c.p.table1_train, *length, "--data", str(rllr),
+                            "--precision", "bf16", "--lr-schedule", "cosine", "--samples-per-epoch",
+                            str(TABLE1_SAMPLES_PER_EPOCH), "--seed", str(c.o.seed), "--device", c.p.torch_device,
+                            "--quiet", "-o", str(run), box_s=share)
+        try:
+            doc = _json_of(result.stdout)
+        except StageFailed:
+            doc = {}
+        last = run / "last.pt"
+        rec.update({k: doc[k] for k in ("steps", "train_seconds", "samples_per_s", "data_wait_share", "planned_steps",
+                                        "stopped_by", "last_loss", "precision") if doc.get(k) is not None})
+        rec.update(seconds=round(result.seconds, 1), returncode=result.returncode, timed_out=result.timed_out,
+                   box_s=round(share, 1))
+        if rec.get("steps") and rec.get("train_seconds"):
+            rec["seconds_per_step"] = rec["train_seconds"] / rec["steps"]
+        if not (result.returncode == 0 or result.timed_out) or not last.is_file() or not rec.get("steps"):
+            rec["error"] = (f"train exited with status {result.returncode}: {_why(c, since)}" if not result.timed_out
+                            else f"cut by its box ({share:.0f} s) before a checkpoint")
+            continue
+        rec["train_gflop"] = rec["steps"] * rec["train_gflop_per_step"]
+        if flop is None:  # the reference's steps, however it ended, set every other network's
+            flop = rec["train_gflop"]
+            figures["reference"], figures["train_gflop_each"] = label, flop
+            rec["equal_flop"] = True
+        else:
+            rec["equal_flop"] = rec["steps"] == rec["planned_steps"]
+        if result.timed_out:
+            rec["note"] = f"cut by its box ({share:.0f} s) at step {rec['steps']}" + (
+                "" if rec["role"] == "reference" else f" of {rec['planned_steps']}: less training FLOP than the others")
+        trained[label] = last
+    figures["failed"] = [label for label in nets if "error" in nets[label]]
+    if not trained:
+        raise StageFailed("no network trained: " + "; ".join(f"{label}: {nets[label]['error']}"
+                                                             for label in figures["failed"]), figures)
+
+    t = time.monotonic()
+    result = c.spikesim("evaluate", *c.p.evaluate, "--data", str(llr), "--methods",
+                        *[f"{label}={path}" for label, path in trained.items()], "--json", "--quiet", "--device",
+                        c.p.torch_device, "-o", str(c.work_path("table1", "evaluate")))
+    if result.returncode == 0:
+        doc = _json_of(result.stdout)
+        for label in trained:
+            nets[label]["scores"] = _table1_scores(doc, label)
+    elif not result.timed_out and len(trained) > 1:  # one network's failure must not cost the others' scores
+        figures["evaluate_note"] = "one evaluate of every network failed: each scored alone"
+        for label, path in trained.items():
+            since = _log_size(c)
+            one = c.spikesim("evaluate", *c.p.evaluate, "--data", str(llr), "--methods", f"{label}={path}", "--json",
+                             "--quiet", "--device", c.p.torch_device, "-o", str(c.work_path("table1", f"evaluate_{label}")))
+            if one.returncode == 0:
+                nets[label]["scores"] = _table1_scores(_json_of(one.stdout), label)
+            else:
+                nets[label]["error"] = ("cut by the box while scored" if one.timed_out else
+                                        f"evaluate exited with status {one.returncode}: {_why(c, since)}")
+    figures["evaluate_seconds"] = round(time.monotonic() - t, 1)
+    figures["failed"] = [label for label in nets if "error" in nets[label]]
+    if not any("scores" in n for n in nets.values()):
+        check_command(result, "spikesim evaluate", figures)
+        raise StageFailed("no network was scored on the LLR (logs.txt has evaluate's output)", figures)
+    return figures
+
+
 def stage_export(c: Campaign) -> dict[str, Any]:
     ckpt = _checkpoint(c)
     if ckpt is None:
@@ -643,10 +849,10 @@ def stage_export(c: Campaign) -> dict[str, Any]:
 STAGES: dict[str, Callable[[Campaign], dict[str, Any]]] = {
     "install": stage_install, "gpu_tests": stage_gpu_tests, "bench_sensor": stage_bench_sensor,
     "bench_render": stage_bench_render, "llr": stage_llr, "rllr": stage_rllr, "train": stage_train,
-    "evaluate": stage_evaluate, "export": stage_export,
+    "evaluate": stage_evaluate, "export": stage_export, "table1": stage_table1,
 }
 
 
 __all__ = ["Campaign", "CommandResult", "StageFailed", "SkipStage", "STAGES", "CARRIED", "ROOT", "install_wheels",
            "probe_environment", "check_command", "complete_scenes", "check_work", "read_state_doc", "WORK_FOLDERS",
-           "STATE_FILE", "RUN_MARKER"]
+           "STATE_FILE", "RUN_MARKER", "table1_costs", "TABLE1_SAMPLES_PER_EPOCH"]
