@@ -72,12 +72,14 @@ def measure_sensor(height: int, width: int, steps: int, numpy_steps: int, backen
     frames = rng.uniform(0.0, 0.3, size=(steps, height, width)).astype(np.float32)
     rows = []
     for model, cam in (("noiseless", SpikeCamera.noiseless(height=height, width=width)),
-                       ("realistic", SpikeCamera.realistic(height=height, width=width))):
+                       ("realistic", SpikeCamera.realistic(height=height, width=width)),
+                       ("realistic-renewal", SpikeCamera.realistic(height=height, width=width,
+                                                                               shot_noise="renewal"))):
         def run(sim: Any, f: np.ndarray, k: int) -> Callable[[], Any]:
             return lambda: [p.to_numpy() for p in sim.stream_packed(f, keyframe_every=k)]
 
         ref_sim = Simulator(cam, backend="numpy", seed=0)
-        t = _best(run(ref_sim, frames[:numpy_steps], 1), 1 if model == "realistic" else repeats)
+        t = _best(run(ref_sim, frames[:numpy_steps], 1), repeats if model == "noiseless" else 1)
         ref = numpy_steps * height * width / t
         rows.append(_row("sensor", f"{model}, frames every step", "numpy", ref, ref))
         for b in backends:

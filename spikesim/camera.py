@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-SHOT_NOISE_MODELS = ("off", "gaussian", "poisson")
+SHOT_NOISE_MODELS = ("off", "gaussian", "poisson", "renewal")
 #: Physical ranges of the camera's scales (checked at construction). Threshold: a spike camera's
 #: threshold is a fraction of its pixel's full well, and CMOS full-well capacities run 1e3-1e6
 #: photo-electrons (Janesick, "Photon Transfer", 2007); below 10 e- one step's shot noise is no
@@ -121,9 +121,17 @@ class SpikeCamera:
     """Temporal comparator noise, redrawn at every comparison, fraction of threshold (0.6 %)."""
     shot_noise: str = "gaussian"
     """Photon (and dark-electron) shot noise: "off", "gaussian" (per-step increment with the
-    Poisson variance, all backends) or "poisson" (exact per-step Poisson, NumPy reference only).
-    Reaching the threshold sums ~threshold_electrons electrons, so the two differ only in the
-    third cumulant of the spike time, O(1/sqrt(threshold_electrons)); tests check they agree."""
+    Poisson variance, all backends), "poisson" (exact per-step Poisson, NumPy reference only) or
+    "renewal" (drawn once per spike, all backends). Reaching the threshold sums ~threshold_electrons
+    electrons, so the per-step models differ only in the third cumulant of the spike time,
+    O(1/sqrt(threshold_electrons)); tests check they agree.
+
+    "renewal" uses the time-rescaling of a Poisson process: with reset by subtraction, the spike
+    times are where the expected charge reaches the arrival of each threshold's worth of electrons,
+    so each interval's threshold charge is Gamma(k)/k (k = threshold x threshold_electrons) and the
+    charge between spikes needs no draw: exact for Poisson electrons, counted by spike so that
+    backends agree bit for bit without comparator noise. The golden statistics cannot tell it
+    from "gaussian" at 1000 e- (docs/sensor.md)."""
     reset_loss: float = 0.002
     """Fraction of the integration lost in the step after a spike (reset/readout delay, 0.2 %)."""
     random_initial_state: bool = True

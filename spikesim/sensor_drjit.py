@@ -11,10 +11,14 @@ Layout, chosen from the roofline in docs/performance.md:
   one word per 32 steps. A second, cheap kernel transposes 32 x 32 bit blocks into the `.dat`
   frame layout (32 pixels per word, least significant bit first). Only packed words leave the
   device.
-- Temporal noise is Philox4x32-7 keyed by the stream's seed, counted by (pixel, step // 2): one
-  call gives the four uniforms that two steps need (two Box-Muller pairs), so the stream does
-  not depend on chunking or on which streams share a launch. The loop runs over step pairs; a
-  half outside the asked range leaves the state untouched.
+- Temporal noise is Philox4x32-7 keyed by the stream's seed, counted by (pixel, step // G): one
+  call serves G steps, so the stream does not depend on chunking or on which streams share a
+  launch. With the per-step Gaussian shot noise G = 2 (two Box-Muller pairs); with the renewal
+  shot noise G = 4 (a word a step: the comparator's popcount normal), and each spike's threshold
+  charge has its own call, counted by (pixel, spike index) as in the NumPy reference
+  (spikesim/philox.py). The loop runs over groups of G steps unmasked; a group cut by a call's first
+  or last step runs as a masked piece of its own, whose steps outside the call leave the state
+  untouched.
 - Everything that changes between calls (step counts, phases, offsets) is an opaque scalar, so
   one kernel is compiled per configuration and reused (tests/test_sensor_backends.py).
 """
@@ -30,14 +34,13 @@ from ._drjit import dr
 from .camera import Y_MAX, SpikeCamera
 from .errors import InvalidFrames
 from .fixed_pattern import PixelParameters
+from .philox import (PHILOX_M, PHILOX_ROUNDS, PHILOX_W, THRESHOLD_CHARGE_TAG, philox_key,
+                     threshold_charge_scale)
 
 #: Steps whose spikes one lane collects in one output word.
 WORD_STEPS = 32
 
-# Philox4x32 constants (Salmon et al., "Parallel random numbers: as easy as 1, 2, 3", SC 2011).
-_PHILOX_M = (0xD2511F53, 0xCD9E8D57)
-_PHILOX_W = (0x9E3779B9, 0xBB67AE85)
-_PHILOX_ROUNDS = 7  # Dr.Jit's default; passes BigCrush (Manssen et al. 2012)
+_PHILOX_M, _PHILOX_W, _PHILOX_ROUNDS = PHILOX_M, PHILOX_W, PHILOX_ROUNDS
 
 
 def _module(backend: str):
@@ -78,11 +81,28 @@ def _box_muller(m, u0, u1):
     return radius * cos_, radius * sin_
 
 
-def philox_key(seed: int) -> tuple[int, int]:
-    """The 64-bit Philox key of a stream's seed, as (hi, lo) words: the seed mixed with
-    constants, so it differs from NumPy's own Philox streams of the same seed."""
-    k = (int(seed) * 0x9E3779B97F4A7C15 + 0x5DEECE66D) % (1 << 64)
-    return k >> 32, k & 0xFFFFFFFF
+def popcount_normal(m, *words):
+    """A standard normal variate from 32 n random bits: (popcount - 16 n) / sqrt(8 n), a
+    Binomial(32 n, 1/2) with a normal's mean and variance exactly (excess kurtosis -1/(16 n)), no
+    logarithm or sine (spikesim.philox.popcount_normal_numpy is its NumPy twin). The renewal camera
+    draws its comparator noise (one word a step, four steps per Philox call) and each spike's
+    threshold charge (two words) this way; the golden check passes with it (docs/sensor.md)."""
+    bits = dr.popcnt(words[0])
+    for w in words[1:]:
+        bits = bits + dr.popcnt(w)
+    n = len(words)
+    return (m.Float32(bits) - 16.0 * n) * (1.0 / math.sqrt(8.0 * n))
+
+
+def steps_per_draw(camera: SpikeCamera) -> int:
+    """Steps that share one Philox call: 1 without temporal noise (no call), 2 for the per-step
+    Gaussian shot noise (two Box-Muller pairs a call), 4 for the renewal camera (a word a step for
+    its comparator noise; its threshold charges have their own call, counted by spike)."""
+    if not camera.has_temporal_noise:
+        return 1
+    if camera.shot_noise == "renewal":
+        return 4 if camera.comparator_noise > 0 else 1
+    return 2
 
 
 @dataclass
@@ -161,6 +181,17 @@ class DrJitSensor:
         # Pixel index within its stream: the Philox counter, so a stream's noise does not depend
         # on which streams share the launch.
         self._pixel = self._owned(m.UInt32(np.tile(np.arange(P, dtype=np.uint32), self.num_streams)))
+        # Renewal shot noise: each spike's threshold charge is Gamma(k)/k, k = threshold x N_e
+        # electrons, drawn by Wilson-Hilferty as (1 - s^2 + s z)^3 with s = 1/(3 sqrt(k)).
+        self.group = steps_per_draw(camera)
+        self.renewal = camera.shot_noise == "renewal"
+        self._renewal_s = None
+        if self.renewal and self._threshold is not None:
+            self._renewal_s = self._owned(self.Float(threshold_charge_scale(
+                np.concatenate([p.threshold for p in params]), camera.threshold_electrons, self.dtype)))
+        # Renewal: each lane's spike count (64 bits as two words), the threshold charges' counter.
+        self._counts = ((self._owned(dr.zeros(m.UInt32, self.width_lanes)),
+                         self._owned(dr.zeros(m.UInt32, self.width_lanes))) if self.renewal else ())
         self._integrate = dr.freeze(self._integrate_traced, warn_after=20)
         self._pack = dr.freeze(self._pack_traced, warn_after=20)
 
@@ -189,46 +220,82 @@ class DrJitSensor:
         """Simulate `num_steps` steps starting at absolute step `first_step`; step s (0-based in
         this call) reads keyframes `first_key + (phase + s) // k` and the next one, interpolated.
         Returns the packed spikes on the device. Raises InvalidFrames (state untouched) if a value
-        read is NaN, infinite or negative."""
-        cam, m, SP = self.camera, self.m, self.width_lanes
-        k, L = int(keyframe_every), self.steps_per_launch
-        # Steps count from base = first_step, rounded down to even where temporal noise pairs the
-        # steps (Philox). Launches cover [l L, (l + 1) L) of that count, so their words join
+        read is NaN, infinite or negative.
+
+        Steps that share a Philox call (`group`) run in the unmasked kernel; only a group cut by
+        the call's first or last step runs in the masked one, as a piece of its own (masking every
+        step cost 15-30 % of the realistic kernel, docs/performance.md)."""
+        G = self.group
+        head = min((-first_step) % G, num_steps)
+        tail = (num_steps - head) % G
+        pieces = [(s0, n, n % G != 0 or (first_step + s0) % G != 0)
+                  for s0, n in ((0, head), (head, num_steps - head - tail), (num_steps - tail, tail)) if n]
+        state = (self._acc, self._comp, self._fired, *self._counts)
+        bad = dr.opaque(self.m.Bool, False, self.width_lanes)
+        outs = []
+        for s0, n, masked in pieces:
+            state, bad, out = self._run_piece(block, first_key, phase + s0, keyframe_every, n, first_step + s0,
+                                              masked, state, bad)
+            outs.append((out, n))
+        if bool(dr.any(bad)[0]):
+            raise InvalidFrames("a frame holds NaN, infinite or negative irradiance")
+        # The state is committed only now: an invalid frame leaves it as it was.
+        self._acc, self._comp, self._fired, *counts = state
+        self._counts = tuple(counts)
+        cam = self.camera
+        return DevicePacked(self._join_steps(outs), self.num_streams, num_steps, cam.height, cam.width)
+
+    def _join_steps(self, outs: list):
+        """One (S, n, G) word array from pieces (S, n_i, G) that follow each other in time."""
+        if len(outs) == 1:
+            return outs[0][0]
+        if self.num_streams == 1:
+            return dr.concat([o for o, _ in outs])
+        G, S, m = self._words_per_frame(), self.num_streams, self.m
+        index, base = [], 0
+        for _, n in outs:  # piece i's (s, j, g) word lands at (s, before_i + j, g)
+            index.append((np.arange(S)[:, None, None] * (n * G) + np.arange(n * G).reshape(1, n, G) + base))
+            base += S * n * G
+        src = np.concatenate(index, axis=1).reshape(-1).astype(np.uint32)
+        return dr.gather(m.UInt32, dr.concat([o for o, _ in outs]), m.UInt32(src))
+
+    def _run_piece(self, block, first_key: int, phase: int, k: int, num_steps: int, first_step: int,
+                   masked: bool, state: tuple, bad):
+        """Launches over one piece of a call: the new state, invalid mask and packed words."""
+        m, SP, L, G = self.m, self.width_lanes, self.steps_per_launch, self.group
+        k = int(k)
+        # Steps count from base = first_step, rounded down to a multiple of the steps that share
+        # a Philox call. Launches cover [l L, (l + 1) L) of that count, so their words join
         # into one timeline of bits.
-        offset = first_step & 1 if cam.has_temporal_noise else 0
+        offset = first_step % G
         span = offset + num_steps
-        state = (self._acc, self._comp, self._fired)
-        bad = dr.opaque(m.Bool, False, SP)
-        fixed = (self._gain, self._dark, self._threshold, self._key_hi, self._key_lo, self._pixel)
+        fixed = (self._gain, self._dark, self._threshold, self._key_hi, self._key_lo, self._pixel, self._renewal_s)
         op = lambda v: dr.opaque(m.UInt32, v)  # noqa: E731
         words = []
         for a in range(0, span, L):
             lo, hi = max(a, offset), min(a + L, span)
             t, step = phase + lo - offset, first_step + lo - offset
             control = (op((first_key + t // k) * SP), op(t % k), op(k), op(hi - lo), op(lo - a),
-                       op((step >> 1) & 0xFFFFFFFF), op((step >> 33) & 0xFFFFFFFF))
-            *state, bad, w = self._integrate(k > 1, block, fixed, *state, bad, control)
+                       op((step // G) & 0xFFFFFFFF), op((step // G) >> 32 & 0xFFFFFFFF))
+            state, bad, w = self._integrate(k > 1, masked, block, fixed, state, bad, control)
             words.append(w)
         words = words[0] if len(words) == 1 else dr.concat(words)
-        G = self._words_per_frame()
+        W = self._words_per_frame()
         blocks = (span + WORD_STEPS - 1) // WORD_STEPS
-        out = self._pack(words, dr.arange(m.UInt32, blocks * self.num_streams * G),
-                         dr.empty(m.UInt32, self.num_streams * num_steps * G), (op(offset), op(span), op(num_steps)))
-        if bool(dr.any(bad)[0]):
-            raise InvalidFrames("a frame holds NaN, infinite or negative irradiance")
-        # The state is committed only now: an invalid frame leaves it as it was.
-        self._acc, self._comp, self._fired = state
-        return DevicePacked(out, self.num_streams, num_steps, cam.height, cam.width)
+        out = self._pack(words, dr.arange(m.UInt32, blocks * self.num_streams * W),
+                         dr.empty(m.UInt32, self.num_streams * num_steps * W), (op(offset), op(span), op(num_steps)))
+        return tuple(state), bad, out
 
     def _words_per_frame(self) -> int:
         return (self.camera.num_pixels + WORD_STEPS - 1) // WORD_STEPS
 
     # ------------------------------------------------------------------------------------------
-    def _integrate_traced(self, interpolate: bool, block, fixed: tuple, acc, comp, fired, bad, control: tuple):
+    def _integrate_traced(self, interpolate: bool, masked: bool, block, fixed: tuple, state: tuple, bad,
+                          control: tuple):
         """One launch: integrate-and-fire over at most `steps_per_launch` steps. Returns the new
         state, the invalid-input mask and the spike words (steps_per_launch / 32 words per lane:
-        bit i of word w is step base + 32 w + i; base is the first step, rounded down to even
-        when temporal noise pairs the steps).
+        bit i of word w is step base + 32 w + i; base is the first step, rounded down to a multiple
+        of the steps that share a Philox call).
 
         Frozen (dr.freeze): traced once per input layout, then replayed without Python tracing,
         which otherwise costs more than a short launch computes (0.3-1.6 ms, measured). So every
@@ -236,16 +303,21 @@ class DrJitSensor:
         in the code is fixed per sensor."""
         cam, m, Float, UInt32 = self.camera, self.m, self.Float, self.m.UInt32
         SP = self.width_lanes
-        row0, key_phase, k, n, offset, pair_lo, pair_hi = control
-        gain, dark, thr, key_hi, key_lo, pixel = fixed
-        span = offset + n                 # steps from base; `offset` (0 or 1) are not ours
+        row0, key_phase, k, n, offset, group_lo, group_hi = control
+        gain, dark, thr, key_hi, key_lo, pixel, renewal_s = fixed
+        span = offset + n                 # steps from base; the first `offset` are not ours
         num_words = (span + (WORD_STEPS - 1)) >> 5
         lane = dr.arange(UInt32, SP)
         words = dr.empty(UInt32, self.steps_per_launch // WORD_STEPS * SP)
 
         shot = cam.shot_noise == "gaussian"
+        renewal = cam.shot_noise == "renewal"
         comparator = cam.comparator_noise > 0
-        pairs = shot or comparator        # one Philox call serves two steps
+        G = self.group                    # steps served by one Philox call
+        draws = cam.has_temporal_noise
+        if renewal:
+            s_shot = renewal_s if renewal_s is not None else Float(float(
+                threshold_charge_scale(1.0, cam.threshold_electrons, self.dtype)))
         reset_loss = cam.reset_loss > 0
         inv_ne = 1.0 / cam.threshold_electrons
         retain = 1.0 - cam.reset_loss
@@ -254,8 +326,10 @@ class DrJitSensor:
 
         def read_y(row, r, active):
             """y of this step: keyframe row (and the next, weighted r / k), bounded, and whether a
-            value read was invalid. `active` (None: always) masks reads past the block."""
-            y = Float(dr.gather(m.Float32, block, row + lane, True if active is None else active))
+            value read was invalid. `active` (None: always) marks the steps that are ours: the
+            others read the block's first row instead (a select of the index is much cheaper than a
+            masked gather on the CPU) and their results are discarded by the caller."""
+            y = Float(dr.gather(m.Float32, block, row + lane if active is None else dr.select(active, row + lane, lane)))
             invalid = ~((y >= 0.0) & (y < math.inf))
             if interpolate:
                 later = r > 0 if active is None else active & (r > 0)
@@ -275,7 +349,19 @@ class DrJitSensor:
         def keep(active, new, old):
             return new if active is None else dr.select(active, new, old)
 
-        def step(y, z, acc, comp, fired):
+        def threshold_charge(counts):
+            """The charge of the interval that a spike now would start, over the threshold:
+            Gamma(k)/k by the Wilson-Hilferty cube of a popcount normal (z >= -8 keeps it positive
+            for k >= 10 electrons, the camera's least), drawn from Philox counted by the spike's
+            index (count + 1, 64 bits), so the draw does not depend on the step it falls on."""
+            lo, hi = counts
+            nxt = lo + 1
+            u = philox4x32(m, (key_hi, key_lo), (pixel, nxt, hi + dr.select(nxt == 0, UInt32(1), UInt32(0)),
+                                                  UInt32(THRESHOLD_CHARGE_TAG)))
+            g = (1.0 - s_shot * s_shot) + s_shot * Float(popcount_normal(m, u[0], u[1]))
+            return threshold * (g * g * g)
+
+        def step(y, z, acc, comp, fired, counts):
             """One readout step, in the order of sensor_numpy."""
             e = y * gain if gain is not None else y
             if dark is not None:
@@ -289,49 +375,64 @@ class DrJitSensor:
             total = acc + u
             comp = (total - acc) - u
             f = (total >= threshold + sigma_c * Float(z[1])) if comparator else (total >= threshold)
-            total = dr.select(f, total - threshold, total)
-            return f, dr.minimum(dr.maximum(total, -threshold), threshold + threshold), comp
+            if renewal:  # reset by the next interval's threshold charge; count the spike
+                total = dr.select(f, total - threshold_charge(counts), total)
+                lo, hi = counts
+                lo2 = dr.select(f, lo + 1, lo)
+                counts = (lo2, dr.select(f & (lo2 == 0), hi + 1, hi))
+            else:
+                total = dr.select(f, total - threshold, total)
+            return f, dr.minimum(dr.maximum(total, -threshold), threshold + threshold), comp, counts
 
-        def inner_body(i, bits, row, r, acc, comp, fired, bad, w):
+        def inner_body(i, bits, row, r, acc, comp, fired, counts, bad, w):
             local = w * WORD_STEPS + i    # step index from base
-            if pairs:
-                c = pair_lo + (local >> 1)
-                carry = dr.select(c < pair_lo, UInt32(1), UInt32(0))
-                u = philox4x32(m, (key_hi, key_lo), (pixel, c, pair_hi + carry, UInt32(0)))
-                halves = [(0, _box_muller(m, _uniform(m, u[0]), _uniform(m, u[1]))),
-                          (1, _box_muller(m, _uniform(m, u[2]), _uniform(m, u[3])))]
+            if draws:
+                c = group_lo + (local >> (G.bit_length() - 1))
+                carry = dr.select(c < group_lo, UInt32(1), UInt32(0))
+                if renewal and not comparator:  # the threshold charges are all it draws
+                    halves = [(q, (None, None)) for q in range(G)]
+                else:
+                    u = philox4x32(m, (key_hi, key_lo), (pixel, c, group_hi + carry, UInt32(0)))
+                    if not renewal:   # (shot, comparator) normals of two steps
+                        halves = [(0, _box_muller(m, _uniform(m, u[0]), _uniform(m, u[1]))),
+                                  (1, _box_muller(m, _uniform(m, u[2]), _uniform(m, u[3])))]
+                    else:             # the comparator's normal of each of G steps
+                        halves = [(q, (None, popcount_normal(m, u[q]))) for q in range(G)]
             else:
                 halves = [(0, (None, None))]
             for half, z in halves:
-                # Only the first and last pair of a launch have a half that is not ours.
-                active = (local + half >= offset) & (local + half < span) if pairs else None
+                # Only a masked piece (a group cut by the call's ends) has steps that are not ours.
+                active = (local + half >= offset) & (local + half < span) if masked else None
                 y, invalid = read_y(row, r, active)
-                f, acc2, comp2 = step(y, z, acc, comp, fired)
+                f, acc2, comp2, counts2 = step(y, z, acc, comp, fired, counts)
                 if active is not None:
                     f, invalid = f & active, invalid & active
                 acc, comp = keep(active, acc2, acc), keep(active, comp2, comp)
+                counts = tuple(keep(active, a, b) for a, b in zip(counts2, counts))
                 if reset_loss:
                     fired = keep(active, f, fired)
                 bad |= invalid
                 bits |= dr.select(f, UInt32(1) << (i + half), UInt32(0))
                 row2, r2 = next_row(row, r)
                 row, r = keep(active, row2, row), keep(active, r2, r)
-            return i + len(halves), bits, row, r, acc, comp, fired, bad, w
+            return i + len(halves), bits, row, r, acc, comp, fired, counts, bad, w
 
-        def word_body(w, row, r, acc, comp, fired, bad):
+        def word_body(w, row, r, acc, comp, fired, counts, bad):
             limit = dr.minimum(span - w * WORD_STEPS, UInt32(WORD_STEPS))
-            _, bits, row, r, acc, comp, fired, bad, _ = dr.while_loop(
-                (UInt32(0), UInt32(0), row, r, acc, comp, fired, bad, w),
+            _, bits, row, r, acc, comp, fired, counts, bad, _ = dr.while_loop(
+                (UInt32(0), UInt32(0), row, r, acc, comp, fired, counts, bad, w),
                 lambda i, *rest: i < limit, inner_body)
             dr.scatter(words, bits, w * SP + lane)
-            return w + 1, row, r, acc, comp, fired, bad
+            return w + 1, row, r, acc, comp, fired, counts, bad
 
-        _, _, _, acc, comp, fired, bad = dr.while_loop(
-            (UInt32(0), row0, key_phase, acc, comp, fired, bad), lambda w, *rest: w < num_words, word_body)
+        acc, comp, fired, *counts = state
+        _, _, _, acc, comp, fired, counts, bad = dr.while_loop(
+            (UInt32(0), row0, key_phase, acc, comp, fired, tuple(counts), bad), lambda w, *rest: w < num_words,
+            word_body)
         # Evaluate the loop's outputs with its side effect (the words): else the packing
         # forces the scatter alone and the loop runs a second time for the state.
-        dr.eval(words, acc, comp, fired, bad)
-        return acc, comp, fired, bad, words
+        dr.eval(words, acc, comp, fired, counts, bad)
+        return (acc, comp, fired, *counts), bad, words
 
     def _pack_traced(self, words, idx, out, control: tuple):
         """The .dat frame layout from the lanes' words: one lane per (word block b, stream s,
@@ -367,11 +468,16 @@ class DrJitSensor:
 
     # ------------------------------------------------------------------------------------------
     def get_state(self) -> dict[str, np.ndarray]:
-        """Accumulators, their compensation terms and last-step spikes, (S, H W) arrays."""
+        """Accumulators, their compensation terms and last-step spikes, (S, H W) arrays; with the
+        renewal shot noise also each pixel's spike count (the threshold charges' counter)."""
         shape = (self.num_streams, self.camera.num_pixels)
-        return {"accumulator": np.asarray(self._acc.numpy(), dtype=self.dtype).reshape(shape),
-                "compensation": np.asarray(self._comp.numpy(), dtype=self.dtype).reshape(shape),
-                "fired": np.asarray(self._fired.numpy(), dtype=bool).reshape(shape)}
+        state = {"accumulator": np.asarray(self._acc.numpy(), dtype=self.dtype).reshape(shape),
+                 "compensation": np.asarray(self._comp.numpy(), dtype=self.dtype).reshape(shape),
+                 "fired": np.asarray(self._fired.numpy(), dtype=bool).reshape(shape)}
+        if self.renewal:
+            lo, hi = (np.asarray(c.numpy(), dtype=np.uint64).reshape(shape) for c in self._counts)
+            state["spike_count"] = (hi << np.uint64(32)) | lo
+        return state
 
 
 __all__ = ["DrJitSensor", "DevicePacked", "InvalidFrames", "philox4x32", "philox_key", "WORD_STEPS"]

@@ -55,7 +55,7 @@ def test_bench_reports_ratios(capsys):
     stages = {r["stage"] for r in rows}
     assert stages == {"sensor", "render", "pipeline"}
     ref = {r["what"].split(",")[0]: r["pixel_steps_per_s"] for r in rows if r["device"] == "numpy"}
-    assert set(ref) == {"noiseless", "realistic"}
+    assert set(ref) == {"noiseless", "realistic", "realistic-renewal"}
     for r in rows:
         assert r["pixel_steps_per_s"] > 0
         assert r["vs_real_time"] == pytest.approx(r["pixel_steps_per_s"] / 4e9)

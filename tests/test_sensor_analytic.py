@@ -84,11 +84,13 @@ def _shot_noise_count_variance(mean: float, var: float) -> float:
     return var + float((w * f * (1 - f)).sum())
 
 
-@pytest.mark.parametrize("backend,model", [("numpy", "gaussian"), ("numpy", "poisson")]
-                         + [(b, "gaussian") for b in BACKENDS[1:]])
+@pytest.mark.parametrize("backend,model", [("numpy", "gaussian"), ("numpy", "poisson"), ("numpy", "renewal")]
+                         + [(b, m) for b in BACKENDS[1:] for m in ("gaussian", "renewal")])
 def test_shot_noise_count_mean_and_variance(backend, model):
     # Charge after T steps has mean yT and variance yT / N_e (Poisson electrons); with a uniform
-    # initial phase the window count has mean yT and the variance above.
+    # initial phase the window count has mean yT and the variance above. The renewal model draws
+    # each interval's charge instead (Gamma, variance 1 / N_e): a renewal count of mean yT has
+    # the same variance to O(1 / N_e).
     ne, y, T = 200.0, 0.2, 200
     cam = SpikeCamera.noiseless(height=64, width=64, shot_noise=model, threshold_electrons=ne,
                                 random_initial_state=True)

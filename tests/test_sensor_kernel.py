@@ -36,6 +36,54 @@ def test_unrolled_philox_is_drjits_philox4x32():
             assert np.array_equal(a.numpy(), b.numpy())
 
 
+def test_numpy_philox_is_the_kernels():
+    from spikesim.philox import philox4x32_numpy
+    from spikesim.sensor_drjit import philox4x32
+    m = _module()
+    rng = np.random.default_rng(2)
+    c = [rng.integers(0, 1 << 32, 300, dtype=np.uint32) for _ in range(4)]
+    for key in ((0, 0), (0xDEADBEEF, 0x12345678), (0xFFFFFFFF, 0xFFFFFFFF)):
+        mine = philox4x32(m, (m.UInt32(key[0]), m.UInt32(key[1])), tuple(m.UInt32(x) for x in c))
+        for a, b in zip(philox4x32_numpy(key, tuple(c)), mine):
+            assert np.array_equal(a, np.asarray(b.numpy(), np.uint32))
+
+
+@pytest.mark.parametrize("n", [1, 2])
+def test_popcount_normals_have_a_normals_mean_and_variance(n):
+    # (popcount - 16 n) / sqrt(8 n) of 32 n uniform bits is Binomial(32 n, 1/2) standardised:
+    # mean 0, variance 1 (tested on a million Philox words, within 5 standard errors), range
+    # +-4 sqrt(2 n); the kernel's equals the NumPy twin's, which is the formula to float32 rounding.
+    from spikesim.philox import philox4x32_numpy, popcount_normal_numpy
+    from spikesim.sensor_drjit import popcount_normal
+    m = _module()
+    N = 1 << 20
+    words = philox4x32_numpy((7, 9), (np.arange(N, dtype=np.uint32), 0, 0, 0))[:n]
+    z = popcount_normal_numpy(*words).astype(np.float64)
+    bits = sum(np.array([bin(int(v)).count("1") for v in w[:1000]]) for w in words)
+    assert np.allclose(z[:1000], (bits - 16 * n) / np.sqrt(8 * n), rtol=1e-6, atol=0)
+    assert abs(z.mean()) < 5 / np.sqrt(N) and abs(z.var() - 1) < 5 * np.sqrt(2 / N)
+    assert z.min() >= -4 * np.sqrt(2 * n) - 1e-6 and z.max() <= 4 * np.sqrt(2 * n) + 1e-6
+    kernel = np.asarray(popcount_normal(m, *[m.UInt32(w) for w in words]).numpy(), np.float32)
+    assert np.array_equal(kernel, z.astype(np.float32))
+
+
+@pytest.mark.parametrize("precision", ["float32", "float64"])
+def test_renewal_shot_noise_is_bit_identical_on_every_backend(precision):
+    # Without comparator noise every draw of the renewal camera is a threshold charge, counted by
+    # (pixel, spike index) in both backends: the streams and spike counts agree bit for bit, for
+    # any chunking.
+    cam = SpikeCamera.realistic(height=6, width=21, shot_noise="renewal", comparator_noise=0.0,
+                                precision=precision)
+    f = frames(260, 6, 21, seed=8, high=0.7)
+    ref = Simulator(cam, backend="numpy", seed=12)
+    a = ref.run(f)
+    fast = Simulator(cam, backend=FAST_BACKEND, seed=12, chunk_steps=37)
+    assert fast.run(f) == a
+    counts = a.counts().reshape(-1).astype(np.uint64)
+    assert np.array_equal(ref.get_state()["spike_count"], counts)
+    assert np.array_equal(fast.get_state()["spike_count"].reshape(-1), counts)
+
+
 @pytest.mark.parametrize("h,w", [(1, 1), (3, 7), (5, 13), (2, 64)])
 def test_packing_is_the_dat_layout_for_any_size(h, w):
     # Bits are placed by the kernel's transpose; NumPy's packbits (LSB first) is the reference.
@@ -48,11 +96,13 @@ def test_packing_is_the_dat_layout_for_any_size(h, w):
 
 
 @pytest.mark.parametrize("camera", [SpikeCamera.realistic(height=3, width=11),
+                                    SpikeCamera.realistic(height=3, width=11, shot_noise="renewal"),
                                     SpikeCamera.noiseless(height=3, width=11, reset_loss=0.1)],
-                         ids=["temporal-noise", "deterministic"])
-@pytest.mark.parametrize("chunk", [1, 5, 31, 33, 64])
+                         ids=["temporal-noise", "renewal", "deterministic"])
+@pytest.mark.parametrize("chunk", [1, 2, 5, 6, 31, 33, 64])
 def test_launch_and_chunk_boundaries_do_not_change_the_stream(camera, chunk):
-    # Chunks starting at odd steps split a Philox pair; launches of 32 steps split long calls.
+    # Chunks starting inside a group of steps that share a Philox call (2, or 4 for the renewal
+    # camera) run it as a masked piece; launches of 32 steps split long calls.
     f = frames(150, 3, 11, seed=4, high=0.5)
     whole = Simulator(camera, backend=FAST_BACKEND, seed=9, chunk_steps=1000).run(f)
     sim = Simulator(camera, backend=FAST_BACKEND, seed=9, chunk_steps=chunk)
@@ -61,12 +111,13 @@ def test_launch_and_chunk_boundaries_do_not_change_the_stream(camera, chunk):
     assert SpikeStream.concatenate(parts) == whole
 
 
-@pytest.mark.parametrize("boundary", [1 << 32, 1 << 33])
-def test_step_counter_carries_across_word_boundaries(boundary):
+@pytest.mark.parametrize("shot", ["gaussian", "renewal"])
+@pytest.mark.parametrize("boundary", [1 << 32, 1 << 33, 1 << 34])
+def test_step_counter_carries_across_word_boundaries(boundary, shot):
     # Temporal noise is keyed by the absolute step pair (64 bits): the kernel carries into the
     # high word, so a call across 2^33 steps equals small chunks across it, and steps on either
     # side of the boundary get their own noise (not a wrapped repeat of step 0's).
-    cam = SpikeCamera.realistic(height=2, width=32)
+    cam = SpikeCamera.realistic(height=2, width=32, shot_noise=shot)
     f = frames(12, 2, 32, seed=5, high=0.3)
     one = Simulator(cam, backend=FAST_BACKEND, seed=4)
     one.steps_done = boundary - 5
@@ -83,8 +134,9 @@ def test_step_counter_carries_across_word_boundaries(boundary):
 
 @pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("camera", [SpikeCamera.realistic(height=4, width=9),
+                                    SpikeCamera.realistic(height=4, width=9, shot_noise="renewal"),
                                     SpikeCamera.realistic(height=4, width=9, shot_noise="off", comparator_noise=0.0)],
-                         ids=["temporal-noise", "fixed-pattern-only"])
+                         ids=["temporal-noise", "renewal", "fixed-pattern-only"])
 @pytest.mark.parametrize("k", [1, 3])
 def test_a_batch_of_streams_equals_each_stream_alone(backend, camera, k):
     seeds = [3, 0, 77]

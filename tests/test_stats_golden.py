@@ -2,7 +2,9 @@
 golden statistics (spikesim/golden.py: a reference averaged over replicate seeds, z-scores from
 batch-mean standard errors, a Bonferroni t threshold), including the check's power to see a
 changed noise term (the full table: docs/sensor.md)."""
+import dataclasses
 import json
+from pathlib import Path
 import math
 
 import numpy as np
@@ -61,6 +63,26 @@ def test_packaged_reference_is_the_realistic_camera_on_the_test_scene():
 def test_unchanged_camera_passes_on_every_backend(backend):
     rows = golden.compare(golden.measure(backend=backend), golden.load_reference())
     assert len(rows) == 17 and all(r.passed for r in rows), [r for r in rows if not r.passed]
+
+
+#: The reference of the renewal shot noise (`shot_noise="renewal"`, NumPy, seeds 0..3), kept to
+#: show that it and the per-step Gaussian model (the packaged reference) agree.
+RENEWAL_REFERENCE = Path(__file__).parent / "data" / "golden_renewal.json"
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_renewal_and_per_step_shot_noise_pass_each_others_reference(backend):
+    # Drawing each interval's threshold charge once per spike (renewal) instead of a normal per
+    # step changes no golden statistic beyond its tolerance, either way round.
+    renewal_ref = golden.load_reference(RENEWAL_REFERENCE)
+    assert renewal_ref["camera"]["shot_noise"] == "renewal"
+    per_step = golden.golden_camera()
+    assert per_step.shot_noise == "gaussian"
+    renewal = dataclasses.replace(per_step, shot_noise="renewal")
+    rows = golden.compare(golden.measure(renewal, backend=backend, seed=1001), golden.load_reference())
+    assert all(r.passed for r in rows), [r for r in rows if not r.passed]
+    rows = golden.compare(golden.measure(per_step, backend=backend, seed=1002), renewal_ref)
+    assert all(r.passed for r in rows), [r for r in rows if not r.passed]
 
 
 @requires_llvm
