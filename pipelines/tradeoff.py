@@ -9,10 +9,12 @@ import logging
 from pathlib import Path
 from typing import Any
 
-from pipelines.argtypes import seed_int, add_device_argument, bundled_scene, output_dir, positive_int
+from pipelines.argtypes import (add_device_argument, add_threads_argument, bundled_scene, output_dir, positive_int,
+                               seed_int)
 from spikesim import tradeoff
 from spikesim._optional import require
-from spikesim.tradeoff import DEFAULT_SCENES, KNOBS, StudyConfig, collect_rows, run_study, write_report
+from spikesim.tradeoff import (DEFAULT_SCENES, KNOBS, StudyConfig, collect_gt_rows, collect_rows, run_study,
+                               write_report)
 
 log = logging.getLogger("spikesim.tradeoff")
 
@@ -38,7 +40,11 @@ def cmd_tradeoff(args: argparse.Namespace) -> int:
     cfg = StudyConfig.of(scenes=tuple(args.scenes), lights=tuple(args.light),
                       resolution=(args.height, args.width), windows=args.windows, ref_spp=args.ref_spp, gt_spp=args.gt_spp,
                       seed=args.seed, backend=args.backend, device=args.device, knobs=tuple(args.knobs),
-                      repeats=args.repeats)
+                      repeats=args.repeats, gt_error_spp=tuple(args.gt_error_spp), seed_spp_values=tuple(args.seed_spp),
+                      threads=args.threads)
+    skipped = sorted({s for s in cfg.gt_error_spp if s >= cfg.gt_spp})
+    if skipped:
+        log.info("--gt-error-spp %s: not below --gt-spp %d, skipped", " ".join(map(str, skipped)), cfg.gt_spp)
     out = Path(args.out)
     require("matplotlib", "plot", "the trade study's plot")  # before any run, not after hours of them
     if args.report_only:
@@ -52,10 +58,11 @@ def cmd_tradeoff(args: argparse.Namespace) -> int:
         resolve_backend(cfg.backend)  # an unavailable backend or GPU fails before any rendering or writing
         resolve_device(cfg.device)
         rows = run_study(cfg, out, progress=not args.quiet)
-    write_report(rows, out, Path(args.images) if args.images is not None else None)
+    gt_rows = collect_gt_rows(cfg, out)
+    write_report(rows, out, Path(args.images) if args.images is not None else None, gt_rows)
     if args.json:
         import json
-        print(json.dumps(rows, indent=2, default=str))
+        print(json.dumps([*rows, *gt_rows], indent=2, default=str))
     else:
         print((out / "tradeoff.md").read_text())
     log.info("wrote %s, %s and %s", out / "tradeoff.csv", out / "tradeoff.md", out / "tradeoff.png")
@@ -74,7 +81,13 @@ def add_parser(subparsers: Any) -> None:
     p.add_argument("--windows", type=_windows, default=3, help="41-step windows around the sequence centre (3)")
     p.add_argument("--ref-spp", type=positive_int, default=64, help="samples per pixel of the reference (64)")
     p.add_argument("--gt-spp", type=positive_int, default=256, help="samples per pixel of the ground truth (256)")
+    p.add_argument("--gt-error-spp", nargs="*", type=positive_int, default=[16, 64], metavar="SPP",
+                   help="the ground truth's own error: ground truths at these samples per pixel against the "
+                        "--gt-spp one (16 64; values >= --gt-spp are skipped; none: no such renders)")
     p.add_argument("--knobs", nargs="+", default=list(KNOBS), choices=KNOBS, help="the knobs to vary, one at a time")
+    p.add_argument("--seed-spp", nargs="+", type=positive_int, default=[1, 2], metavar="SPP",
+                   help="the seeds knob: at these samples per pixel, a render seed per step against one for all (1 2)")
+    add_threads_argument(p)  # scoring the network (the reconstruction axis) runs on the CPU
     p.add_argument("--repeats", type=positive_int, default=3, help="simulation timing repeats (minimum kept)")
     p.add_argument("--seed", type=seed_int, default=0, help="seed of the renders and the sensor")
     p.add_argument("--backend", default="auto", choices=("auto", "numpy", "llvm", "cuda"), help="the sensor backend")

@@ -1,5 +1,5 @@
 """Render settings: the one record of the renderer's knobs (variant, samples per pixel, keyframe
-spacing, seed, sub-steps, resolution, device), and the one place where layers of them (defaults,
+spacing, seed and per-step seeding, sub-steps, resolution, device), and the one place where layers of them (defaults,
 a preset, a scene's own XML, a settings file, command-line flags) are merged, remembering where
 each value came from.
 
@@ -17,6 +17,7 @@ from typing import Any, Mapping, Sequence
 from spikesim._drjit import DEVICE_CHOICES
 
 VARIANTS = ("auto", "mono", "spectral", "rgb")
+STEP_SEEDS = ("fresh", "fixed")
 DEFAULT = "default"
 """The origin of a value no layer set."""
 
@@ -58,6 +59,11 @@ class RenderSettings:
     seed: int = 0
     """Every render's seed derives from (seed, stream, step, sub-step): frames are reproducible and
     independent of where a stream starts."""
+    step_seeds: str = "fresh"
+    """"fresh": each step renders with its own seed (consecutive frames have independent Monte Carlo
+    noise, which the sensor averages over a window); "fixed": every step renders with step 0's seed
+    (sub-steps still differ), so the noise pattern repeats from frame to frame. A knob of the
+    speed/accuracy study (docs/tradeoff.md)."""
     substeps: int | str = "auto"
     """Renders averaged per step: an integer, or "auto" = ceil(motion in pixels / blur_threshold_px)."""
     blur_threshold_px: float = 1.0
@@ -74,6 +80,8 @@ class RenderSettings:
             _positive_int(name, getattr(self, name))
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
             raise ValueError(f"seed={self.seed!r} must be a non-negative integer")
+        if self.step_seeds not in STEP_SEEDS:
+            raise ValueError(f"step_seeds={self.step_seeds!r}; expected one of {STEP_SEEDS}")
         if self.substeps != "auto":
             _positive_int("substeps", self.substeps)
         if not self.blur_threshold_px > 0:
@@ -154,5 +162,5 @@ def merge_layers(layers: Sequence[tuple[str, Mapping[str, Any] | None]]) -> tupl
     return values, origins
 
 
-__all__ = ["RenderSettings", "RENDER_KNOBS", "VARIANTS", "DEFAULT", "HoldsRenderSettings", "merge_layers",
+__all__ = ["RenderSettings", "RENDER_KNOBS", "STEP_SEEDS", "VARIANTS", "DEFAULT", "HoldsRenderSettings", "merge_layers",
            "render_knob", "split_render_knobs"]

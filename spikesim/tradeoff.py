@@ -7,7 +7,8 @@ Per scene and light: a reference run (a render per step, `--ref-spp` samples, sp
 every noise term) and one run per knob setting, each changing one knob of the reference: samples
 per pixel, fixed keyframes every k steps, adaptive keyframes, mono, each noise term off, float32;
 plus the draft and balanced quality presets (spikesim.quality) and the combinations of spp and
-adaptive tolerance they were chosen among (COMBOS). For each run: render and simulate
+adaptive tolerance they were chosen among (COMBOS); and render seeds fixed for every step against
+a seed per step at 1-2 spp (the `seeds` knob). For each run: render and simulate
 wall time and their ratios to the reference (timed in the same process; a resumed process re-times
 8 reference frames and scales the reference by them), and the
 error against the reference stream (docs/design.md section 4: each knob's cost and its error against
@@ -16,8 +17,16 @@ sensor's temporal noise (Philox keyed by seed, pixel and step) is common to both
 measures the knob; two extra runs give the noise floor: the reference with another sensor seed,
 and with another sensor and render seed.
 
-Results are cached per run in the output folder (`<out>/runs/<scene>_<light>/<run>.json` + `.npz`),
-so an interrupted study continues where it stopped; `--report-only` rebuilds the tables and plot.
+Accuracy downstream (docs/tradeoff.md, "Reconstruction and ground-truth axes"): every run's stream
+is also reconstructed, by TFP over 205 steps and by the shipped network, and scored (aligned PSNR,
+as `spikesim evaluate`) against the reference's ground truth at the window centres, with its
+difference from the reference run's score; and ground truths rendered at fewer samples
+(`gt_error_spp`) are compared with the reference's, the ground truth's own error.
+
+Results are cached per run in the output folder (`<out>/runs/<scene>_<light>/<run>.json` + `.npz`,
+the reconstruction scores in `<run>.recon.json`, the lower-sample ground truths in `gt_spp=N.json` +
+`.npz`), so an interrupted study continues where it stopped; `--report-only` rebuilds the tables and
+plot, scoring from the saved streams any run cached before the reconstruction axis existed.
 """
 from __future__ import annotations
 
@@ -45,11 +54,18 @@ log = logging.getLogger(__name__)
 
 PROBE_FRAMES = 8  # reference frames re-timed in each process that resumes a study
 WINDOW = 41  # the paper's window: 2 * 20 + 1 steps (docs/design.md section 5)
-KNOBS = ("spp", "keyframes", "adaptive", "variant", "noise", "precision", "quality", "combos")
+KNOBS = ("spp", "keyframes", "adaptive", "variant", "noise", "precision", "quality", "combos", "seeds")
 #: Combined settings the presets were chosen among (spp, adaptive tolerance in px): the fast knobs
 #: together (mono when the light has one spectrum, float32, every noise term).
 COMBOS = ((4, 0.25), (4, 1.0), (16, 0.25), (16, 0.5), (16, 1.0), (1, 1.0))
 DEFAULT_SCENES = ("ball", "car", "cook", "fan", "rotate")
+RECON_TFP_WINDOWS = 5
+"""The reconstruction axis scores TFP over this many windows (TFP-205: the steps the shipped network
+sees per sample, K = 5); a study with fewer windows uses the widest odd number it has."""
+RECON_NET = "lrrep"
+"""The network the reconstruction axis scores (model.pretrained: the shipped weights)."""
+RECON_VERSION = 1
+"""Bumped when the reconstruction scoring changes, so cached scores are computed again."""
 
 
 # ---- configuration ------------------------------------------------------------------------------
@@ -81,6 +97,14 @@ class StudyConfig:
     adaptive_px: tuple[float, ...] = (0.25, 0.5, 1.0, 2.0)
     repeats: int = 3
     """Simulation timings: the minimum of this many repeats (a shared machine adds, never removes)."""
+    seed_spp_values: tuple[int, ...] = (1, 2)
+    """The `seeds` knob: at these samples per pixel, a render seed per step (fresh, as every other
+    run) against one seed for every step (fixed)."""
+    gt_error_spp: tuple[int, ...] = (16, 64)
+    """The ground truth's own error: ground truths rendered at these samples per pixel, at the
+    window centres, against the reference's (gt_spp); values >= gt_spp are skipped."""
+    threads: int = 0
+    """torch CPU threads for scoring the network (0: the free cores, model.threads)."""
 
     def __post_init__(self) -> None:
         if not self.scenes:
@@ -104,6 +128,12 @@ class StudyConfig:
             raise ValueError(f"unknown knob(s) {unknown}; known: {list(KNOBS)}")
         if any(s < 1 for s in self.spp_values) or any(k < 2 for k in self.keyframe_values):
             raise ValueError("spp_values must be >= 1 and keyframe_values >= 2")
+        for name in ("seed_spp_values", "gt_error_spp"):
+            v = getattr(self, name)
+            if any(isinstance(s, bool) or not isinstance(s, int) or s < 1 for s in v):
+                raise ValueError(f"{name}={v!r} must be positive integers")
+        if isinstance(self.threads, bool) or not isinstance(self.threads, int) or self.threads < 0:
+            raise ValueError(f"threads={self.threads!r} must be >= 0 (0: the free cores)")
         if any(not (p > 0) for p in self.adaptive_px):
             raise ValueError(f"adaptive_px={self.adaptive_px!r} must be positive")
 
@@ -132,6 +162,17 @@ class StudyConfig:
     def centres(self) -> list[int]:
         return [self.start + i * WINDOW + WINDOW // 2 for i in range(self.windows)]
 
+    @property
+    def tfp_span(self) -> int:
+        """Steps of the reconstruction axis's TFP: RECON_TFP_WINDOWS windows (205 steps), or the
+        largest odd number of windows the study has when it has fewer."""
+        n = min(self.windows, RECON_TFP_WINDOWS)
+        return WINDOW * (n if n % 2 else n - 1)
+
+    def gt_error_values(self) -> list[int]:
+        """The lower sample counts of the ground-truth error axis (those below gt_spp, ascending)."""
+        return sorted({s for s in self.gt_error_spp if s < self.gt_spp})
+
     def result_key(self) -> dict[str, Any]:
         """The fields a cached run depends on."""
         return {"resolution": list(self.resolution), "windows": self.windows, "ref_spp": self.ref_spp,
@@ -151,8 +192,16 @@ class RunSpec:
     """Seeds of the sensor (fixed patterns, temporal noise) and of the renders."""
 
     def to_dict(self) -> dict[str, Any]:
-        return {"name": self.name, "knob": self.knob, "settings": self.settings.to_dict(),
-                "off_terms": list(self.off_terms), "sensor_seed": self.sensor_seed, "render_seed": self.render_seed}
+        d = {"name": self.name, "knob": self.knob, "settings": self.settings.to_dict(),
+             "off_terms": list(self.off_terms), "sensor_seed": self.sensor_seed, "render_seed": self.render_seed}
+        if self.step_seeds != "fresh":  # only then: runs cached before the knob keep their keys
+            d["step_seeds"] = self.step_seeds
+        return d
+
+    @property
+    def step_seeds(self) -> str:
+        """"fresh" (a render seed per step) or "fixed" (one for every step): RenderSettings.step_seeds."""
+        return self.settings.render.step_seeds
 
 
 def plan_runs(cfg: StudyConfig) -> list[RunSpec]:
@@ -191,6 +240,12 @@ def plan_runs(cfg: StudyConfig) -> list[RunSpec]:
                                 noise="all", precision="float32")
         runs += [run(f"spp={n} adaptive {p:g}px", "combos", combo.replace(spp=n, max_px_per_keyframe=p))
                  for n, p in COMBOS]
+    if "seeds" in cfg.knobs:  # fresh (the spp knob's run where it has one) against fixed render seeds
+        names = {r.name for r in runs}
+        for n in cfg.seed_spp_values:
+            if f"spp={n}" not in names and n != cfg.ref_spp:
+                runs.append(run(f"spp={n}", "seeds", ref.replace(spp=n)))
+            runs.append(run(f"fixed seed spp={n}", "seeds", ref.replace(spp=n, step_seeds="fixed")))
     return runs
 
 
@@ -256,16 +311,17 @@ class SceneStudy:
 
     def __init__(self, cfg: StudyConfig, scene: str, light: str, folder: Path):
         self.cfg, self.scene, self.light, self.folder = cfg, scene, light, folder
-        self._renderers: dict[tuple[str, int], Any] = {}
+        self._renderers: dict[tuple[str, int, str], Any] = {}
         self._ref_frames: dict[int, np.ndarray] | None = None
         self._probe: float | None = None
 
-    # renderers are loaded once per (variant, seed) and warmed (the first render compiles)
-    def renderer(self, variant: str, seed: int) -> Any:
-        key = (variant, seed)
+    # renderers are loaded once per (variant, seed, step seeds) and warmed (the first render compiles)
+    def renderer(self, variant: str, seed: int, step_seeds: str = "fresh") -> Any:
+        key = (variant, seed, step_seeds)
         if key not in self._renderers:
             from spikesim.render import SceneRenderer
-            r = SceneRenderer(self.scene, light=self.light, variant=variant, seed=seed, settings=self.cfg.reference)
+            r = SceneRenderer(self.scene, light=self.light, variant=variant, seed=seed, step_seeds=step_seeds,
+                              settings=self.cfg.reference)
             r.render_step(self.cfg.start, spp=1)
             self._renderers[key] = r
         return self._renderers[key]
@@ -297,7 +353,7 @@ class SceneStudy:
     def _reuses_reference(self, spec: RunSpec) -> bool:
         s = spec.settings
         return (spec.knob != "reference" and s.keyframe_policy == "every" and s.spp == self.cfg.ref_spp
-                and s.variant == "spectral" and spec.render_seed == self.cfg.seed)
+                and s.variant == "spectral" and spec.render_seed == self.cfg.seed and spec.step_seeds == "fresh")
 
     def run(self, spec: RunSpec) -> dict[str, Any]:
         """Render (or reuse), simulate, time; returns the row's timing fields and saves the stream."""
@@ -310,7 +366,7 @@ class SceneStudy:
             source: Any = _Replay(self.reference_frames())
             render_s, reused = ref_row["render_s"], True
         else:
-            source = _TimedRenderer(self.renderer(s.variant if s.variant != "auto" else "auto", spec.render_seed))
+            source = _TimedRenderer(self.renderer(s.variant, spec.render_seed, spec.step_seeds))
             render_s, reused = None, False
         variant_used = getattr(getattr(source, "r", None), "variant", "spectral")
         base = self.base_camera()
@@ -345,6 +401,7 @@ class SceneStudy:
             keyframes = dict(s.keyframes(replay, cfg.start, cfg.num_steps))
         y_centres = np.stack([interpolate_at(keyframes, c) for c in cfg.centres()])
         extra: dict[str, np.ndarray] = {}
+        timing: dict[str, float] = {}  # the reference's: its ground truth's render seconds too
         if spec.knob == "reference":
             steps = sorted(keyframes)
             _save_npz(self.folder / "reference_frames.npz", steps=np.array(steps),
@@ -353,16 +410,26 @@ class SceneStudy:
             r = self.renderer("spectral", cfg.seed)
             t2 = time.perf_counter()
             extra["gt"] = np.stack([r.ground_truth(c, spp=cfg.gt_spp) for c in cfg.centres()])
+            timing["gt_render_s"] = time.perf_counter() - t2
             log.info("%s %s: ground truth at %d centres (%d spp) in %.1f s", self.scene, self.light,
-                     len(cfg.centres()), cfg.gt_spp, time.perf_counter() - t2)
+                     len(cfg.centres()), cfg.gt_spp, timing["gt_render_s"])
         if spec.knob == "reference":
             self._probe = render_s / cfg.num_steps
         _save_npz(self.folder / f"{_slug(spec.name)}.npz", packed=stream.packed, y_centres=y_centres, **extra)
-        return {"render_s": float(render_s), "render_reused": reused, "simulate_s": float(sim_s),
+        return {**timing, "render_s": float(render_s), "render_reused": reused, "simulate_s": float(sim_s),
                 "ref_frame_s": self.reference_frame_s(),
                 "first_pass_s": float(wall), "renders": len(source.frames) if not reused else cfg.num_steps,
                 "keyframes": len(keyframes), "variant_used": variant_used, "camera": camera.to_dict(),
                 "noise_decisions": [d.to_dict() for d in decisions], "backend": sim.backend_name}
+
+    def render_ground_truth(self, spp: int) -> tuple[np.ndarray, float]:
+        """Ground truth at the window centres with `spp` samples (the ground-truth error axis) and its
+        render seconds. Rendered with the render seed + 1 (the floor run's renderer), so its Monte
+        Carlo samples are independent of the reference ground truth's."""
+        r = self.renderer("spectral", self.cfg.seed + 1)
+        t0 = time.perf_counter()
+        gt = np.stack([r.ground_truth(c, spp=spp) for c in self.cfg.centres()])
+        return gt, time.perf_counter() - t0
 
 
 def _slug(name: str) -> str:
@@ -404,6 +471,174 @@ def stream_metrics(packed: np.ndarray, ref_packed: np.ndarray, cfg: StudyConfig)
             "isi_w1": isi_w1, "tfp_err": rel_rmse(t, t_ref),
             "tfp_psnr": float(np.mean(psnrs)) if all(map(math.isfinite, psnrs)) else float("inf"),
             "tfp_ssim": float(np.mean([ssim(a, b) for a, b in zip(t, t_ref)]))}
+
+
+# ---- reconstruction against the reference's ground truth ------------------------------------------
+_NETS: dict[str, Any] = {}
+
+
+def recon_network(name: str = RECON_NET) -> Any:
+    """The shipped network `name` as an evaluate method (model.methods), on the CPU, loaded once per
+    process."""
+    if name not in _NETS:
+        from model.methods import method_from_spec
+        _NETS[name] = method_from_spec(name, WINDOW, device="cpu")
+    return _NETS[name]
+
+
+def net_windows(name: str = RECON_NET) -> int:
+    """K, the windows of context the network saw per training sample: it is scored only where the
+    study has that many."""
+    return int(recon_network(name).experiment.train.num_windows)
+
+
+def _net_label(name: str = RECON_NET) -> str:
+    from model.methods import pretrained_label
+    return pretrained_label(name)
+
+
+def recon_scores(packed: np.ndarray, gt: np.ndarray, cfg: StudyConfig, net: str = RECON_NET) -> dict[str, Any]:
+    """Aligned PSNR (model.metrics.psnr_aligned, the score of `spikesim evaluate`) of two
+    reconstructions of a run's stream against `gt`, the reference's ground truth at the window
+    centres (windows, H, W), clipped at saturation as evaluate clips it; the mean over the windows:
+
+    - TFP over cfg.tfp_span steps centred on each window centre (model.methods' `tfp:N`: near the
+      ends of the study's stream it averages the windows within reach, as evaluate does);
+    - the shipped network (`net`, model.pretrained) over the study's windows as one sequence, on the
+      CPU with model.threads' thread count, where the study has its K windows; NaN otherwise.
+
+    `recon_note` says where either departs from TFP-205 / a scored network."""
+    import torch
+
+    from model.methods import method_from_spec
+    from model.metrics import psnr_aligned
+    from model.streaming import TensorWindows
+    from model.threads import set_cpu_threads
+    from spikesim.dataset import SATURATION_Y
+    from spikesim.stream import SpikeStream
+
+    h, w = cfg.resolution
+    spikes = SpikeStream(packed, h, w).unpack()
+    if spikes.shape[0] != cfg.num_steps:
+        raise ValueError(f"a stream of {spikes.shape[0]} steps; the study has {cfg.num_steps}")
+    gts = np.clip(np.asarray(gt, dtype=np.float32), 0.0, SATURATION_Y)
+    if gts.shape != (cfg.windows, h, w):
+        raise ValueError(f"ground truth of shape {gts.shape}; expected {(cfg.windows, h, w)}")
+    source = TensorWindows(torch.from_numpy(spikes != 0).reshape(cfg.windows, WINDOW, h, w))
+
+    def score(method: Any) -> list[float]:
+        with torch.no_grad():
+            return [psnr_aligned(np.asarray(f, dtype=np.float32), gts[i]) for i, f in method.frames(source)]
+
+    span, notes = cfg.tfp_span, []
+    if span < WINDOW * RECON_TFP_WINDOWS:
+        notes.append(f"TFP-{span}: {cfg.windows} window(s) allow no wider odd span "
+                     f"(TFP-{WINDOW * RECON_TFP_WINDOWS} needs {RECON_TFP_WINDOWS})")
+    tfp = score(method_from_spec(f"tfp:{span}", WINDOW))
+    k = net_windows(net)
+    if cfg.windows >= k:
+        set_cpu_threads(cfg.threads)
+        nets = score(recon_network(net))
+    else:
+        nets = []
+        notes.append(f"{_net_label(net)} not scored: it needs {k} windows of context (K), the study has {cfg.windows}")
+    return {"recon_tfp_span": span, "tfp_gt_psnr": float(np.mean(tfp)), "tfp_gt_psnr_frames": tfp,
+            "net_gt_psnr": float(np.mean(nets)) if nets else math.nan, "net_gt_psnr_frames": nets,
+            "recon_note": "; ".join(notes)}
+
+
+_RECON_FLOATS = ("tfp_gt_psnr", "net_gt_psnr")
+
+
+def cached_recon_scores(folder: Path, name: str, run_key: str, ref_key: str, packed: np.ndarray, gt: np.ndarray,
+                        cfg: StudyConfig) -> dict[str, Any]:
+    """recon_scores of run `name`, cached beside its stream as `<run>.recon.json`, keyed by the run's
+    and the reference's cache keys, the span, the network's weights and RECON_VERSION: computed
+    again only when one of those changes (runs measured before this axis existed get it here,
+    without rendering). A folder that cannot be written to is warned about, not fatal."""
+    from model.pretrained import PRETRAINED
+
+    path = folder / f"{_slug(name)}.recon.json"
+    key = _digest({"run": run_key, "reference": ref_key, "version": RECON_VERSION, "tfp_span": cfg.tfp_span,
+                   "net": RECON_NET, "weights": PRETRAINED[RECON_NET].weights_sha256, "windows": cfg.windows})
+    if path.exists():
+        try:
+            cached = _read_json(path)
+        except ValueError as exc:
+            log.warning("%s", exc)
+        else:
+            if cached.get("key") == key:
+                for k in _RECON_FLOATS:
+                    cached[k] = float(cached[k])
+                for k in ("tfp_gt_psnr_frames", "net_gt_psnr_frames"):
+                    cached[k] = [float(v) for v in cached[k]]
+                return cached
+    scores = recon_scores(packed, gt, cfg)
+    try:
+        _write_json(path, {"key": key, **scores})
+    except OSError as exc:
+        log.warning("%s: reconstruction scores not cached (%s)", path, exc)
+    return scores
+
+
+# ---- the ground truth's own error ---------------------------------------------------------------------
+def _gt_name(spp: int) -> str:
+    return f"gt_spp={spp}"
+
+
+def _gt_key(cfg: StudyConfig, scene: str, light: str, spp: int) -> str:
+    return _digest({**cfg.result_key(), "scene": scene, "light": light, "gt_error_spp": spp,
+                    "render_seed": cfg.seed + 1})
+
+
+def gt_error(gt: np.ndarray, ref_gt: np.ndarray) -> dict[str, float]:
+    """A ground truth's error against the reference's, both (windows, H, W): relative RMS (as
+    gt_err: mean over the centres) and aligned PSNR (as the reconstruction axis, both clipped at
+    saturation)."""
+    from model.metrics import psnr_aligned
+    from spikesim.dataset import SATURATION_Y
+
+    g, r = (np.clip(np.asarray(a, np.float64), 0.0, SATURATION_Y) for a in (gt, ref_gt))
+    return {"gt_self_err": float(np.mean([rel_rmse(a, b) for a, b in zip(gt, ref_gt)])),
+            "gt_self_psnr": float(np.mean([psnr_aligned(a, b) for a, b in zip(g, r)]))}
+
+
+def collect_gt_rows(cfg: StudyConfig, out: Path) -> list[dict[str, Any]]:
+    """The ground-truth error axis, per scene and light: the reference's ground truth (gt_spp, error
+    0 by definition) and each cached lower-sample one (cfg.gt_error_values()) against it, with
+    render seconds per frame and their ratio to the reference ground truth's. `gt_ref_err_est`
+    estimates the reference ground truth's own relative error from it: the two are independent
+    Monte Carlo estimates whose variances go as 1/spp, so err_ref = err * sqrt(s / (s + gt_spp))."""
+    rows = []
+    for scene in cfg.scenes:
+        for light in cfg.lights:
+            folder = out / "runs" / f"{scene}_{light}"
+            if not (folder / "reference.json").exists():
+                continue
+            ref = _read_json(folder / "reference.json")
+            ref_gt = _load_npz(folder / "reference.npz", "gt")["gt"]
+            ref_frame_s = float(ref.get("gt_render_s", math.nan)) / cfg.windows  # NaN: measured before it was kept
+            block = [{"scene": scene, "light": light, "run": f"gt spp={cfg.gt_spp}", "knob": "gt",
+                      "gt_spp": cfg.gt_spp, "gt_frame_s": ref_frame_s, "gt_time_ratio": ref_frame_s / ref_frame_s,
+                      "gt_self_err": 0.0, "gt_self_psnr": math.inf, "gt_ref_err_est": math.nan}]
+            for spp in cfg.gt_error_values():
+                path = folder / f"{_gt_name(spp)}.json"
+                if not _is_cached(path, folder / f"{_gt_name(spp)}.npz", _gt_key(cfg, scene, light, spp)):
+                    log.warning("%s: no ground truth at %d spp cached; run the study again (it renders only "
+                                "those)", folder, spp)
+                    continue
+                row = _read_json(path)
+                gt = _load_npz(folder / f"{_gt_name(spp)}.npz", "gt")["gt"]
+                err = gt_error(gt, ref_gt)
+                frame_s = float(row["gt_render_s"]) / cfg.windows
+                block.append({"scene": scene, "light": light, "run": f"gt spp={spp}", "knob": "gt", "gt_spp": spp,
+                              "gt_frame_s": frame_s, "gt_time_ratio": frame_s / ref_frame_s, **err,
+                              "gt_ref_err_est": err["gt_self_err"] * math.sqrt(spp / (spp + cfg.gt_spp))})
+            front = pareto_front([(r["gt_frame_s"], r["gt_self_err"]) for r in block])
+            for r, f in zip(block, front):
+                r["pareto_gt"] = f
+            rows += block
+    return rows
 
 
 def pareto_front(points: Sequence[tuple[float, float]]) -> list[bool]:
@@ -453,6 +688,20 @@ def run_study(cfg: StudyConfig, out: Path, progress: bool = True) -> list[dict[s
                  row["simulate_s"], time.perf_counter() - t0)
         if spec.knob == "reference":
             _write_json(folder / "reference.json", row)
+    for scene in cfg.scenes:  # the ground truth's own error: lower-sample ground truths, cached each
+        for light in cfg.lights:
+            folder = out / "runs" / f"{scene}_{light}"
+            for spp in cfg.gt_error_values():
+                path, npz = folder / f"{_gt_name(spp)}.json", folder / f"{_gt_name(spp)}.npz"
+                key = _gt_key(cfg, scene, light, spp)
+                if _is_cached(path, npz, key):
+                    continue
+                study = studies.setdefault((scene, light), SceneStudy(cfg, scene, light, folder))
+                gt, seconds = study.render_ground_truth(spp)
+                _save_npz(npz, gt=gt)
+                _write_json(path, {"key": key, "session": session, "gt_spp": spp, "gt_render_s": seconds,
+                                   "render_seed": cfg.seed + 1, "centres": cfg.centres()})
+                log.info("%s %s: ground truth at %d spp in %.1f s", scene, light, spp, seconds)
     for st in studies.values():  # release Mitsuba scenes before the report
         st._renderers.clear()
     return collect_rows(cfg, out, runs)
@@ -470,6 +719,7 @@ def collect_rows(cfg: StudyConfig, out: Path, runs: Sequence[RunSpec] | None = N
             ref = _read_json(folder / "reference.json")
             ref_npz = _load_npz(folder / "reference.npz", "packed", "gt")
             gt = ref_npz["gt"]
+            ref_recon = cached_recon_scores(folder, "reference", ref["key"], ref["key"], ref_npz["packed"], gt, cfg)
             block = []
             for spec in runs:
                 p = folder / f"{_slug(spec.name)}.json"
@@ -484,24 +734,47 @@ def collect_rows(cfg: StudyConfig, out: Path, runs: Sequence[RunSpec] | None = N
                     row["render_s"] = ref_render
                 total, ref_total = row["render_s"] + row["simulate_s"], ref_render + ref["simulate_s"]
                 m = stream_metrics(data["packed"], ref_npz["packed"], cfg)
+                recon = (ref_recon if spec.knob == "reference" else
+                         cached_recon_scores(folder, spec.name, row["key"], ref["key"], data["packed"], gt, cfg))
                 block.append({
                     "scene": scene, "light": light, "run": spec.name, "knob": spec.knob,
                     "render_s": row["render_s"], "simulate_s": row["simulate_s"], "total_s": total,
                     "render_ratio": row["render_s"] / ref_render, "simulate_ratio": row["simulate_s"] / ref["simulate_s"],
                     "time_ratio": total / ref_total, "speedup": ref_total / total, "renders": row["renders"],
                     **m, "gt_err": float(np.mean([rel_rmse(a, b) for a, b in zip(data["y_centres"], gt)])),
-                    "same_session": same, "render_reused": row["render_reused"]})
-            front = pareto_front([(r["time_ratio"], r["rate_err"]) if r["knob"] != "floor" else (math.nan, math.nan)
-                                  for r in block])
-            for r, f in zip(block, front):
-                r["pareto"] = f
+                    "same_session": same, "render_reused": row["render_reused"],
+                    "recon_tfp_span": recon["recon_tfp_span"], "recon_note": recon["recon_note"],
+                    **{f"{a}_gt_psnr": recon[f"{a}_gt_psnr"] for a in RECON_AXES},
+                    **{f"{a}_gt_dpsnr": recon[f"{a}_gt_psnr"] - ref_recon[f"{a}_gt_psnr"] for a in RECON_AXES}})
+            for a in RECON_AXES:  # the noise floor's spread: how far another seed moves the score
+                spread = [abs(r[f"{a}_gt_dpsnr"]) for r in block
+                          if r["knob"] == "floor" and math.isfinite(r[f"{a}_gt_dpsnr"])]
+                for r in block:
+                    r[f"{a}_gt_floor"] = max(spread) if spread else math.nan
+            for flag, error in PARETO_AXES.items():
+                front = pareto_front([(r["time_ratio"], error(r)) if r["knob"] != "floor" else (math.nan, math.nan)
+                                      for r in block])
+                for r, f in zip(block, front):
+                    r[flag] = f
             rows += block
     return rows
 
 
+#: The reconstruction axes: TFP over cfg.tfp_span steps and the shipped network.
+RECON_AXES = ("tfp", "net")
+#: Each Pareto flag of a run row and the error it is taken on (against time x reference): the
+#: firing-rate error, and the reconstruction scores' loss against the reference run's (dB).
+PARETO_AXES = {"pareto": lambda r: r["rate_err"], "pareto_tfp": lambda r: -r["tfp_gt_dpsnr"],
+               "pareto_net": lambda r: -r["net_gt_dpsnr"]}
+
+
 COLUMNS = ("scene", "light", "run", "knob", "render_s", "simulate_s", "time_ratio", "speedup", "simulate_ratio",
            "renders", "rate_err", "rate_bias", "isi_w1", "tfp_err", "tfp_psnr", "tfp_ssim", "gt_err", "pareto",
-           "same_session")
+           "same_session", "recon_tfp_span", "tfp_gt_psnr", "tfp_gt_dpsnr", "tfp_gt_floor", "pareto_tfp",
+           "net_gt_psnr", "net_gt_dpsnr", "net_gt_floor", "pareto_net", "recon_note",
+           "gt_spp", "gt_frame_s", "gt_time_ratio", "gt_self_err", "gt_self_psnr", "gt_ref_err_est", "pareto_gt")
+"""The CSV's columns: a row per run, then (knob "gt") a row per ground truth of the ground-truth
+error axis, which fills only the scene, light, run, knob and gt_* columns."""
 
 
 def write_csv(rows: Sequence[dict[str, Any]], path: Path) -> None:
@@ -512,67 +785,171 @@ def write_csv(rows: Sequence[dict[str, Any]], path: Path) -> None:
     atomic_write_file(path, lambda f: f.write(text.getvalue().encode()))
 
 
-def markdown_table(rows: Sequence[dict[str, Any]]) -> str:
-    """One table per scene and light; Pareto-optimal runs in bold."""
-    head = ("| run | render s | sim s | time x ref | speed-up | rate err | rate bias | ISI W1 | TFP PSNR | "
-            "TFP SSIM | GT err |\n|---|---|---|---|---|---|---|---|---|---|---|")
+def _fmt(v: Any, fmt: str) -> str:
+    """A table cell: `fmt` of v, or n/a where it is missing or NaN."""
+    return "n/a" if v is None or (isinstance(v, float) and math.isnan(v)) else fmt.format(v)
+
+
+def markdown_table(rows: Sequence[dict[str, Any]], gt_rows: Sequence[dict[str, Any]] = ()) -> str:
+    """One table per scene and light; Pareto-optimal runs (time against firing-rate error) in bold,
+    a reconstruction score on its own axis's Pareto front marked *; under each, the noise floor of the
+    reconstruction scores, any note on them, and the ground truth's own error (`gt_rows`)."""
+    net = _net_label()
     parts = []
-    for key in dict.fromkeys((r["scene"], r["light"]) for r in rows):
-        parts.append(f"\n**{key[0]}, {key[1]} light**\n\n{head}")
-        for r in (r for r in rows if (r["scene"], r["light"]) == key):
-            name = f"**{r['run']}**" if r["pareto"] else r["run"]
-            parts.append(f"| {name} | {r['render_s']:.2f} | {r['simulate_s']:.3f} | {r['time_ratio']:.3f} | "
-                         f"{r['speedup']:.1f} | {r['rate_err']:.3f} | {r['rate_bias']:+.3f} | {r['isi_w1']:.3f} | "
-                         f"{r['tfp_psnr']:.1f} | {r['tfp_ssim']:.3f} | {r['gt_err']:.3f} |")
+    keys = dict.fromkeys([(r["scene"], r["light"]) for r in rows] + [(r["scene"], r["light"]) for r in gt_rows])
+    for key in keys:
+        parts.append(f"\n**{key[0]}, {key[1]} light**\n")
+        block = [r for r in rows if (r["scene"], r["light"]) == key]
+        if block:
+            span = block[0].get("recon_tfp_span", WINDOW * RECON_TFP_WINDOWS)
+            parts.append(f"| run | render s | sim s | time x ref | speed-up | rate err | rate bias | ISI W1 | TFP PSNR | "
+                         f"TFP SSIM | GT err | TFP-{span} vs GT | Δ | {net} vs GT | Δ |\n"
+                         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+            for r in block:
+                name = f"**{r['run']}**" if r["pareto"] else r["run"]
+                recon = " | ".join(
+                    f"{_fmt(r.get(f'{a}_gt_psnr'), '{:.2f}')} | {_fmt(r.get(f'{a}_gt_dpsnr'), '{:+.2f}')}"
+                    + ("*" if r.get(f"pareto_{a}") else "") for a in RECON_AXES)
+                parts.append(f"| {name} | {r['render_s']:.2f} | {r['simulate_s']:.3f} | {r['time_ratio']:.3f} | "
+                             f"{r['speedup']:.1f} | {r['rate_err']:.3f} | {r['rate_bias']:+.3f} | {r['isi_w1']:.3f} | "
+                             f"{r['tfp_psnr']:.1f} | {r['tfp_ssim']:.3f} | {r['gt_err']:.3f} | {recon} |")
+            floor = {a: block[0].get(f"{a}_gt_floor", math.nan) for a in RECON_AXES}
+            notes = sorted({r.get("recon_note") for r in block if r.get("recon_note")})
+            parts.append(f"\nAgainst the reference's ground truth: aligned PSNR (dB) of TFP-{span} and {net}, Δ = run - "
+                         f"reference run (* on the Pareto front of time against the loss -Δ). Noise floor (the larger "
+                         f"|Δ| of the two floor runs): TFP-{span} {_fmt(floor['tfp'], '{:.2f}')} dB, {net} "
+                         f"{_fmt(floor['net'], '{:.2f}')} dB." + "".join(f" Note: {n}." for n in notes))
+        gts = [r for r in gt_rows if (r["scene"], r["light"]) == key]
+        if gts:
+            parts.append("\n| ground truth | s per frame | time x ref GT | rel RMSE vs ref GT | aPSNR vs ref GT | "
+                         "ref GT err (est.) |\n|---|---|---|---|---|---|")
+            for r in gts:
+                name = f"**{r['run']}**" if r.get("pareto_gt") else r["run"]
+                parts.append(f"| {name} | {_fmt(r['gt_frame_s'], '{:.3f}')} | {_fmt(r['gt_time_ratio'], '{:.3f}')} | "
+                             f"{r['gt_self_err']:.4f} | {_fmt(r['gt_self_psnr'], '{:.2f}')} | "
+                             f"{_fmt(r['gt_ref_err_est'], '{:.4f}')} |")
     return "\n".join(parts) + "\n"
 
 
-def plot(rows: Sequence[dict[str, Any]], path: Path) -> None:
-    """Error (firing rate, relative RMS) against time (x reference), per scene and light; the
-    Pareto front joined, the two noise floors dashed."""
+_COLOURS = {"reference": "k", "spp": "tab:blue", "keyframes": "tab:orange", "adaptive": "tab:green",
+            "variant": "tab:purple", "noise": "tab:grey", "precision": "tab:brown", "combos": "tab:olive",
+            "quality": "tab:red", "seeds": "tab:cyan"}
+
+
+def _scatter_knobs(ax: Any, block: Sequence[dict[str, Any]], y: Any) -> None:
+    """The runs of one scene-light at (time x reference, y(r)), a colour per knob, some named."""
+    for knob, c in _COLOURS.items():
+        pts = [r for r in block if r["knob"] == knob and math.isfinite(y(r))]
+        if pts:
+            ax.scatter([r["time_ratio"] for r in pts], [y(r) for r in pts], s=18, c=c, label=knob, marker="o")
+    for r in block:
+        if r["knob"] in ("quality", "spp", "keyframes", "adaptive", "seeds") and math.isfinite(y(r)):
+            ax.annotate(r["run"].replace("quality=", ""), (r["time_ratio"], y(r)),
+                        fontsize=6, xytext=(2, 2), textcoords="offset points")
+
+
+def _front_line(ax: Any, points: Sequence[tuple[float, float]]) -> None:
+    front = sorted(points)
+    if front:
+        ax.plot(*zip(*front), color="tab:red", lw=1, alpha=0.6)
+
+
+def _rate_panel(ax: Any, block: Sequence[dict[str, Any]]) -> None:
+    nonzero = [r["rate_err"] for r in block if r["rate_err"] > 0]
+    zero = min(nonzero) / 3 if nonzero else 1e-4  # identical streams sit at the bottom edge
+
+    def err(r: dict[str, Any]) -> float:
+        return r["rate_err"] if r["rate_err"] > 0 else zero
+    for f, ls in zip([r["rate_err"] for r in block if r["knob"] == "floor"], ("--", ":")):
+        ax.axhline(f, color="k", ls=ls, lw=0.8)
+    _scatter_knobs(ax, block, err)
+    _front_line(ax, [(r["time_ratio"], err(r)) for r in block if r.get("pareto")])
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_ylabel("firing-rate error (rel. RMS)", fontsize=8)
+    ax.text(0.99, 0.01, "bottom edge: identical to the reference; dashed: sensor-seed noise floor",
+            transform=ax.transAxes, ha="right", va="bottom", fontsize=5)
+
+
+def _recon_panel(ax: Any, block: Sequence[dict[str, Any]], axis: str, label: str) -> None:
+    """Loss of aligned PSNR against the reference run's (dB; below 0: the run scored higher), the
+    floor runs' spread as a grey band."""
+    def loss(r: dict[str, Any]) -> float:
+        return -r[f"{axis}_gt_dpsnr"]
+    floor = block[0].get(f"{axis}_gt_floor", math.nan) if block else math.nan
+    if math.isfinite(floor):
+        ax.axhspan(-floor, floor, color="0.85", lw=0)
+    ax.axhline(0, color="k", lw=0.5)
+    _scatter_knobs(ax, block, loss)
+    _front_line(ax, [(r["time_ratio"], loss(r)) for r in block if r.get(f"pareto_{axis}")])
+    ax.set_xscale("log")
+    ax.set_ylabel(f"{label} aPSNR loss vs reference (dB)", fontsize=8)
+    ax.text(0.99, 0.01, "grey: noise floor (another sensor / render seed)", transform=ax.transAxes, ha="right",
+            va="bottom", fontsize=5)
+
+
+def _gt_panel(ax: Any, block: Sequence[dict[str, Any]]) -> None:
+    """Ground truths at fewer samples: relative error against the reference ground truth against
+    render seconds per frame; the reference's own (error 0) at the bottom edge."""
+    pts = [r for r in block if math.isfinite(r["gt_frame_s"])]
+    nonzero = [r["gt_self_err"] for r in pts if r["gt_self_err"] > 0]
+    zero = min(nonzero) / 3 if nonzero else 1e-4
+
+    def err(r: dict[str, Any]) -> float:
+        return r["gt_self_err"] if r["gt_self_err"] > 0 else zero
+    ax.scatter([r["gt_frame_s"] for r in pts], [err(r) for r in pts], s=18, c="tab:blue")
+    for r in pts:
+        ax.annotate(f"{r['gt_spp']} spp", (r["gt_frame_s"], err(r)), fontsize=6, xytext=(2, 2),
+                    textcoords="offset points")
+    _front_line(ax, [(r["gt_frame_s"], err(r)) for r in pts if r.get("pareto_gt")])
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("ground-truth render s / frame", fontsize=8)
+    ax.set_ylabel("GT error vs reference GT (rel. RMS)", fontsize=8)
+
+
+def plot(rows: Sequence[dict[str, Any]], path: Path, gt_rows: Sequence[dict[str, Any]] = ()) -> None:
+    """A row of panels per scene and light, a panel per accuracy axis: firing-rate error (relative RMS),
+    and each reconstruction score's loss against the reference run's (dB), against time (x reference);
+    the ground truth's own error against its render time. The Pareto front joined, the noise floors
+    dashed (firing rate) or shaded (reconstruction)."""
     matplotlib = require("matplotlib", "plot", "the trade study's plot")
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import NullFormatter
 
-    keys = list(dict.fromkeys((r["scene"], r["light"]) for r in rows))
-    cols = min(2, len(keys))
-    nrows = -(-len(keys) // cols)
-    fig, axes = plt.subplots(nrows, cols, figsize=(5.2 * cols, 3.6 * nrows), squeeze=False)
-    colours = {"reference": "k", "spp": "tab:blue", "keyframes": "tab:orange", "adaptive": "tab:green",
-               "variant": "tab:purple", "noise": "tab:grey", "precision": "tab:brown", "combos": "tab:olive",
-               "quality": "tab:red"}
-    for ax, key in zip(axes.flat, keys):
+    keys = list(dict.fromkeys([(r["scene"], r["light"]) for r in rows] + [(r["scene"], r["light"]) for r in gt_rows]))
+    span = rows[0].get("recon_tfp_span", WINDOW * RECON_TFP_WINDOWS) if rows else WINDOW * RECON_TFP_WINDOWS
+    panels: list[tuple[str, str]] = [("rate", "firing rate")] if rows else []
+    for axis, label in (("tfp", f"TFP-{span}"), ("net", _net_label())):
+        if any(math.isfinite(r.get(f"{axis}_gt_dpsnr", math.nan)) for r in rows):
+            panels.append((axis, label))
+    if gt_rows:
+        panels.append(("gt", "ground truth"))
+    fig, axes = plt.subplots(len(keys), len(panels), figsize=(4.6 * len(panels), 3.4 * len(keys)), squeeze=False)
+    for i, key in enumerate(keys):
         block = [r for r in rows if (r["scene"], r["light"]) == key]
-        nonzero = [r["rate_err"] for r in block if r["rate_err"] > 0]
-        zero = min(nonzero) / 3 if nonzero else 1e-4  # identical streams sit at the bottom edge
-        def err(r: dict[str, Any]) -> float:
-            return r["rate_err"] if r["rate_err"] > 0 else zero
-        floor = [r["rate_err"] for r in block if r["knob"] == "floor"]
-        for f, ls in zip(floor, ("--", ":")):
-            ax.axhline(f, color="k", ls=ls, lw=0.8)
-        for knob, c in colours.items():
-            pts = [r for r in block if r["knob"] == knob]
-            if pts:
-                ax.scatter([r["time_ratio"] for r in pts], [err(r) for r in pts], s=18, c=c, label=knob,
-                           marker="o" if knob != "floor" else "x")
-        for r in block:
-            if r["knob"] in ("quality", "spp", "keyframes", "adaptive"):
-                ax.annotate(r["run"].replace("quality=", ""), (r["time_ratio"], err(r)),
-                            fontsize=6, xytext=(2, 2), textcoords="offset points")
-        front = sorted((r["time_ratio"], err(r)) for r in block if r.get("pareto"))
-        if front:
-            ax.plot(*zip(*front), color="tab:red", lw=1, alpha=0.6)
-        ax.set_xscale("log")
-        ax.set_yscale("log")
-        ax.set_title(f"{key[0]}, {key[1]} light", fontsize=9)
-        ax.set_xlabel("time / reference", fontsize=8)
-        ax.set_ylabel("firing-rate error (rel. RMS)", fontsize=8)
-        ax.text(0.99, 0.01, "bottom edge: identical to the reference; dashed: sensor-seed noise floor",
-                transform=ax.transAxes, ha="right", va="bottom", fontsize=5)
-        ax.tick_params(labelsize=7)
-    for ax in list(axes.flat)[len(keys):]:
-        ax.axis("off")
-    axes.flat[0].legend(fontsize=6, loc="lower left")
+        gblock = [r for r in gt_rows if (r["scene"], r["light"]) == key]
+        for j, (axis, label) in enumerate(panels):
+            ax = axes[i, j]
+            if not (gblock if axis == "gt" else block):
+                ax.axis("off")
+                continue
+            if axis == "rate":
+                _rate_panel(ax, block)
+            elif axis == "gt":
+                _gt_panel(ax, gblock)
+            else:
+                _recon_panel(ax, block, axis, label)
+            if axis != "gt":
+                ax.set_xlabel("time / reference", fontsize=8)
+            ax.set_title(f"{key[0]}, {key[1]} light: {label}", fontsize=9)
+            ax.tick_params(labelsize=7)
+            for a in (ax.xaxis, ax.yaxis):  # a narrow log range labels its minor ticks on top of each other
+                a.set_minor_formatter(NullFormatter())
+    first = axes[0, 0]
+    if first.get_legend_handles_labels()[0]:
+        first.legend(fontsize=6, loc="lower left")
     fig.tight_layout()
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=72)
@@ -585,21 +962,22 @@ def plot(rows: Sequence[dict[str, Any]], path: Path) -> None:
 REPORT_FILES = ("tradeoff.csv", "tradeoff.md", "tradeoff.png")
 
 
-def write_report(rows: Sequence[dict[str, Any]], out: Path, images: Path | None = None) -> None:
+def write_report(rows: Sequence[dict[str, Any]], out: Path, images: Path | None = None,
+                 gt_rows: Sequence[dict[str, Any]] = ()) -> None:
     """tradeoff.csv, .md and .png in `out` (and the plot in `images`), each written whole, never
-    through a link (spikesim.outputs)."""
+    through a link (spikesim.outputs). `gt_rows` (collect_gt_rows) add the ground-truth error axis."""
     for name in REPORT_FILES:
         writable(out, name)
     if images is not None:
         writable(images, "tradeoff_pareto.png")
     with output_folder(out):
-        write_csv(rows, out / "tradeoff.csv")
-        atomic_write_file(out / "tradeoff.md", lambda f: f.write(markdown_table(rows).encode()))
-        if rows:
-            plot(rows, out / "tradeoff.png")
-    if rows and images is not None:
+        write_csv([*rows, *gt_rows], out / "tradeoff.csv")
+        atomic_write_file(out / "tradeoff.md", lambda f: f.write(markdown_table(rows, gt_rows).encode()))
+        if rows or gt_rows:
+            plot(rows, out / "tradeoff.png", gt_rows)
+    if (rows or gt_rows) and images is not None:
         with output_folder(images):
-            plot(rows, images / "tradeoff_pareto.png")
+            plot(rows, images / "tradeoff_pareto.png", gt_rows)
 
 
 # ---- cache files: written whole (spikesim.outputs: temporary file, then rename; an interrupted study
@@ -656,5 +1034,5 @@ def _jsonable(obj: Any) -> Any:
     return obj
 
 
-__all__ = ["StudyConfig", "RunSpec", "plan_runs", "run_study", "collect_rows", "pareto_front", "stream_metrics",
-           "markdown_table", "write_report", "interpolate_at"]
+__all__ = ["StudyConfig", "RunSpec", "plan_runs", "run_study", "collect_rows", "collect_gt_rows", "pareto_front",
+           "stream_metrics", "recon_scores", "gt_error", "markdown_table", "write_report", "interpolate_at"]

@@ -178,11 +178,16 @@ class SceneRenderer:
         for sub in range(n):
             self.animator.apply(self.time_of(step, (sub + 0.5) / n))
             t0 = time.perf_counter()
-            img = mi.render(self.scene, spp=spp, seed=_seed(self.settings.seed, stream, step, sub))
+            img = mi.render(self.scene, spp=spp, seed=self.render_seed(stream, step, sub))
             self.stats["render_seconds"] += time.perf_counter() - t0
             self.stats["renders"] += 1
             acc = img if acc is None else acc + img
         return acc if n == 1 else acc / n
+
+    def render_seed(self, stream: int, step: int, sub: int = 0) -> int:
+        """The seed of one render: from (seed, stream, step, sub-step), or with step 0's in place of
+        the step when settings.step_seeds is "fixed" (the same noise pattern at every step)."""
+        return _seed(self.settings.seed, stream, step if self.settings.step_seeds == "fresh" else 0, sub)
 
     def _film(self, step: int, spp: int, stream: int) -> np.ndarray:
         """The film of `_film_tensor`, copied to the host."""
