@@ -65,3 +65,86 @@ def test_generate_logs_the_plan_before_it_starts(tmp_path, caplog):
                  estimate_time=False)
     assert not [r for r in caplog.records if r.getMessage().startswith("plan:")]
 
+
+
+class _FakeRenderer:
+    """motion_px and substeps_for as SceneRenderer has them: `moving` steps move 0.2 px, the others
+    stand still; a step moving more than `blur_px` takes two sub-steps."""
+
+    def __init__(self, moving: set[int], blur_px: float = 1.0, px: float = 0.2):
+        self.moving, self.blur_px, self.px = moving, blur_px, px
+
+    def motion_px(self, step: int) -> float:
+        return self.px if step in self.moving else 0.0
+
+    def substeps_for(self, step: int) -> int:
+        return 2 if self.motion_px(step) > self.blur_px else 1
+
+
+def test_adaptive_jobs_count_the_renders_their_motion_plan_makes():
+    from spikesim.generation.estimate import adaptive_policy, frame_render_count
+    from spikesim.render.adaptive import motion_plan
+    job = plan_llr(PRESETS["small"], scenes=["fan"], lights=("low",), quality="balanced")[0]
+    policy = adaptive_policy(job)
+    assert policy is not None
+    still = _FakeRenderer(set())
+    assert frame_render_count(still, job) == 1  # a static scene: one render, reused
+    half = _FakeRenderer(set(range(job.num_steps // 2)))
+    plan = motion_plan(half, 0, job.num_steps - 1, policy)
+    want = 1 + sum(1 for _, changed in plan[1:] if changed)
+    assert frame_render_count(half, job) == want and 1 < want < job.num_steps
+    fast = _FakeRenderer(set(range(job.num_steps)), blur_px=0.1)  # every step blurred: two renders each
+    assert frame_render_count(fast, job) == 2 * (1 + sum(1 for _, c in motion_plan(fast, 0, job.num_steps - 1,
+                                                                                  policy)[1:] if c))
+    fixed = dataclasses.replace(job, quality=None, keyframe_every=4)
+    assert adaptive_policy(fixed) is None
+    assert frame_render_count(still, fixed) == keyframe_count(job.num_steps, 4)
+
+
+def test_the_estimate_reads_each_scenes_motion_once_and_gives_the_rest_the_mean(monkeypatch):
+    import spikesim.generation.estimate as est
+    jobs = plan_llr(PRESETS["small"], scenes=["ball", "fan"], quality="balanced")  # 2 scenes x 2 lights
+    works = [planned_work(j) for j in jobs]
+    loaded = []
+
+    def load(job):
+        loaded.append(job.source["scene"])
+        return _FakeRenderer(set() if job.source["scene"] == "ball" else set(range(job.num_steps)))
+    out, n = est.with_motion_plans(jobs, works, load=load)
+    assert n == 2 and sorted(loaded) == ["ball", "fan"]  # both lights of a scene share its motion
+    by_scene = {j.source["scene"]: w.frame_renders for j, w in zip(jobs, out)}
+    assert by_scene["ball"] == 1 and 1 < by_scene["fan"] <= works[0].frame_renders
+    monkeypatch.setattr(est, "MOTION_SAMPLE_SCENES", 1)  # only ball read: fan gets ball's ratio
+    out, n = est.with_motion_plans(jobs, works, load=load)
+    assert n == 1 and all(w.frame_renders == 1 for w in out)
+    cal = Calibration("x", works[0].pixels, startup_s=1.0, fixed_s=0.03, per_sample_pixel_s=1e-7,
+                      sensor_per_pixel_step_s=1e-8)
+    e = est.estimate(jobs, 2, calibration=cal, motion_loader=load)
+    assert e.renders == len(jobs) and e.motion_scenes == 1 and "read from the motion and render speed of 1 scene" in e.summary()
+    plain = est.estimate([dataclasses.replace(j, quality=None) for j in jobs], 2, calibration=cal, motion_loader=load)
+    assert plain.renders == sum(w.frame_renders for w in works)  # still scenes: keyframes every k steps, once each
+
+
+def test_a_scene_that_renders_slower_is_estimated_slower():
+    # Each read scene renders once (after a warm-up) at its samples; its render time over the first
+    # job's scales its renders, and scenes not read get the mean scale.
+    import time as _time
+    import spikesim.generation.estimate as est
+
+    class Timed(_FakeRenderer):
+        def __init__(self, seconds):
+            super().__init__(set())
+            self.seconds = seconds
+
+        def render_step(self, step, spp=None):
+            _time.sleep(self.seconds)
+
+    jobs = plan_llr(PRESETS["small"], scenes=["ball", "fan"], lights=("low",), quality="balanced")
+    works = [planned_work(j) for j in jobs]
+    out, n = est.with_motion_plans(jobs, works, load=lambda j: Timed(0.02 if j.source["scene"] == "ball" else 0.1))
+    scale = {j.source["scene"]: w.render_scale for j, w in zip(jobs, out)}
+    assert n == 2 and scale["ball"] == 1.0 and scale["fan"] > 2.0
+    cal = Calibration("x", works[0].pixels, startup_s=0.0, fixed_s=0.03, per_sample_pixel_s=0.0,
+                      sensor_per_pixel_step_s=0.0)
+    assert out[1].seconds(cal) == pytest.approx(scale["fan"] * out[0].seconds(cal) * out[1].frame_renders
+                                                / out[0].frame_renders)
