@@ -146,8 +146,9 @@ class DrJitSensor:
     def __init__(self, camera: SpikeCamera, params: PixelParameters | Sequence[PixelParameters],
                  seed: int | Sequence[int], backend: str = "llvm", steps_per_launch: int | None = None):
         if camera.shot_noise == "poisson":
-            raise ValueError("shot_noise='poisson' is implemented by the NumPy reference only; "
-                             "use shot_noise='gaussian' with the Dr.Jit backends")
+            raise ValueError("shot_noise='poisson' (per step) is implemented by the NumPy reference only; with "
+                             "the Dr.Jit backends use shot_noise='renewal' (exact Poisson electrons, drawn per "
+                             "spike) or 'gaussian'")
         params = [params] if isinstance(params, PixelParameters) else list(params)
         seeds = [seed] if isinstance(seed, (int, np.integer)) else [int(s) for s in seed]
         if len(params) != len(seeds) or not seeds:
