@@ -41,7 +41,7 @@ import time
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Iterator, Sequence
 
 import numpy as np
 
@@ -603,6 +603,15 @@ def gt_error(gt: np.ndarray, ref_gt: np.ndarray) -> dict[str, float]:
             "gt_self_psnr": float(np.mean([psnr_aligned(a, b) for a, b in zip(g, r)]))}
 
 
+def _reference_folders(cfg: StudyConfig, out: Path) -> Iterator[tuple[str, str, Path, dict[str, Any]]]:
+    """(scene, light, folder, reference row) of every scene and light whose reference is cached."""
+    for scene in cfg.scenes:
+        for light in cfg.lights:
+            folder = out / "runs" / f"{scene}_{light}"
+            if (folder / "reference.json").exists():
+                yield scene, light, folder, _read_json(folder / "reference.json")
+
+
 def collect_gt_rows(cfg: StudyConfig, out: Path) -> list[dict[str, Any]]:
     """The ground-truth error axis, per scene and light: the reference's ground truth (gt_spp, error
     0 by definition) and each cached lower-sample one (cfg.gt_error_values()) against it, with
@@ -610,34 +619,29 @@ def collect_gt_rows(cfg: StudyConfig, out: Path) -> list[dict[str, Any]]:
     estimates the reference ground truth's own relative error from it: the two are independent
     Monte Carlo estimates whose variances go as 1/spp, so err_ref = err * sqrt(s / (s + gt_spp))."""
     rows = []
-    for scene in cfg.scenes:
-        for light in cfg.lights:
-            folder = out / "runs" / f"{scene}_{light}"
-            if not (folder / "reference.json").exists():
+    for scene, light, folder, ref in _reference_folders(cfg, out):
+        ref_gt = _load_npz(folder / "reference.npz", "gt")["gt"]
+        ref_frame_s = float(ref.get("gt_render_s", math.nan)) / cfg.windows  # NaN: measured before it was kept
+        block = [{"scene": scene, "light": light, "run": f"gt spp={cfg.gt_spp}", "knob": "gt",
+                  "gt_spp": cfg.gt_spp, "gt_frame_s": ref_frame_s, "gt_time_ratio": ref_frame_s / ref_frame_s,
+                  "gt_self_err": 0.0, "gt_self_psnr": math.inf, "gt_ref_err_est": math.nan}]
+        for spp in cfg.gt_error_values():
+            path = folder / f"{_gt_name(spp)}.json"
+            if not _is_cached(path, folder / f"{_gt_name(spp)}.npz", _gt_key(cfg, scene, light, spp)):
+                log.warning("%s: no ground truth at %d spp cached; run the study again (it renders only "
+                            "those)", folder, spp)
                 continue
-            ref = _read_json(folder / "reference.json")
-            ref_gt = _load_npz(folder / "reference.npz", "gt")["gt"]
-            ref_frame_s = float(ref.get("gt_render_s", math.nan)) / cfg.windows  # NaN: measured before it was kept
-            block = [{"scene": scene, "light": light, "run": f"gt spp={cfg.gt_spp}", "knob": "gt",
-                      "gt_spp": cfg.gt_spp, "gt_frame_s": ref_frame_s, "gt_time_ratio": ref_frame_s / ref_frame_s,
-                      "gt_self_err": 0.0, "gt_self_psnr": math.inf, "gt_ref_err_est": math.nan}]
-            for spp in cfg.gt_error_values():
-                path = folder / f"{_gt_name(spp)}.json"
-                if not _is_cached(path, folder / f"{_gt_name(spp)}.npz", _gt_key(cfg, scene, light, spp)):
-                    log.warning("%s: no ground truth at %d spp cached; run the study again (it renders only "
-                                "those)", folder, spp)
-                    continue
-                row = _read_json(path)
-                gt = _load_npz(folder / f"{_gt_name(spp)}.npz", "gt")["gt"]
-                err = gt_error(gt, ref_gt)
-                frame_s = float(row["gt_render_s"]) / cfg.windows
-                block.append({"scene": scene, "light": light, "run": f"gt spp={spp}", "knob": "gt", "gt_spp": spp,
-                              "gt_frame_s": frame_s, "gt_time_ratio": frame_s / ref_frame_s, **err,
-                              "gt_ref_err_est": err["gt_self_err"] * math.sqrt(spp / (spp + cfg.gt_spp))})
-            front = pareto_front([(r["gt_frame_s"], r["gt_self_err"]) for r in block])
-            for r, f in zip(block, front):
-                r["pareto_gt"] = f
-            rows += block
+            row = _read_json(path)
+            gt = _load_npz(folder / f"{_gt_name(spp)}.npz", "gt")["gt"]
+            err = gt_error(gt, ref_gt)
+            frame_s = float(row["gt_render_s"]) / cfg.windows
+            block.append({"scene": scene, "light": light, "run": f"gt spp={spp}", "knob": "gt", "gt_spp": spp,
+                          "gt_frame_s": frame_s, "gt_time_ratio": frame_s / ref_frame_s, **err,
+                          "gt_ref_err_est": err["gt_self_err"] * math.sqrt(spp / (spp + cfg.gt_spp))})
+        front = pareto_front([(r["gt_frame_s"], r["gt_self_err"]) for r in block])
+        for r, f in zip(block, front):
+            r["pareto_gt"] = f
+        rows += block
     return rows
 
 
@@ -711,52 +715,47 @@ def collect_rows(cfg: StudyConfig, out: Path, runs: Sequence[RunSpec] | None = N
     """The table: every cached run with its errors and cost ratios against its reference."""
     runs = runs or plan_runs(cfg)
     rows = []
-    for scene in cfg.scenes:
-        for light in cfg.lights:
-            folder = out / "runs" / f"{scene}_{light}"
-            if not (folder / "reference.json").exists():
+    for scene, light, folder, ref in _reference_folders(cfg, out):
+        ref_npz = _load_npz(folder / "reference.npz", "packed", "gt")
+        gt = ref_npz["gt"]
+        ref_recon = cached_recon_scores(folder, "reference", ref["key"], ref["key"], ref_npz["packed"], gt, cfg)
+        block = []
+        for spec in runs:
+            p = folder / f"{_slug(spec.name)}.json"
+            if not p.exists():
                 continue
-            ref = _read_json(folder / "reference.json")
-            ref_npz = _load_npz(folder / "reference.npz", "packed", "gt")
-            gt = ref_npz["gt"]
-            ref_recon = cached_recon_scores(folder, "reference", ref["key"], ref["key"], ref_npz["packed"], gt, cfg)
-            block = []
-            for spec in runs:
-                p = folder / f"{_slug(spec.name)}.json"
-                if not p.exists():
-                    continue
-                row = _read_json(p)
-                data = _load_npz(folder / f"{_slug(spec.name)}.npz", "packed", "y_centres")
-                same = row["session"] == ref["session"]
-                # a run resumed in another process: the reference re-timed there (probe frames)
-                ref_render = ref["render_s"] if same or "ref_frame_s" not in row else row["ref_frame_s"] * cfg.num_steps
-                if row["render_reused"]:
-                    row["render_s"] = ref_render
-                total, ref_total = row["render_s"] + row["simulate_s"], ref_render + ref["simulate_s"]
-                m = stream_metrics(data["packed"], ref_npz["packed"], cfg)
-                recon = (ref_recon if spec.knob == "reference" else
-                         cached_recon_scores(folder, spec.name, row["key"], ref["key"], data["packed"], gt, cfg))
-                block.append({
-                    "scene": scene, "light": light, "run": spec.name, "knob": spec.knob,
-                    "render_s": row["render_s"], "simulate_s": row["simulate_s"], "total_s": total,
-                    "render_ratio": row["render_s"] / ref_render, "simulate_ratio": row["simulate_s"] / ref["simulate_s"],
-                    "time_ratio": total / ref_total, "speedup": ref_total / total, "renders": row["renders"],
-                    **m, "gt_err": float(np.mean([rel_rmse(a, b) for a, b in zip(data["y_centres"], gt)])),
-                    "same_session": same, "render_reused": row["render_reused"],
-                    "recon_tfp_span": recon["recon_tfp_span"], "recon_note": recon["recon_note"],
-                    **{f"{a}_gt_psnr": recon[f"{a}_gt_psnr"] for a in RECON_AXES},
-                    **{f"{a}_gt_dpsnr": recon[f"{a}_gt_psnr"] - ref_recon[f"{a}_gt_psnr"] for a in RECON_AXES}})
-            for a in RECON_AXES:  # the noise floor's spread: how far another seed moves the score
-                spread = [abs(r[f"{a}_gt_dpsnr"]) for r in block
-                          if r["knob"] == "floor" and math.isfinite(r[f"{a}_gt_dpsnr"])]
-                for r in block:
-                    r[f"{a}_gt_floor"] = max(spread) if spread else math.nan
-            for flag, error in PARETO_AXES.items():
-                front = pareto_front([(r["time_ratio"], error(r)) if r["knob"] != "floor" else (math.nan, math.nan)
-                                      for r in block])
-                for r, f in zip(block, front):
-                    r[flag] = f
-            rows += block
+            row = _read_json(p)
+            data = _load_npz(folder / f"{_slug(spec.name)}.npz", "packed", "y_centres")
+            same = row["session"] == ref["session"]
+            # a run resumed in another process: the reference re-timed there (probe frames)
+            ref_render = ref["render_s"] if same or "ref_frame_s" not in row else row["ref_frame_s"] * cfg.num_steps
+            if row["render_reused"]:
+                row["render_s"] = ref_render
+            total, ref_total = row["render_s"] + row["simulate_s"], ref_render + ref["simulate_s"]
+            m = stream_metrics(data["packed"], ref_npz["packed"], cfg)
+            recon = (ref_recon if spec.knob == "reference" else
+                     cached_recon_scores(folder, spec.name, row["key"], ref["key"], data["packed"], gt, cfg))
+            block.append({
+                "scene": scene, "light": light, "run": spec.name, "knob": spec.knob,
+                "render_s": row["render_s"], "simulate_s": row["simulate_s"], "total_s": total,
+                "render_ratio": row["render_s"] / ref_render, "simulate_ratio": row["simulate_s"] / ref["simulate_s"],
+                "time_ratio": total / ref_total, "speedup": ref_total / total, "renders": row["renders"],
+                **m, "gt_err": float(np.mean([rel_rmse(a, b) for a, b in zip(data["y_centres"], gt)])),
+                "same_session": same, "render_reused": row["render_reused"],
+                "recon_tfp_span": recon["recon_tfp_span"], "recon_note": recon["recon_note"],
+                **{f"{a}_gt_psnr": recon[f"{a}_gt_psnr"] for a in RECON_AXES},
+                **{f"{a}_gt_dpsnr": recon[f"{a}_gt_psnr"] - ref_recon[f"{a}_gt_psnr"] for a in RECON_AXES}})
+        for a in RECON_AXES:  # the noise floor's spread: how far another seed moves the score
+            spread = [abs(r[f"{a}_gt_dpsnr"]) for r in block
+                      if r["knob"] == "floor" and math.isfinite(r[f"{a}_gt_dpsnr"])]
+            for r in block:
+                r[f"{a}_gt_floor"] = max(spread) if spread else math.nan
+        for flag, error in PARETO_AXES.items():
+            front = pareto_front([(r["time_ratio"], error(r)) if r["knob"] != "floor" else (math.nan, math.nan)
+                                  for r in block])
+            for r, f in zip(block, front):
+                r[flag] = f
+        rows += block
     return rows
 
 

@@ -201,6 +201,30 @@ class Campaign:
         doc["run_token"] = self.run_token
         outputs.atomic_write_text(self.work_path(STATE_FILE), json.dumps(doc, indent=2, default=str))
 
+    def check_run_folder(self, name: str, what: str) -> bool:
+        """Whether --work/`name` holds this campaign's earlier runs (True) or nothing (False); a
+        folder with anything else raises StageFailed, left as it was. A run folder is removed only
+        when this campaign's record says it trained it (state.json's token in the folder's marker),
+        and only once training starts (`take_run_folder`); an empty folder is simply used."""
+        folder = self.work_path(name)  # a link there (or above) is refused, naming it
+        existing = folder.is_dir() and any(folder.iterdir())
+        ours = existing and self.owns_run(name)
+        if existing and not ours:
+            raise StageFailed(f"{folder} exists and is not an earlier campaign's {what} (state.json in {self.o.work} "
+                              f"records no token that {folder / RUN_MARKER} holds): left as it was; move it, or "
+                              "give another --work")
+        return ours
+
+    def take_run_folder(self, name: str, ours: bool) -> None:
+        """Start --work/`name` afresh for this campaign's runs: its earlier runs removed (`ours`,
+        from check_run_folder; never through a link), the token recorded in state.json before the
+        runs exist, and written into the folder's marker."""
+        if ours:
+            outputs.remove(self.o.work, name)
+        self.record_run_token()
+        outputs.make_dirs(self.o.work, name)
+        outputs.atomic_write_text(self.work_path(name, RUN_MARKER), self.run_token + "\n")
+
     def note_log(self, text: str, stage: str | None = None) -> None:
         """Append a line to a stage's log (default: the running stage's)."""
         name = stage or (self.current.name if self.current is not None else "campaign")
@@ -555,25 +579,14 @@ def _checkpoint(c: Campaign) -> Path | None:
 def stage_train(c: Campaign) -> dict[str, Any]:
     """The profile's config on the RLLR slice, bf16, its step count planned from the measured step
     rate to fill what is left of the box (`--budget-minutes`), cosine schedule to that step."""
-    run = c.work_path("run")  # a link there (or above) is refused, naming it
-    # a run folder is removed only when this campaign's record says it trained it (state.json's
-    # token in the run's marker), and only once training starts; an empty folder is simply used
-    existing = run.is_dir() and any(run.iterdir())
-    ours = existing and c.owns_run()
-    if existing and not ours:
-        raise StageFailed(f"{run} exists and is not an earlier campaign's training run (state.json in {c.o.work} "
-                          f"records no run whose token {run / RUN_MARKER} holds): left as it was; move it, or give "
-                          "another --work")
+    run = c.work_path("run")
+    ours = c.check_run_folder("run", "training run")
     data = c.o.work / "rllr"
     scenes = complete_scenes(data)
     if not scenes:
         kept = f"; {run} (this campaign's earlier run) left as it was" if ours else ""
         raise SkipStage(f"no RLLR scene in {data} (stage rllr made none){kept}")
-    if ours:  # a rerun trains afresh
-        outputs.remove(c.o.work, "run")  # never through a link
-    c.record_run_token()  # in state.json before the run exists
-    outputs.make_dirs(c.o.work, "run")
-    outputs.atomic_write_text(c.work_path("run", RUN_MARKER), c.run_token + "\n")
+    c.take_run_folder("run", ours)  # a rerun trains afresh
     minutes = max(c.left() - c.p.train_overhead_s, 6.0) * 0.85 / 60
     if c.p.train_max_minutes is not None:
         minutes = min(minutes, c.p.train_max_minutes)
@@ -721,24 +734,15 @@ def stage_table1(c: Campaign) -> dict[str, Any]:
     step, random samples so that it validates once, at its end); the scoring one `spikesim
     evaluate` of every trained network's last.pt (one per network if that fails)."""
     llr, rllr = c.o.work / "llr", c.o.work / "rllr"
-    folder = c.work_path("table1")  # a link there (or above) is refused, naming it
-    existing = folder.is_dir() and any(folder.iterdir())
-    ours = existing and c.owns_run("table1")
-    if existing and not ours:
-        raise StageFailed(f"{folder} exists and is not an earlier campaign's table1 runs (state.json in {c.o.work} "
-                          f"records no token that {folder / RUN_MARKER} holds): left as it was; move it, or give "
-                          "another --work")
+    folder = c.work_path("table1")
+    ours = c.check_run_folder("table1", "table1 runs")
     train_scenes, test_scenes = complete_scenes(rllr), complete_scenes(llr)
     kept = f"; {folder} (this campaign's earlier runs) left as it was" if ours else ""
     if not train_scenes:
         raise SkipStage(f"no RLLR scene in {rllr} (stage rllr made none){kept}")
     if not test_scenes:
         raise SkipStage(f"no LLR scene in {llr} (stage llr made none){kept}")
-    if ours:  # a rerun trains afresh
-        outputs.remove(c.o.work, "table1")  # never through a link
-    c.record_run_token()  # in state.json before the runs exist
-    outputs.make_dirs(c.o.work, "table1")
-    outputs.atomic_write_text(c.work_path("table1", RUN_MARKER), c.run_token + "\n")
+    c.take_run_folder("table1", ours)  # a rerun trains afresh
 
     nets: dict[str, dict[str, Any]] = {label: {"config": config} for label, config in c.p.table1}
     figures: dict[str, Any] = {"networks": nets, "data_scenes": len(train_scenes), "test_scenes": len(test_scenes),
