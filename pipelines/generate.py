@@ -19,6 +19,7 @@ from spikesim.generation import (PRESETS, bundled_scene, generate, percent, plan
                                  saturation_summary)
 from spikesim.generation.run import Terminated
 from spikesim.generation.settings import ResolvedSettings, resolve_settings
+from spikesim.quality import QUALITIES
 
 TERMINATED = 128 + 15  # the shell's status of a process ended by SIGTERM
 
@@ -225,9 +226,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="samples per pixel of each frame render (default: a user scene's sampler, else the preset's)")
     p.add_argument("--keyframe-every", type=positive_int,
                    help="render every this many steps; the sensor interpolates (default: the preset's, 1)")
-    p.add_argument("--quality", choices=["draft", "balanced", "reference"],
-                   help="render/sensor knobs from spikesim.quality (measured presets; docs/tradeoff.md); "
-                        "overrides --spp/--keyframe-every and the variant")
+    p.add_argument("--quality", choices=list(QUALITIES),
+                   help="render/sensor knobs from spikesim.quality (measured presets; docs/tradeoff.md; "
+                        "fast: samples chosen by the scene's light, the paper LLR in under 10 minutes on 2 "
+                        "cores); overrides --spp/--keyframe-every and the variant")
     p.add_argument("--workers", type=positive_int, help="local processes (default: one per core; one with a GPU)")
     add_device_argument(p)
     p.add_argument("--ray", metavar="ADDRESS", help="run on a Ray cluster ('auto', an address, or 'local')")

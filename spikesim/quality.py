@@ -135,6 +135,34 @@ QUALITY_RENDER_KNOBS = ("spp", "gt_spp", "variant", "keyframe_every")
 
 
 @dataclass(frozen=True)
+class LowLight:
+    """Render knobs for a scene whose light level is at most `y_max`: Monte Carlo noise that is
+    fresh at every step averages over a window like shot noise, and in the dark shot noise
+    dominates, so fewer samples give the same downstream scores (spikesim.preset_rule)."""
+
+    y_max: float
+    """Light level (median spikes per step of a probe frame at step 0) up to which these apply."""
+    spp: int
+    gt_spp: int
+
+    def __post_init__(self) -> None:
+        if not (isinstance(self.y_max, (int, float)) and math.isfinite(self.y_max) and self.y_max > 0):
+            raise ValueError(f"low light: y_max={self.y_max!r} must be a finite number > 0 (spikes per step)")
+        for what in ("spp", "gt_spp"):
+            v = getattr(self, what)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                raise ValueError(f"low light: {what}={v!r} must be a positive integer")
+
+
+def light_level(frame: Any) -> float:
+    """A frame's light level as the light rule reads it: its median y (spikes per step)."""
+    y = np.asarray(frame, dtype=np.float64)
+    if y.size == 0 or not np.all(np.isfinite(y)):
+        raise ValueError("the probe frame must be non-empty and finite to read its light level")
+    return float(np.median(y))
+
+
+@dataclass(frozen=True)
 class QualitySettings(HoldsRenderSettings):
     """Every render and sensor knob the speed/accuracy study measured, as one validated record:
     the render knobs in a RenderSettings (declared once, there), the keyframe policy, the noise
@@ -154,8 +182,12 @@ class QualitySettings(HoldsRenderSettings):
     """"all" (every term of the base camera) or "auto" (decide_noise_terms at `noise_tolerance`)."""
     noise_tolerance: float = 0.01
     precision: str = "float32"
+    low_light: LowLight | None = None
+    """Other render knobs for a dark scene (`for_light`); None: the same knobs at every light."""
 
     def __post_init__(self) -> None:
+        if self.low_light is not None and not isinstance(self.low_light, LowLight):
+            raise ValueError(f"quality {self.name!r}: low_light={self.low_light!r} must be a LowLight")
         if not isinstance(self.render, RenderSettings):
             raise ValueError(f"quality {self.name!r}: render={self.render!r} must be a RenderSettings")
         v = self.max_interval
@@ -194,7 +226,22 @@ class QualitySettings(HoldsRenderSettings):
     def to_dict(self) -> dict[str, Any]:
         """Flat: the name, the render knobs it sets and its own knobs."""
         own = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "render"}
+        if self.low_light is not None:
+            own["low_light"] = dataclasses.asdict(self.low_light)
         return {**own, **self.render_kwargs()}
+
+    def for_light(self, y_level: float) -> "QualitySettings":
+        """This quality for a scene at light level `y_level` (`light_level` of a probe frame): its
+        low-light render knobs at or below `low_light.y_max`, else its own; the result has no
+        light rule left, so what it records is what rendered."""
+        if not (isinstance(y_level, (int, float, np.floating)) and math.isfinite(y_level) and y_level >= 0):
+            raise ValueError(f"light level y={y_level!r} must be a finite number >= 0 (spikes per step)")
+        if self.low_light is None:
+            return self
+        render = self.render
+        if y_level <= self.low_light.y_max:
+            render = render.replace(spp=self.low_light.spp, gt_spp=self.low_light.gt_spp)
+        return dataclasses.replace(self, render=render, low_light=None)
 
     # ---- what the pipeline stages take ---------------------------------------------------------
     def render_kwargs(self) -> dict[str, Any]:
@@ -291,7 +338,23 @@ PRESETS: dict[str, QualitySettings] = {
     "draft": QualitySettings.of("draft", spp=16, gt_spp=16, variant="auto", keyframe_policy="adaptive",
                                 max_px_per_keyframe=1.0, noise="auto", noise_tolerance=0.01, precision="float32"),
 }
+
+def _fast() -> QualitySettings:
+    """`fast`: the render knobs spikesim.preset_rule derives from the 400 x 250 study (its CSV ships
+    as spikesim/data/tradeoff_400.csv; tests/test_preset_rule.py checks these equal the rule's
+    output). Every aligned-PSNR loss, TFP-205 and the shipped network, within the larger of the
+    noise floor and 0.1 dB in every measured scene: a render every step with a fresh seed at 1 spp
+    in low light and 4 spp in normal light; ground truth at 128 spp, where its own error costs the
+    best low-light score at most 0.1 dB (normal light would want 512 by that test, more than the
+    study's own 128-spp reference ground truth can vouch for). Mono where the lights share a spectrum
+    (measured at 50 x 80: err/floor <= 0.23); every noise term (the study's runs kept them all).
+    Made for the paper's LLR on 2 cores in under 10 minutes (docs/tradeoff.md section 7)."""
+    return QualitySettings.of("fast", spp=4, gt_spp=128, variant="auto", keyframe_policy="every", noise="all",
+                              precision="float32", low_light=LowLight(y_max=0.0137, spp=1, gt_spp=128))
+
+
+PRESETS["fast"] = _fast()
 QUALITIES = tuple(PRESETS)
 
-__all__ = ["QualitySettings", "PRESETS", "QUALITIES", "NoiseDecision", "decide_noise_terms", "noise_effect",
+__all__ = ["QualitySettings", "LowLight", "light_level", "PRESETS", "QUALITIES", "NoiseDecision", "decide_noise_terms", "noise_effect",
            "apply_noise_decisions"]

@@ -719,6 +719,8 @@ def collect_rows(cfg: StudyConfig, out: Path, runs: Sequence[RunSpec] | None = N
         ref_npz = _load_npz(folder / "reference.npz", "packed", "gt")
         gt = ref_npz["gt"]
         ref_recon = cached_recon_scores(folder, "reference", ref["key"], ref["key"], ref_npz["packed"], gt, cfg)
+        # the scene-light's light level: the presets' light rule (spikesim.preset_rule) splits on it
+        y_median = float(np.median(gt))
         block = []
         for spec in runs:
             p = folder / f"{_slug(spec.name)}.json"
@@ -736,7 +738,7 @@ def collect_rows(cfg: StudyConfig, out: Path, runs: Sequence[RunSpec] | None = N
             recon = (ref_recon if spec.knob == "reference" else
                      cached_recon_scores(folder, spec.name, row["key"], ref["key"], data["packed"], gt, cfg))
             block.append({
-                "scene": scene, "light": light, "run": spec.name, "knob": spec.knob,
+                "scene": scene, "light": light, "ref_y_median": y_median, "run": spec.name, "knob": spec.knob,
                 "render_s": row["render_s"], "simulate_s": row["simulate_s"], "total_s": total,
                 "render_ratio": row["render_s"] / ref_render, "simulate_ratio": row["simulate_s"] / ref["simulate_s"],
                 "time_ratio": total / ref_total, "speedup": ref_total / total, "renders": row["renders"],
@@ -771,9 +773,11 @@ COLUMNS = ("scene", "light", "run", "knob", "render_s", "simulate_s", "time_rati
            "renders", "rate_err", "rate_bias", "isi_w1", "tfp_err", "tfp_psnr", "tfp_ssim", "gt_err", "pareto",
            "same_session", "recon_tfp_span", "tfp_gt_psnr", "tfp_gt_dpsnr", "tfp_gt_floor", "pareto_tfp",
            "net_gt_psnr", "net_gt_dpsnr", "net_gt_floor", "pareto_net", "recon_note",
-           "gt_spp", "gt_frame_s", "gt_time_ratio", "gt_self_err", "gt_self_psnr", "gt_ref_err_est", "pareto_gt")
+           "gt_spp", "gt_frame_s", "gt_time_ratio", "gt_self_err", "gt_self_psnr", "gt_ref_err_est", "pareto_gt",
+           "ref_y_median")
 """The CSV's columns: a row per run, then (knob "gt") a row per ground truth of the ground-truth
-error axis, which fills only the scene, light, run, knob and gt_* columns."""
+error axis, which fills only the scene, light, run, knob and gt_* columns. `ref_y_median`: the
+median of the reference's ground truth (spikes per step), the scene-light's light level."""
 
 
 def write_csv(rows: Sequence[dict[str, Any]], path: Path) -> None:

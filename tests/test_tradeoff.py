@@ -120,7 +120,7 @@ def test_adaptive_policy_rejects_bad_values(bad):
 
 # ---- quality presets and noise decisions ---------------------------------------------------------
 def test_presets_are_valid_and_ordered():
-    assert set(PRESETS) == {"draft", "balanced", "reference"}
+    assert set(PRESETS) == {"draft", "balanced", "reference", "fast"}
     ref, bal, draft = (QualitySettings.from_name(n) for n in ("reference", "balanced", "draft"))
     assert ref.spp >= bal.spp >= draft.spp
     assert ref.keyframe_policy == "every" and ref.variant == "spectral" and ref.noise == "all"
@@ -128,8 +128,8 @@ def test_presets_are_valid_and_ordered():
     for q in (ref, bal, draft):
         json.dumps(q.record())
         assert set(q.render_kwargs()) == {"spp", "gt_spp", "variant", "keyframe_every"}
-    with pytest.raises(ValueError, match="unknown quality 'fast'"):
-        QualitySettings.from_name("fast")
+    with pytest.raises(ValueError, match="unknown quality 'faster'"):
+        QualitySettings.from_name("faster")
     with pytest.raises(ValueError, match="keyframe_policy"):
         ref.replace(keyframe_policy="sometimes")
 

@@ -34,6 +34,7 @@ class _FrameSource:
         src = job.source
         self.scale = job.light_power_factor
         self.gt_images, self.gt_max = 0, 0.0
+        self.gt_spp: int | None = None  # None: the render settings' (a quality's light rule sets it)
         h, w = job.camera["height"], job.camera["width"]
         if src["type"] == "pattern":
             from spikesim.patterns import MovingPattern
@@ -89,7 +90,8 @@ class _FrameSource:
             yield f * np.float32(self.scale) if self.scale != 1.0 else f
 
     def ground_truth(self, step: int) -> np.ndarray:
-        img = self._renderer.ground_truth(step) if self._renderer is not None else self._pattern.frame(step)
+        img = (self._renderer.ground_truth(step, spp=self.gt_spp) if self._renderer is not None
+               else self._pattern.frame(step))
         self.gt_images += 1
         self.gt_max = max(self.gt_max, float(np.max(img))) if img.size else self.gt_max
         return img * np.float32(self.scale) if self.scale != 1.0 else img
@@ -199,15 +201,25 @@ def run_job(job: SceneJob, root: str | Path, progress: Callable[[str, int, int],
         cam = SpikeCamera.from_dict(job.camera)
         quality_record = None
         if job.quality is not None and source.renderer is not None:
-            from spikesim.quality import QualitySettings
+            from spikesim.quality import QualitySettings, light_level
             q = QualitySettings.from_name(job.quality)
-            y_levels = None
-            if q.noise == "auto":  # the light levels decide which noise terms can show
-                y_levels = np.percentile(source.renderer.render_step(0) * np.float32(source.scale), [5, 50, 95])
-            cam, decisions = q.camera(cam, y_levels)
+            y_levels = light = None
+            if q.noise == "auto" or q.low_light is not None:  # a probe frame: the light decides
+                probe = source.renderer.render_step(0) * np.float32(source.scale)
+                y_levels = np.percentile(probe, [5, 50, 95])
+                if q.low_light is not None:  # the render knobs for this light (spikesim.preset_rule)
+                    light = {"y_level": light_level(probe), "low_light": dataclasses.asdict(q.low_light)}
+                    q = q.for_light(light["y_level"])
+                    light["low"] = light["y_level"] <= light["low_light"]["y_max"]
+                    source.gt_spp = q.gt_spp
+                    log.info("%s: light level y=%.3g spikes/step: %s light, %d spp per step, ground truth %d spp",
+                             job.name, light["y_level"], "low" if light["low"] else "normal", q.spp, q.gt_spp)
+            cam, decisions = q.camera(cam, y_levels if q.noise == "auto" else None)
             for d in decisions:
                 log.debug("%s: noise %s", job.name, d.to_dict())
             quality_record = q.record(decisions)
+            if light is not None:
+                quality_record["light_rule"] = light
         renderer = source.renderer
         if backend == "auto" and renderer is not None:
             backend = renderer.device  # the sensor where the frames are
