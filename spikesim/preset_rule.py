@@ -1,7 +1,7 @@
 """The `fast` quality's render knobs, derived by a stated rule from the trade study measured at
 the paper's 400 x 250 (`spikesim tradeoff`, its CSV shipped as spikesim/data/tradeoff_400.csv).
 
-The rule, for a tolerance `tol_db` (0.1 dB for `fast`):
+The rule, for a tolerance `tol_db` (FAST_TOLERANCE_DB, 0.2 dB, for `fast`):
 
 - **Light classes.** The study's scene-lights fall into two light levels (the median of the
   reference ground truth, `ref_y_median`, spikes per step): the LLR's low light (about 1e-3) and
@@ -40,9 +40,12 @@ from typing import Any, Iterable, Sequence
 #: The 400 x 250 study the presets were chosen from (`spikesim tradeoff --height 250 --width 400
 #: --windows 5 --ref-spp 32 --gt-spp 128 --knobs spp seeds --gt-error-spp 16 64`).
 STUDY_CSV = Path(__file__).parent / "data" / "tradeoff_400.csv"
-#: The loss of aligned PSNR `fast` accepts beyond the noise floor: below what the paper's tables
-#: resolve (two decimals; their method differences are 0.3 dB and more).
-FAST_TOLERANCE_DB = 0.1
+#: The loss of aligned PSNR `fast` accepts beyond the noise floor: under the 0.3 dB by which the
+#: shipped network's recipe, retrained with another seed, moves its LLR score (docs/model.md, the
+#: factor study: 0.01-0.3 dB over 3 seeds), so data made at `fast` rank methods as reference data
+#: do, up to retraining noise. At 0.1 dB the rule asks 16 spp in normal light (Car's 0.19 dB loss
+#: at 4 spp decides), which puts the paper LLR past 10 minutes on 2 cores (docs/tradeoff.md s. 7).
+FAST_TOLERANCE_DB = 0.2
 RECON_AXES = ("tfp", "net")
 _SPP_RUN = re.compile(r"^spp=(\d+)$")
 

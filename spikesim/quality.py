@@ -1,5 +1,6 @@
-"""One `quality` option (draft / balanced / reference) for the render + sensor knobs, and the rule
-that switches off noise terms a scene's light level cannot show.
+"""One `quality` option (fast / draft / balanced / reference) for the render + sensor knobs, the
+rule that switches off noise terms a scene's light level cannot show, and the light rule that
+renders dark scenes with fewer samples (`LowLight`, chosen by spikesim.preset_rule).
 
 The presets were chosen from the measured speed/accuracy Pareto front of `spikesim tradeoff`
 (docs/tradeoff.md); the numbers that justify each choice are in PRESETS below. Every run records
@@ -343,14 +344,14 @@ def _fast() -> QualitySettings:
     """`fast`: the render knobs spikesim.preset_rule derives from the 400 x 250 study (its CSV ships
     as spikesim/data/tradeoff_400.csv; tests/test_preset_rule.py checks these equal the rule's
     output). Every aligned-PSNR loss, TFP-205 and the shipped network, within the larger of the
-    noise floor and 0.1 dB in every measured scene: a render every step with a fresh seed at 1 spp
-    in low light and 4 spp in normal light; ground truth at 128 spp, where its own error costs the
-    best low-light score at most 0.1 dB (normal light would want 512 by that test, more than the
-    study's own 128-spp reference ground truth can vouch for). Mono where the lights share a spectrum
+    noise floor and 0.2 dB in every measured scene (spikesim.preset_rule.FAST_TOLERANCE_DB says why
+    0.2): a render every step with a fresh seed at 1 spp in low light and 4 spp in normal light;
+    ground truth at 128 spp, the study's own reference ground truth (the error test asks up to 592
+    in normal light, more than that reference can vouch for). Mono where the lights share a spectrum
     (measured at 50 x 80: err/floor <= 0.23); every noise term (the study's runs kept them all).
     Made for the paper's LLR on 2 cores in under 10 minutes (docs/tradeoff.md section 7)."""
     return QualitySettings.of("fast", spp=4, gt_spp=128, variant="auto", keyframe_policy="every", noise="all",
-                              precision="float32", low_light=LowLight(y_max=0.0137, spp=1, gt_spp=128))
+                              precision="float32", low_light=LowLight(y_max=0.0142, spp=1, gt_spp=128))
 
 
 PRESETS["fast"] = _fast()
