@@ -228,6 +228,9 @@ def test_study_rows_and_resume(tmp_path, monkeypatch):
     assert adaptive["renders"] < 41 and adaptive["render_s"] < ref["render_s"]
     for r in rows:
         assert all(np.isfinite(r[c]) for c in ("render_s", "simulate_s", "rate_err", "gt_err", "tfp_ssim"))
+    # the scene-light's light level (the fast preset's rule splits on it): one value, the median
+    # of the reference's ground truth, a dim Ball in low light
+    assert len({r["ref_y_median"] for r in rows}) == 1 and 0 < ref["ref_y_median"] < 0.0142
     assert not floor["pareto"]  # the noise floor is a yardstick, not a choice
     front = [r for r in rows if r["pareto"]]
     assert front and all(not (o["time_ratio"] <= f["time_ratio"] and o["rate_err"] < f["rate_err"])
@@ -235,6 +238,7 @@ def test_study_rows_and_resume(tmp_path, monkeypatch):
     tradeoff.write_report(rows, tmp_path)
     assert (tmp_path / "tradeoff.png").stat().st_size > 1000
     assert (tmp_path / "tradeoff.csv").read_text().count("\n") == len(rows) + 1
+    assert "ref_y_median" in (tmp_path / "tradeoff.csv").read_text().splitlines()[0].split(",")
     assert "**ball, low light**" in (tmp_path / "tradeoff.md").read_text()
 
     # a run from a later process is compared with the reference re-timed there (the probe)
