@@ -21,7 +21,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("spikesim", "model", "pipelines", "scenes")
 #: Suffixes of the package data pyproject.toml ships.
-DATA_SUFFIXES = {".json", ".xml", ".toml", ".png", ".jpg", ".ply", ".pt"}
+DATA_SUFFIXES = {".json", ".csv", ".xml", ".toml", ".png", ".jpg", ".ply", ".pt"}
 #: What a build needs from the checkout besides the packages.
 BUILD_FILES = ("pyproject.toml", "README.md", "LICENSE")
 
