@@ -37,6 +37,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
+from spikesim.tradeoff import RECON_AXES
+
 #: The 400 x 250 study the presets were chosen from (`spikesim tradeoff --height 250 --width 400
 #: --windows 5 --ref-spp 32 --gt-spp 128 --knobs spp seeds --gt-error-spp 16 64`).
 STUDY_CSV = Path(__file__).parent / "data" / "tradeoff_400.csv"
@@ -46,7 +48,6 @@ STUDY_CSV = Path(__file__).parent / "data" / "tradeoff_400.csv"
 #: do, up to retraining noise. At 0.1 dB the rule asks 16 spp in normal light (Car's 0.19 dB loss
 #: at 4 spp decides), which puts the paper LLR past 10 minutes on 2 cores (docs/tradeoff.md s. 7).
 FAST_TOLERANCE_DB = 0.2
-RECON_AXES = ("tfp", "net")
 _SPP_RUN = re.compile(r"^spp=(\d+)$")
 
 

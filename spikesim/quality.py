@@ -147,7 +147,8 @@ class LowLight:
     gt_spp: int
 
     def __post_init__(self) -> None:
-        if not (isinstance(self.y_max, (int, float)) and math.isfinite(self.y_max) and self.y_max > 0):
+        if (isinstance(self.y_max, bool) or not isinstance(self.y_max, (int, float))
+                or not math.isfinite(self.y_max) or self.y_max <= 0):
             raise ValueError(f"low light: y_max={self.y_max!r} must be a finite number > 0 (spikes per step)")
         for what in ("spp", "gt_spp"):
             v = getattr(self, what)

@@ -35,7 +35,8 @@ def test_the_shipped_study_covers_both_lights_and_every_scene_it_names():
     pairs = {(r["scene"], r["light"]) for r in rows if r["knob"] != "gt"}
     scenes = {s for s, _ in pairs}
     assert pairs == {(s, l) for s in scenes for l in ("low", "normal")}
-    assert {"ball", "fan"} <= scenes
+    from scenes import SCENES
+    assert scenes == set(SCENES)  # every LLR scene, both lights
     for r in rows:
         if r["knob"] != "gt":
             assert r["ref_y_median"] > 0 and math.isfinite(r["net_gt_floor"])
@@ -136,6 +137,7 @@ def test_for_light_switches_the_render_knobs_at_the_split_and_records_them():
 
 @pytest.mark.parametrize("kwargs,field", [(dict(y_max=0.0, spp=1, gt_spp=1), "y_max"),
                                           (dict(y_max=math.nan, spp=1, gt_spp=1), "y_max"),
+                                          (dict(y_max=True, spp=1, gt_spp=1), "y_max"),
                                           (dict(y_max=0.01, spp=0, gt_spp=1), "spp"),
                                           (dict(y_max=0.01, spp=1, gt_spp=True), "gt_spp")])
 def test_low_light_knobs_are_validated(kwargs, field):
