@@ -350,7 +350,9 @@ def _fast() -> QualitySettings:
     ground truth at 128 spp, the study's own reference ground truth (the error test asks up to 592
     in normal light, more than that reference can vouch for). Mono where the lights share a spectrum
     (measured at 50 x 80: err/floor <= 0.23); every noise term (the study's runs kept them all).
-    Made for the paper's LLR on 2 cores in under 10 minutes (docs/tradeoff.md section 7)."""
+    Made for the paper's LLR on 2 cores in under 10 minutes (docs/tradeoff.md section 7). Out of
+    sample, two random RLLR scenes of four at 200 x 125 lost 0.7-1.3 dB at 1 spp: the light level
+    does not capture a scene's Monte Carlo variance, so it is not the preset for RLLR data."""
     return QualitySettings.of("fast", spp=4, gt_spp=128, variant="auto", keyframe_policy="every", noise="all",
                               precision="float32", low_light=LowLight(y_max=0.0142, spp=1, gt_spp=128))
 
