@@ -1,7 +1,8 @@
 """Per-pixel parameters drawn once per camera instance: the fixed-pattern noise.
 
-They are drawn here, in NumPy, from the simulator's seed, and shared by every backend. So any
-configuration without temporal noise gives bit-identical streams on NumPy, LLVM and CUDA.
+They are drawn here, in NumPy, from the simulator's seed, and shared by every backend; the temporal
+noise is counter-based Philox drawn alike by each (spikesim/philox.py). So every configuration gives
+bit-identical streams on NumPy, LLVM and CUDA.
 """
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
 """The spike camera model as a Dr.Jit kernel (LLVM on the CPU, CUDA on NVIDIA GPUs).
 
 The update is the one documented in `sensor_numpy` (same operations, same order, same fixed
-patterns), so without temporal noise the stream is bit-identical to the reference.
+patterns, same counter-based random numbers), so the stream is bit-identical to the reference.
 
 Layout, chosen from the roofline in docs/performance.md:
 - One lane per (stream, pixel): loads of irradiance and pixel parameters are contiguous across
@@ -11,12 +11,12 @@ Layout, chosen from the roofline in docs/performance.md:
   one word per 32 steps. A second, cheap kernel transposes 32 x 32 bit blocks into the `.dat`
   frame layout (32 pixels per word, least significant bit first). Only packed words leave the
   device.
-- Temporal noise is Philox4x32-7 keyed by the stream's seed, counted by (pixel, step // G): one
-  call serves G steps, so the stream does not depend on chunking or on which streams share a
-  launch. With the per-step Gaussian shot noise G = 2 (two Box-Muller pairs); with the renewal
-  shot noise G = 4 (a word a step: the comparator's popcount normal), and each spike's threshold
-  charge has its own call, counted by (pixel, spike index) as in the NumPy reference
-  (spikesim/philox.py). The loop runs over groups of G steps unmasked; a group cut by a call's first
+- Temporal noise is Philox4x32-7 keyed by the stream's seed, counted by (pixel, step // 4): one
+  call serves 4 steps, a word a step, whose 16-bit halves give the step's shot-noise and
+  comparator normals (popcount normals, no logarithm or sine); each renewal threshold charge has
+  its own call, counted by (pixel, spike index). The NumPy reference draws the same
+  (spikesim/philox.py), so every camera's stream is bit-identical across backends and does not
+  depend on chunking or on which streams share a launch. The loop runs over groups of G steps unmasked; a group cut by a call's first
   or last step runs as a masked piece of its own, whose steps outside the call leave the state
   untouched.
 - Everything that changes between calls (step counts, phases, offsets) is an opaque scalar, so
@@ -34,7 +34,7 @@ from ._drjit import dr
 from .camera import Y_MAX, SpikeCamera
 from .errors import InvalidFrames
 from .fixed_pattern import PixelParameters
-from .philox import (PHILOX_M, PHILOX_ROUNDS, PHILOX_W, THRESHOLD_CHARGE_TAG, philox_key,
+from .philox import (PHILOX_M, PHILOX_ROUNDS, PHILOX_W, STEPS_PER_CALL, THRESHOLD_CHARGE_TAG, philox_key,
                      threshold_charge_scale)
 
 #: Steps whose spikes one lane collects in one output word.
@@ -68,25 +68,21 @@ def philox4x32(m, key: tuple, counter: tuple, rounds: int = _PHILOX_ROUNDS) -> t
     return s0, s1, s2, s3
 
 
-def _uniform(m, word):
-    """[0, 1) from the top 23 bits of a UInt32 (Dr.Jit's own conversion)."""
-    return dr.reinterpret_array(m.Float32, (word >> 9) | 0x3F800000) - 1.0
-
-
-def _box_muller(m, u0, u1):
-    """Two independent standard normals from two uniforms in [0, 1) (float32: the noise terms
-    are fractions of a threshold, far above float32 resolution)."""
-    radius = dr.sqrt(-2.0 * dr.log(1.0 - u0))
-    sin_, cos_ = dr.sincos((2.0 * math.pi) * u1)
-    return radius * cos_, radius * sin_
+def half_word_normals(m, word):
+    """(shot, comparator) normals of a step's 32-bit word: (popcount - 8) / 2 of its low and of its
+    high 16 bits, Binomial(16, 1/2) standardised (spikesim.philox.half_word_normals_numpy is the
+    NumPy twin, and the reason this is enough). Against two Box-Muller pairs per call serving two
+    steps, 1.5x the realistic CPU kernel's speed (docs/performance.md)."""
+    return ((m.Float32(dr.popcnt(word & 0xFFFF)) - 8.0) * 0.5,
+            (m.Float32(dr.popcnt(word >> 16)) - 8.0) * 0.5)
 
 
 def popcount_normal(m, *words):
     """A standard normal variate from 32 n random bits: (popcount - 16 n) / sqrt(8 n), a
     Binomial(32 n, 1/2) with a normal's mean and variance exactly (excess kurtosis -1/(16 n)), no
     logarithm or sine (spikesim.philox.popcount_normal_numpy is its NumPy twin). The renewal camera
-    draws its comparator noise (one word a step, four steps per Philox call) and each spike's
-    threshold charge (two words) this way; the golden check passes with it (docs/sensor.md)."""
+    draws each spike's threshold charge (two words) this way; the golden check passes with it
+    (docs/sensor.md)."""
     bits = dr.popcnt(words[0])
     for w in words[1:]:
         bits = bits + dr.popcnt(w)
@@ -94,15 +90,10 @@ def popcount_normal(m, *words):
     return (m.Float32(bits) - 16.0 * n) * (1.0 / math.sqrt(8.0 * n))
 
 
-def steps_per_draw(camera: SpikeCamera) -> int:
-    """Steps that share one Philox call: 1 without temporal noise (no call), 2 for the per-step
-    Gaussian shot noise (two Box-Muller pairs a call), 4 for the renewal camera (a word a step for
-    its comparator noise; its threshold charges have their own call, counted by spike)."""
-    if not camera.has_temporal_noise:
-        return 1
-    if camera.shot_noise == "renewal":
-        return 4 if camera.comparator_noise > 0 else 1
-    return 2
+def draws_per_step(camera: SpikeCamera) -> bool:
+    """Whether a step draws normals (shot noise or comparator): a Philox word a step, 4 steps a
+    call. The renewal camera's threshold charges have their own call, counted by spike."""
+    return camera.shot_noise == "gaussian" or camera.comparator_noise > 0
 
 
 @dataclass
@@ -184,7 +175,9 @@ class DrJitSensor:
         self._pixel = self._owned(m.UInt32(np.tile(np.arange(P, dtype=np.uint32), self.num_streams)))
         # Renewal shot noise: each spike's threshold charge is Gamma(k)/k, k = threshold x N_e
         # electrons, drawn by Wilson-Hilferty as (1 - s^2 + s z)^3 with s = 1/(3 sqrt(k)).
-        self.group = steps_per_draw(camera)
+        # Steps one loop iteration runs: those that share a Philox call (4 steps run unrolled
+        # without draws measured no faster: the noiseless loop is not bound by its overhead).
+        self.group = STEPS_PER_CALL if draws_per_step(camera) else 1
         self.renewal = camera.shot_noise == "renewal"
         self._renewal_s = None
         if self.renewal and self._threshold is not None:
@@ -314,8 +307,8 @@ class DrJitSensor:
         shot = cam.shot_noise == "gaussian"
         renewal = cam.shot_noise == "renewal"
         comparator = cam.comparator_noise > 0
-        G = self.group                    # steps served by one Philox call
-        draws = cam.has_temporal_noise
+        G = self.group                    # steps an iteration runs; one Philox call serves them
+        per_step_draws = draws_per_step(cam)
         if renewal:
             s_shot = renewal_s if renewal_s is not None else Float(float(
                 threshold_charge_scale(1.0, cam.threshold_electrons, self.dtype)))
@@ -387,19 +380,12 @@ class DrJitSensor:
 
         def inner_body(i, bits, row, r, acc, comp, fired, counts, bad, w):
             local = w * WORD_STEPS + i    # step index from base
-            if draws:
+            if per_step_draws:  # the step's word: (shot, comparator) normals from its 16-bit halves
                 c = group_lo + (local >> (G.bit_length() - 1))
                 carry = dr.select(c < group_lo, UInt32(1), UInt32(0))
-                if renewal and not comparator:  # the threshold charges are all it draws
-                    halves = [(q, (None, None)) for q in range(G)]
-                else:
-                    u = philox4x32(m, (key_hi, key_lo), (pixel, c, group_hi + carry, UInt32(0)))
-                    if not renewal:   # (shot, comparator) normals of two steps
-                        halves = [(0, _box_muller(m, _uniform(m, u[0]), _uniform(m, u[1]))),
-                                  (1, _box_muller(m, _uniform(m, u[2]), _uniform(m, u[3])))]
-                    else:             # the comparator's normal of each of G steps
-                        halves = [(q, (None, popcount_normal(m, u[q]))) for q in range(G)]
-            else:
+                u = philox4x32(m, (key_hi, key_lo), (pixel, c, group_hi + carry, UInt32(0)))
+                halves = [(q, half_word_normals(m, u[q])) for q in range(G)]
+            else:  # no per-step draw (the renewal camera's charges have their own)
                 halves = [(0, (None, None))]
             for half, z in halves:
                 # Only a masked piece (a group cut by the call's ends) has steps that are not ours.

@@ -7,6 +7,7 @@ pixel x at step n (accumulator A and threshold theta in units of the nominal thr
     y      = min(y, Y_MAX)                  bound far above saturation (camera.Y_MAX)
     e      = y g + d                        gain (PRNU) and dark current, docs/sensor.md
     e      = e + sqrt(e / N_e) z1           shot noise (gaussian; or Poisson(e N_e) / N_e)
+                                            z1, z2: the step's Philox word, spikesim/philox.py
     e      = e (1 - r)   if x fired at n-1  reset/readout loss
     u      = e - c;  t = A + u              integrate (paper eq. 1), compensated (Kahan):
     c      = (t - A) - u;  A = t            c carries the low bits float32 drops
@@ -33,8 +34,8 @@ import numpy as np
 
 from .camera import Y_MAX, SpikeCamera
 from .fixed_pattern import PixelParameters
-from .philox import (THRESHOLD_CHARGE_TAG, philox4x32_numpy, philox_key, popcount_normal_numpy,
-                     threshold_charge_scale)
+from .philox import (STEPS_PER_CALL, THRESHOLD_CHARGE_TAG, half_word_normals_numpy, philox4x32_numpy,
+                     philox_key, popcount_normal_numpy, step_words_numpy, threshold_charge_scale)
 
 
 class NumpySensor:
@@ -49,13 +50,16 @@ class NumpySensor:
         self.accumulator = params.initial_accumulator.copy()
         self.compensation = np.zeros_like(self.accumulator)
         self.fired = np.zeros(camera.num_pixels, dtype=bool)
-        # Temporal noise: a sequential generator, so chunked calls draw what one call would.
-        self._rng = np.random.Generator(np.random.Philox(np.random.SeedSequence([int(seed), 2])))
-        # Renewal shot noise: each spike's threshold charge from Philox counted by (pixel, spike
-        # index), as the Dr.Jit kernel draws it, so that without comparator noise the two agree
-        # bit for bit.
-        self.spike_count = np.zeros(camera.num_pixels, dtype=np.uint64)
+        # Per-pixel-step normals (shot noise, comparator) and the renewal shot noise's threshold
+        # charges: Philox counted by (pixel, step group) and (pixel, spike index), as the Dr.Jit
+        # kernel draws them, so the two agree bit for bit and chunking changes nothing.
         self._key = philox_key(seed)
+        self._pixels = np.arange(camera.num_pixels, dtype=np.uint64)
+        self._words: tuple[int, tuple] | None = None  # the last Philox call's group and words
+        self.spike_count = np.zeros(camera.num_pixels, dtype=np.uint64)
+        # The exact per-step Poisson electrons (NumPy only): a sequential generator, so chunked
+        # calls draw what one call would.
+        self._rng = np.random.Generator(np.random.Philox(np.random.SeedSequence([int(seed), 2])))
 
     def run(self, keyframes: np.ndarray, phase: int, keyframe_every: int, num_steps: int,
             first_step: int) -> np.ndarray:
@@ -74,6 +78,7 @@ class NumpySensor:
         threshold = p.threshold if p.threshold is not None else one
         y_max = dt.type(Y_MAX)
         A, c = self.accumulator, self.compensation
+        draws = cam.shot_noise == "gaussian" or cam.comparator_noise > 0
         for s in range(num_steps):
             t = phase + s
             j, r = divmod(t, k)
@@ -85,8 +90,10 @@ class NumpySensor:
             e = y * p.gain if p.gain is not None else y
             if p.dark_per_step is not None:
                 e = e + p.dark_per_step
+            if draws:
+                z_shot, z_comparator = self._step_normals(first_step + s)
             if cam.shot_noise == "gaussian":
-                e = e + np.sqrt(e * inv_ne) * self._rng.standard_normal(e.shape, dtype=dt)
+                e = e + np.sqrt(e * inv_ne) * z_shot.astype(dt, copy=False)
             elif cam.shot_noise == "poisson":
                 e = (self._rng.poisson(e.astype(np.float64) * cam.threshold_electrons) * (1.0 / cam.threshold_electrons)).astype(dt)
             if cam.reset_loss > 0:
@@ -96,7 +103,7 @@ class NumpySensor:
             c = (total - A) - u
             A = total
             if cam.comparator_noise > 0:
-                fire = A >= threshold + sigma_c * self._rng.standard_normal(A.shape, dtype=dt)
+                fire = A >= threshold + sigma_c * z_comparator.astype(dt, copy=False)
             else:
                 fire = A >= threshold
             if cam.shot_noise == "renewal":
@@ -109,6 +116,13 @@ class NumpySensor:
         self.accumulator = A.astype(dt, copy=False)
         self.compensation = c.astype(dt, copy=False)
         return out
+
+    def _step_normals(self, step: int) -> tuple[np.ndarray, np.ndarray]:
+        """(shot, comparator) normals of absolute step `step`: its word of Philox call step // 4."""
+        group, q = divmod(int(step), STEPS_PER_CALL)
+        if self._words is None or self._words[0] != group:
+            self._words = (group, step_words_numpy(self._key, self._pixels, group))
+        return half_word_normals_numpy(self._words[1][q])
 
     def _threshold_charge(self, threshold, fire: np.ndarray) -> np.ndarray:
         """The charge (over the threshold) of the interval each firing pixel starts: Gamma(k)/k,

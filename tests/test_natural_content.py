@@ -121,10 +121,15 @@ def test_plan_natural_scales_and_lamps():
     assert "scenes/natural_scene.py" in jobs[0].inputs
 
 
-def test_plan_procedural_is_unchanged_by_the_new_options():
+def test_plan_procedural_is_unchanged_by_the_new_options(monkeypatch):
     """The default plan (content procedural, one scale, the realistic camera) keeps every job's
     identity: these digests were computed by the code before natural content, scales and the
-    measured camera terms existed, so datasets made then are not reported stale."""
+    measured camera terms existed (data version 1), so datasets made then were not reported stale.
+    Data version 2 (the per-step normals drawn by counter) changes every digest on purpose."""
+    import spikesim.generation.inputs as inputs
+    now = [j.digest for j in plan_rllr(PRESETS["paper"], count=2)]
+    monkeypatch.setattr(inputs, "DATA_VERSION", 1)
+    assert not set(now) & {j.digest for j in plan_rllr(PRESETS["paper"], count=2)}
     assert [j.digest for j in plan_rllr(PRESETS["small"], count=3, darkening="log-uniform")] == [
         "f84abbdebd84467d", "c247873c6f4c6b10", "e377058f59507cd0"]
     assert [j.digest for j in plan_rllr(PRESETS["paper"], count=2)] == ["60c4df987bfb6450", "b41d4d1ce6fe1c4e"]

@@ -28,10 +28,11 @@ from typing import Any, Iterable
 
 from spikesim.dataset import LAYOUT_VERSION, sha256_file
 
-DATA_VERSION = 1
+DATA_VERSION = 2
 """The version of the code that turns a job into bytes (renderer, sensor, seeds, layout of a
 scene folder). Raise it when a change makes the same job write other bytes: every scene is then
-rebuilt once by the next rerun, and says why."""
+rebuilt once by the next rerun, and says why. 2: the per-step shot and comparator normals are
+drawn from Philox counted by (pixel, step) (spikesim/philox.py), bit-identical on every backend."""
 
 CODE_INPUT = "spikesim"
 """The name of the code's entry among a job's inputs."""
