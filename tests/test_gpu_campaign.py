@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 
 from pipelines.gpu_campaign import (DEFAULT_PART, OPTIONAL, PART_DEADLINE_S, PARTS, PROFILES, STAGE_NAMES, STATUSES,
-                                    TABLE1_CALL, Options)
+                                    TABLE1_CALL, TRADEOFF_CALL, Options)
 from pipelines.gpu_campaign.outputs import (MAX_FILES, combined_logs, join_weight_parts, out_problems,
                                             write_weights)
 from pipelines.gpu_campaign.stages import install_wheels
@@ -94,6 +94,9 @@ def test_the_dry_run_runs_every_stage_and_writes_the_summary_schema(dry_run):
     assert fig["train"]["steps"] >= 1 and fig["train"]["precision"] == "bf16"
     assert {"TFP", "TFI", "TFP-123", "black", "mean", "tiny"} <= set(fig["evaluate"]["methods"])
     assert [f["name"] for f in fig["export"]["files"]] == ["weights.pt"]
+    # the trade study (part 1, only where time is left: the dry run has it): its CSV handed back
+    assert fig["tradeoff"]["complete"] and fig["tradeoff"]["rows"] > 5 and fig["tradeoff"]["csv"] == "tradeoff.csv"
+    assert set(fig["tradeoff"]["loss_db"]) >= {"fan_low:spp=1", "fan_low:spp=4"}  # TFP-41 at this size
 
 
 @needs_llvm
@@ -104,6 +107,9 @@ def test_the_second_call_keeps_the_first_calls_datasets_and_records(dry_runs):
     assert all(first[n]["status"] == "ok" and first[n]["part"] == "1" for n in PARTS["1"])
     assert all(first[n]["status"] == "skipped" and "not run" in first[n]["note"] for n in ("train", "evaluate", "export"))
     assert not any(p.name.startswith("weights") for p in runs["1"][0].iterdir())
+    csv_text = (runs["1"][0] / "tradeoff.csv").read_text()
+    assert csv_text.startswith("scene,light,run,knob,") and "fan,low,spp=1,spp," in csv_text
+    assert "## Trade study at 400 x 250 (stage tradeoff)" in (runs["1"][0] / "report.md").read_text()
     for n in ("gpu_tests", "bench_sensor", "bench_render", "llr", "rllr"):  # measured once, by the first call
         assert second[n] == first[n], n
     assert all(second[n]["part"] == "2" for n in ("install", "train", "evaluate", "export"))
@@ -184,7 +190,16 @@ def test_the_parts_cover_every_stage_once_in_order():
     one = PARTS["one"]
     assert sorted(one) == sorted(STAGE_NAMES)
     assert one[:7] == ("install", "bench_sensor", "bench_render", "llr", "rllr", "train", "export")
-    assert one[7:] == OPTIONAL["one"] == ("gpu_tests", "evaluate", "table1")
+    assert one[7:] == OPTIONAL["one"] == ("gpu_tests", "evaluate", "tradeoff", "table1")
+    # the trade study's full-size points: only where time is left, in part one, part 1 and `all`;
+    # its own call (TRADEOFF_CALL) gives it part one's time
+    for name in ("one", "1", "all"):
+        assert "tradeoff" in PARTS[name] and "tradeoff" in OPTIONAL[name]
+    part, stages = TRADEOFF_CALL
+    assert part == "one" and stages == ("install", "tradeoff")
+    for profile in PROFILES.values():  # its call leaves it its least even when install takes its whole box
+        boxes = profile.boxes_of(part)
+        assert PART_DEADLINE_S[part] - boxes["install"][1] >= boxes["tradeoff"][0] > profile.tradeoff_report_s
     # table1 comes last wherever it runs, and only where time is left: nothing earlier keeps time for it
     for name in ("one", "2", "all"):
         assert PARTS[name][-1] == "table1" and "table1" in OPTIONAL[name]
@@ -331,7 +346,8 @@ def test_the_one_call_dry_run_runs_every_stage_in_order_of_value(tmp_path):
     assert started == sorted(started)  # ISO times to the second: run in the part's order
     assert by["rllr"]["figures"]["scenes"] == 2 and by["train"]["figures"]["precision"] == "bf16"
     assert "tiny" in by["evaluate"]["figures"]["methods"]
-    assert {f.name for f in _files(out)} == {"summary.json", "logs.txt", "report.md", "weights.pt"}
+    assert by["tradeoff"]["figures"]["complete"] and by["tradeoff"]["figures"]["scene_lights"] == ["fan_low"]
+    assert {f.name for f in _files(out)} == {"summary.json", "logs.txt", "report.md", "weights.pt", "tradeoff.csv"}
     assert out_problems(out) == []
 
 

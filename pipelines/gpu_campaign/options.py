@@ -18,13 +18,14 @@ from pathlib import Path
 #: The repository root: the stages run their commands from it, and the carried wheels lie in it.
 ROOT = Path(__file__).resolve().parents[2]
 STAGE_NAMES = ("install", "gpu_tests", "bench_sensor", "bench_render", "llr", "rllr", "train", "evaluate", "export",
-               "table1")
+               "tradeoff", "table1")
 PARTS = {
     # one call, in order of value: what only a GPU can measure first, then a short training and its
-    # weights; gpu_tests, evaluate and table1 last, only where time is left (OPTIONAL below)
+    # weights; gpu_tests, evaluate, the trade study's full-size points and table1 last, only where
+    # time is left (OPTIONAL below)
     "one": ("install", "bench_sensor", "bench_render", "llr", "rllr", "train", "export", "gpu_tests", "evaluate",
-            "table1"),
-    "1": ("install", "gpu_tests", "bench_sensor", "bench_render", "llr", "rllr"),
+            "tradeoff", "table1"),
+    "1": ("install", "gpu_tests", "bench_sensor", "bench_render", "llr", "rllr", "tradeoff"),
     "2": ("install", "llr", "rllr", "train", "evaluate", "export", "table1"),
     "all": STAGE_NAMES,
 }
@@ -32,11 +33,16 @@ DEFAULT_PART = "one"
 #: Stages of a part that run only where time is left: no earlier stage keeps its least box for them.
 #: table1 (the Table-1 networks at equal training FLOP) needs most of a call: in a part it runs
 #: after everything else, where time is left; a call of its own (TABLE1_CALL) gives it its time.
-OPTIONAL = {"one": ("gpu_tests", "evaluate", "table1"), "2": ("table1",), "all": ("table1",)}
+OPTIONAL = {"one": ("gpu_tests", "evaluate", "tradeoff", "table1"), "1": ("tradeoff",), "2": ("table1",),
+            "all": ("tradeoff", "table1")}
 #: The call that gives table1 its time on a lent GPU: part one's datasets, then table1 alone
 #: (`--stages install llr rllr table1`, part `one`'s 540 s); `Profile.table1_call_plan_s` is its
 #: time line. With a warm machine after part 1 (or 2), `--part 2 --stages table1` gives it 555 s.
 TABLE1_CALL = ("one", ("install", "llr", "rllr", "table1"))
+#: The call that gives the trade study's full-size points their time (`spikesim tradeoff` at 400 x 250
+#: on the GPU, all five LLR scenes under both lights, resumable: a later call goes on where the box
+#: cut it): `--stages install tradeoff`, part `one`'s 540 s.
+TRADEOFF_CALL = ("one", ("install", "tradeoff"))
 #: Seconds a call of each part may take by default (`--deadline-minutes`): a device call is killed
 #: at 600; part `one` leaves 60 of them for a stage's grace (20 s), the last writes and the start.
 PART_DEADLINE_S = {"one": 540.0, "1": 555.0, "2": 555.0, "all": 555.0}
@@ -64,6 +70,10 @@ class Profile:
     rllr: tuple[str, ...]
     rllr_count: int
     """RLLR scenes to make (the paper has 100; the time for 100 is extrapolated)."""
+    tradeoff: tuple[str, ...]
+    """Stage tradeoff's `spikesim tradeoff` options (the study's scenes, size, reference and knobs)."""
+    tradeoff_report_s: float
+    """Seconds stage tradeoff keeps, when the study's box cuts it, to write the report of what is cached."""
     train: tuple[str, ...]
     evaluate: tuple[str, ...]
     train_config: str
@@ -140,6 +150,11 @@ PROFILES: dict[str, Profile] = {
         llr=("--preset", "paper", "--quality", "balanced"),
         rllr=("--preset", "paper", "--quality", "balanced"),
         rllr_count=10,
+        # the 400 x 250 study the `fast` quality was chosen from (spikesim.preset_rule.STUDY_CSV)
+        tradeoff=("--scenes", "ball", "car", "cook", "fan", "rotate", "--light", "low", "normal", "--height", "250",
+                  "--width", "400", "--windows", "5", "--ref-spp", "32", "--gt-spp", "128", "--knobs", "spp", "seeds",
+                  "--gt-error-spp", "16", "64"),
+        tradeoff_report_s=60.0,
         # 8 loader processes of the 16 cores: a sample is 21 windows of spikes and 21 ground-truth
         # EXR files, read and cropped on the CPU
         train=("--config", "full", "--num-workers", "8"),
@@ -149,7 +164,7 @@ PROFILES: dict[str, Profile] = {
         # RLLR slice and training take what is left of their call
         boxes={"install": (30, 90), "gpu_tests": (30, 120), "bench_sensor": (30, 90), "bench_render": (30, 90),
                "llr": (60, 240), "rllr": (60, 600), "train": (150, 3600), "evaluate": (90, 180),
-               "export": (15, 60), "table1": (150, 3600)},
+               "export": (15, 60), "tradeoff": (120, 3600), "table1": (150, 3600)},
         # part `one` (docs/gpu_campaign.md, "On the GPU: one call of 9 minutes"): the expected seconds of docs/gpu_campaign.md
         # (install 15-30, bench_sensor 30-60, bench_render 20-40, LLR under 2 min) as the mosts, so
         # that even when every stage before training uses its whole box (60 + 60 + 45 + 135 + 90 =
@@ -187,6 +202,10 @@ PROFILES: dict[str, Profile] = {
         llr=("--preset", "small", "--scenes", "fan", "--windows", "3", *_TINY),
         rllr=("--preset", "small", *_TINY),
         rllr_count=2,
+        tradeoff=("--scenes", "fan", "--light", "low", "--height", "16", "--width", "24", "--windows", "1",
+                  "--ref-spp", "2", "--gt-spp", "4", "--knobs", "spp", "--gt-error-spp", "2", "--repeats", "1",
+                  "--threads", "1"),
+        tradeoff_report_s=20.0,
         # one torch thread: on a shared CPU, OpenMP's barriers between two threads that wait for
         # cores made steps of 0.2 s take 4-17 s (measured on the development VM)
         train=("--config", "tiny", "--crop", "16", "--max-steps", "20", "--threads", "1"),
@@ -194,7 +213,7 @@ PROFILES: dict[str, Profile] = {
         train_config="tiny", train_overhead_s=10.0, train_max_minutes=0.1, llr_windows=3,
         boxes={"install": (5, 60), "gpu_tests": (5, 120), "bench_sensor": (5, 120), "bench_render": (5, 120),
                "llr": (5, 180), "rllr": (5, 180), "train": (10, 180), "evaluate": (5, 120), "export": (2, 60),
-               "table1": (30, 240)},
+               "tradeoff": (30, 180), "table1": (30, 240)},
         part_boxes={}, part_rllr_count={}, part_plan_s={},
         catch_up_s={"llr": 180, "rllr": 180}, grace_s=5.0,
         # the same five rows at the tiny size: `tiny` for the paper's network, the published ones at
@@ -272,5 +291,5 @@ class Options:
         return self.rllr_count or self.profile.part_rllr_count.get(self.part, self.profile.rllr_count)
 
 
-__all__ = ["ROOT", "STAGE_NAMES", "PARTS", "DEFAULT_PART", "OPTIONAL", "TABLE1_CALL", "PART_DEADLINE_S", "DATA_STAGES",
+__all__ = ["ROOT", "STAGE_NAMES", "PARTS", "DEFAULT_PART", "OPTIONAL", "TABLE1_CALL", "TRADEOFF_CALL", "PART_DEADLINE_S", "DATA_STAGES",
            "INJECTIONS", "Profile", "PROFILES", "Options"]

@@ -308,8 +308,23 @@ def report_markdown(summary: dict[str, Any]) -> str:
             lines.append("")
         for note in ev.get("notes", []):
             lines.append(f"Note: {note}")
+    lines += _tradeoff_lines(_stage(summary, "tradeoff"))
     lines += _table1_lines(_stage(summary, "table1"))
     return "\n".join(lines).rstrip() + "\n"
+
+
+def _tradeoff_lines(stage: dict[str, Any]) -> list[str]:
+    """Stage tradeoff: what it measured, and the network's loss per cheap run (the CSV has all)."""
+    fig = stage.get("figures", {})
+    lines = ["", "## Trade study at 400 x 250 (stage tradeoff)", ""]
+    if not fig.get("scene_lights"):
+        return lines + [NOT_MEASURED + (f" ({stage['note']})" if stage.get("note") else "")]
+    lines += [f"{len(fig['scene_lights'])} scene-light(s) ({', '.join(fig['scene_lights'])}), "
+              f"{'complete' if fig.get('complete') else 'cut by its box: a later call goes on'}; every figure in "
+              f"{fig.get('csv', 'tradeoff.csv')}.", "",
+              "| scene-light: run | loss of TFP-205 (dB) | loss of the shipped network (dB) |", "|---|---|---|"]
+    lines += [f"| {k} | {_fmt(v.get('tfp'), '.3f')} | {_fmt(v.get('net'), '.3f')} |" for k, v in fig.get("loss_db", {}).items()]
+    return lines
 
 
 def _table1_lines(stage: dict[str, Any]) -> list[str]:

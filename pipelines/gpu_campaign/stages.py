@@ -14,8 +14,10 @@ It reads the invocation (options.py) and fills the stages' records (records.py);
 """
 from __future__ import annotations
 
+import csv
 import dataclasses
 import hashlib
+import io
 import json
 import math
 import os
@@ -850,10 +852,42 @@ def stage_export(c: Campaign) -> dict[str, Any]:
     return {"checkpoint": str(ckpt), "files": files}
 
 
+def stage_tradeoff(c: Campaign) -> dict[str, Any]:
+    """The trade study at the paper's 400 x 250 on the GPU (the profile's `spikesim tradeoff`
+    options): its runs are cached one by one, so a box that cuts it keeps what it measured and a
+    later call goes on from there; then the report of what is cached (the CSV, handed back as
+    tradeoff.csv). Its own call: TRADEOFF_CALL."""
+    out = c.work_path("tradeoff")
+    device = ("--device", c.p.drjit_device, "--backend", c.p.drjit_device, "--seed", str(c.o.seed))
+    study = c.spikesim("tradeoff", *c.p.tradeoff, *device, "-o", str(out), "--quiet",
+                       box_s=max(c.left() - c.p.tradeoff_report_s, 1.0))
+    cut = study.timed_out or study.returncode != 0
+    if cut:  # the report of what the box let it measure
+        report = c.spikesim("tradeoff", *c.p.tradeoff, *device, "-o", str(out), "--quiet", "--report-only")
+        if report.returncode != 0:
+            check_command(study, "spikesim tradeoff")  # nothing cached: the study's own failure says why
+            check_command(report, "spikesim tradeoff --report-only")
+    csv_path = out / "tradeoff.csv"
+    if not csv_path.is_file():
+        raise StageFailed(f"spikesim tradeoff wrote no {csv_path}")
+    text = csv_path.read_text()
+    outputs.atomic_write_text(outputs.writable(c.o.out, "tradeoff.csv"), text)
+    rows = list(csv.DictReader(io.StringIO(text)))
+    measured = sorted({f"{r['scene']}_{r['light']}" for r in rows if r["knob"] != "gt"})
+    loss: dict[str, dict[str, float]] = {}  # per cheap run, each scored axis's loss against the reference
+    for r in rows:
+        for axis in ("tfp", "net"):
+            v = float(r.get(f"{axis}_gt_dpsnr") or "nan")
+            if r["knob"] in ("spp", "seeds") and math.isfinite(v):
+                loss.setdefault(f"{r['scene']}_{r['light']}:{r['run']}", {})[axis] = round(-v, 3)
+    return {"csv": "tradeoff.csv", "rows": len(rows), "scene_lights": measured, "complete": not cut,
+            "seconds": study.seconds, "loss_db": loss}
+
+
 STAGES: dict[str, Callable[[Campaign], dict[str, Any]]] = {
     "install": stage_install, "gpu_tests": stage_gpu_tests, "bench_sensor": stage_bench_sensor,
     "bench_render": stage_bench_render, "llr": stage_llr, "rllr": stage_rllr, "train": stage_train,
-    "evaluate": stage_evaluate, "export": stage_export, "table1": stage_table1,
+    "evaluate": stage_evaluate, "export": stage_export, "tradeoff": stage_tradeoff, "table1": stage_table1,
 }
 
 
