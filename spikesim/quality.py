@@ -1,6 +1,7 @@
 """One `quality` option (fast / draft / balanced / reference) for the render + sensor knobs, the
-rule that switches off noise terms a scene's light level cannot show, and the light rule that
-renders dark scenes with fewer samples (`LowLight`, chosen by spikesim.preset_rule).
+rule that switches off noise terms a scene's light level cannot show, and the sample rule that
+renders each scene with the samples its Monte Carlo noise needs (`SampleRule`, derived by
+spikesim.preset_rule).
 
 The presets were chosen from the measured speed/accuracy Pareto front of `spikesim tradeoff`
 (docs/tradeoff.md); the numbers that justify each choice are in PRESETS below. Every run records
@@ -136,32 +137,60 @@ QUALITY_RENDER_KNOBS = ("spp", "gt_spp", "variant", "keyframe_every")
 
 
 @dataclass(frozen=True)
-class LowLight:
-    """Render knobs for a scene whose light level is at most `y_max`: Monte Carlo noise that is
-    fresh at every step averages over a window like shot noise, and in the dark shot noise
-    dominates, so fewer samples give the same downstream scores (spikesim.preset_rule)."""
+class SampleRule:
+    """Samples per pixel per step chosen per scene from its Monte Carlo ratio (`monte_carlo_ratio`
+    of probe renders): with a fresh render seed every step, Monte Carlo noise adds variance to a
+    window's charge as shot noise does, and the loss of reconstruction quality it causes falls as
+    1 / spp; the trade study measured the loss at 1 spp per unit of ratio (spikesim.preset_rule).
+    The rule takes the fewest samples, a power of two, whose predicted loss is within the
+    tolerance, at most `max_spp` (the most the study measured)."""
 
-    y_max: float
-    """Light level (median spikes per step of a probe frame at step 0) up to which these apply."""
-    spp: int
-    gt_spp: int
+    loss_db_per_ratio: float
+    """Aligned-PSNR loss at 1 spp per unit of Monte Carlo ratio (dB): the study's largest."""
+    tolerance_db: float
+    max_spp: int
+    probes: int = 4
+    """1-spp renders at step 0 (independent seeds) the ratio is read from."""
 
     def __post_init__(self) -> None:
-        if (isinstance(self.y_max, bool) or not isinstance(self.y_max, (int, float))
-                or not math.isfinite(self.y_max) or self.y_max <= 0):
-            raise ValueError(f"low light: y_max={self.y_max!r} must be a finite number > 0 (spikes per step)")
-        for what in ("spp", "gt_spp"):
+        for what in ("loss_db_per_ratio", "tolerance_db"):
             v = getattr(self, what)
-            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-                raise ValueError(f"low light: {what}={v!r} must be a positive integer")
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+                raise ValueError(f"sample rule: {what}={v!r} must be a finite number > 0")
+        for what, least in (("max_spp", 1), ("probes", 2)):
+            v = getattr(self, what)
+            if isinstance(v, bool) or not isinstance(v, int) or v < least:
+                raise ValueError(f"sample rule: {what}={v!r} must be an integer >= {least}")
+
+    def predicted_loss_db(self, ratio: float, spp: int) -> float:
+        return self.loss_db_per_ratio * ratio / spp
+
+    def spp_for(self, ratio: float) -> int:
+        """The fewest samples (a power of two, at most max_spp) within the tolerance at `ratio`."""
+        if isinstance(ratio, bool) or not isinstance(ratio, (int, float, np.floating)) or not (math.isfinite(ratio) and ratio >= 0):
+            raise ValueError(f"Monte Carlo ratio {ratio!r} must be a finite number >= 0")
+        spp = 1
+        while spp < self.max_spp and self.predicted_loss_db(ratio, spp) > self.tolerance_db:
+            spp *= 2
+        return min(spp, self.max_spp)
 
 
-def light_level(frame: Any) -> float:
-    """A frame's light level as the light rule reads it: its median y (spikes per step)."""
-    y = np.asarray(frame, dtype=np.float64)
-    if y.size == 0 or not np.all(np.isfinite(y)):
-        raise ValueError("the probe frame must be non-empty and finite to read its light level")
-    return float(np.median(y))
+def monte_carlo_ratio(probes: Any, threshold_electrons: float) -> float:
+    """A scene's Monte Carlo ratio from `probes`, (n >= 2, H, W) renders of y (spikes per step) of
+    one step at 1 spp with independent seeds: the Monte Carlo variance of a 1-spp render over the
+    shot noise's variance at the same light, N_e mean(var) / mean(y), means over pixels (a
+    per-step charge y has shot-noise variance y / N_e in threshold units). 0 for a black scene."""
+    p = np.asarray(probes, dtype=np.float64)
+    if p.ndim != 3 or p.shape[0] < 2 or p.shape[1] * p.shape[2] == 0:
+        raise ValueError(f"probes of shape {p.shape}: expected (n >= 2, H, W) renders of one step")
+    if not np.all(np.isfinite(p)) or np.any(p < 0):
+        raise ValueError("the probe renders must be finite and >= 0 to read the Monte Carlo ratio")
+    if not (math.isfinite(threshold_electrons) and threshold_electrons > 0):
+        raise ValueError(f"threshold_electrons={threshold_electrons!r} must be > 0")
+    mean_y = float(p.mean())
+    if mean_y == 0.0:
+        return 0.0
+    return float(threshold_electrons * p.var(axis=0, ddof=1).mean() / mean_y)
 
 
 @dataclass(frozen=True)
@@ -184,12 +213,12 @@ class QualitySettings(HoldsRenderSettings):
     """"all" (every term of the base camera) or "auto" (decide_noise_terms at `noise_tolerance`)."""
     noise_tolerance: float = 0.01
     precision: str = "float32"
-    low_light: LowLight | None = None
-    """Other render knobs for a dark scene (`for_light`); None: the same knobs at every light."""
+    sample_rule: SampleRule | None = None
+    """Samples per step chosen per scene from probe renders (`for_scene`); None: `spp` everywhere."""
 
     def __post_init__(self) -> None:
-        if self.low_light is not None and not isinstance(self.low_light, LowLight):
-            raise ValueError(f"quality {self.name!r}: low_light={self.low_light!r} must be a LowLight")
+        if self.sample_rule is not None and not isinstance(self.sample_rule, SampleRule):
+            raise ValueError(f"quality {self.name!r}: sample_rule={self.sample_rule!r} must be a SampleRule")
         if not isinstance(self.render, RenderSettings):
             raise ValueError(f"quality {self.name!r}: render={self.render!r} must be a RenderSettings")
         v = self.max_interval
@@ -227,23 +256,19 @@ class QualitySettings(HoldsRenderSettings):
 
     def to_dict(self) -> dict[str, Any]:
         """Flat: the name, the render knobs it sets and its own knobs."""
-        own = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "render"}
-        if self.low_light is not None:
-            own["low_light"] = dataclasses.asdict(self.low_light)
+        own = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name not in ("render", "sample_rule")}
+        if self.sample_rule is not None:  # only then: the trade study's cached runs keep their keys
+            own["sample_rule"] = dataclasses.asdict(self.sample_rule)
         return {**own, **self.render_kwargs()}
 
-    def for_light(self, y_level: float) -> "QualitySettings":
-        """This quality for a scene at light level `y_level` (`light_level` of a probe frame): its
-        low-light render knobs at or below `low_light.y_max`, else its own; the result has no
-        light rule left, so what it records is what rendered."""
-        if not (isinstance(y_level, (int, float, np.floating)) and math.isfinite(y_level) and y_level >= 0):
-            raise ValueError(f"light level y={y_level!r} must be a finite number >= 0 (spikes per step)")
-        if self.low_light is None:
+    def for_scene(self, mc_ratio: float) -> "QualitySettings":
+        """This quality for a scene of Monte Carlo ratio `mc_ratio` (`monte_carlo_ratio` of its
+        probes): the samples its rule chooses; the result has no rule left, so what it records is
+        what rendered."""
+        if self.sample_rule is None:
             return self
-        render = self.render
-        if y_level <= self.low_light.y_max:
-            render = render.replace(spp=self.low_light.spp, gt_spp=self.low_light.gt_spp)
-        return dataclasses.replace(self, render=render, low_light=None)
+        render = self.render.replace(spp=self.sample_rule.spp_for(mc_ratio))
+        return dataclasses.replace(self, render=render, sample_rule=None)
 
     # ---- what the pipeline stages take ---------------------------------------------------------
     def render_kwargs(self) -> dict[str, Any]:
@@ -342,23 +367,25 @@ PRESETS: dict[str, QualitySettings] = {
 }
 
 def _fast() -> QualitySettings:
-    """`fast`: the render knobs spikesim.preset_rule derives from the 400 x 250 study (its CSV ships
-    as spikesim/data/tradeoff_400.csv; tests/test_preset_rule.py checks these equal the rule's
-    output). Every aligned-PSNR loss, TFP-205 and the shipped network, within the larger of the
-    noise floor and 0.2 dB in every measured scene (spikesim.preset_rule.FAST_TOLERANCE_DB says why
-    0.2): a render every step with a fresh seed at 1 spp in low light and 4 spp in normal light;
-    ground truth at 128 spp, the study's own reference ground truth (the error test asks up to 592
-    in normal light, more than that reference can vouch for). Mono where the lights share a spectrum
-    (measured at 50 x 80: err/floor <= 0.23); every noise term (the study's runs kept them all).
-    Made for the paper's LLR on 2 cores in under 10 minutes (docs/tradeoff.md section 7). Out of
-    sample, two random RLLR scenes of four at 200 x 125 lost 0.7-1.3 dB at 1 spp: the light level
-    does not capture a scene's Monte Carlo variance, so it is not the preset for RLLR data."""
-    return QualitySettings.of("fast", spp=4, gt_spp=128, variant="auto", keyframe_policy="every", noise="all",
-                              precision="float32", low_light=LowLight(y_max=0.0142, spp=1, gt_spp=128))
+    """`fast`: the render knobs spikesim.preset_rule derives from the 400 x 250 study and its
+    out-of-sample check set (their CSVs ship as spikesim/data/tradeoff_400.csv and
+    rllr_check_200.csv; tests/test_preset_rule.py checks these equal the rule's output): a render
+    every step with a fresh seed, the samples per step chosen per scene from 4 probe renders (its
+    Monte Carlo ratio rho): the fewest, a power of two, whose predicted loss of aligned PSNR
+    (TFP-205 and the shipped network), 0.048 dB x rho / spp, is within 0.2 dB
+    (spikesim.preset_rule.FAST_TOLERANCE_DB says why 0.2), at most the 16 the study measured.
+    The slope is the worst measured: a random RLLR scene at 200 x 125 (the study's own worst,
+    Cook in normal light, is 0.027). Ground truth at 128 spp, the study's own reference ground
+    truth (the error test asks up to 744 in normal light, more than that reference can vouch
+    for). Mono where the lights share a spectrum (measured at 50 x 80: err/floor <= 0.23); every
+    noise term (the study's runs kept them all). docs/tradeoff.md section 7."""
+    return QualitySettings.of("fast", spp=16, gt_spp=128, variant="auto", keyframe_policy="every", noise="all",
+                              precision="float32",
+                              sample_rule=SampleRule(loss_db_per_ratio=0.048, tolerance_db=0.2, max_spp=16))
 
 
 PRESETS["fast"] = _fast()
 QUALITIES = tuple(PRESETS)
 
-__all__ = ["QualitySettings", "LowLight", "light_level", "PRESETS", "QUALITIES", "NoiseDecision", "decide_noise_terms", "noise_effect",
+__all__ = ["QualitySettings", "SampleRule", "monte_carlo_ratio", "PRESETS", "QUALITIES", "NoiseDecision", "decide_noise_terms", "noise_effect",
            "apply_noise_decisions"]

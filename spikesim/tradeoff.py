@@ -53,6 +53,9 @@ from spikesim.render_settings import RenderSettings, render_knob
 log = logging.getLogger(__name__)
 
 PROBE_FRAMES = 8  # reference frames re-timed in each process that resumes a study
+#: 1-spp probe renders (spectral, as the spp runs) each scene-light's Monte Carlo ratio is read from
+#: (spikesim.quality.monte_carlo_ratio; the `fast` quality's sample rule stands on it).
+MC_PROBES = 4
 WINDOW = 41  # the paper's window: 2 * 20 + 1 steps (docs/design.md section 5)
 KNOBS = ("spp", "keyframes", "adaptive", "variant", "noise", "precision", "quality", "combos", "seeds")
 #: Combined settings the presets were chosen among (spp, adaptive tolerance in px): the fast knobs
@@ -338,6 +341,15 @@ class SceneStudy:
                 r.render_step(step, spp=self.cfg.ref_spp)
             self._probe = (time.perf_counter() - t0) / len(steps)
         return self._probe
+
+    def monte_carlo_probe(self) -> dict[str, Any]:
+        """The Monte Carlo ratio of the study's first step: MC_PROBES spectral 1-spp renders (the
+        spp runs' variant) with seeds of their own."""
+        from spikesim.quality import monte_carlo_ratio
+        probes = self.renderer("spectral", self.cfg.seed).probe_frames(self.cfg.start, MC_PROBES, spp=1)
+        ratio = monte_carlo_ratio(probes, self.base_camera().threshold_electrons)
+        log.info("%s %s: Monte Carlo ratio %.3g (%d probes)", self.scene, self.light, ratio, MC_PROBES)
+        return {"mc_ratio": ratio, "probes": MC_PROBES, "y_mean": float(probes.mean())}
 
     def base_camera(self) -> Any:
         from spikesim.camera import SpikeCamera
@@ -706,9 +718,20 @@ def run_study(cfg: StudyConfig, out: Path, progress: bool = True) -> list[dict[s
                 _write_json(path, {"key": key, "session": session, "gt_spp": spp, "gt_render_s": seconds,
                                    "render_seed": cfg.seed + 1, "centres": cfg.centres()})
                 log.info("%s %s: ground truth at %d spp in %.1f s", scene, light, spp, seconds)
+    for scene, light, folder, _ in list(_reference_folders(cfg, out)):  # each scene-light's Monte Carlo ratio
+        path = folder / "mc_probe.json"
+        key = _mc_key(cfg, scene, light)
+        if path.exists() and _read_json(path).get("key") == key:
+            continue
+        study = studies.setdefault((scene, light), SceneStudy(cfg, scene, light, folder))
+        _write_json(path, {"key": key, "session": session, **study.monte_carlo_probe()})
     for st in studies.values():  # release Mitsuba scenes before the report
         st._renderers.clear()
     return collect_rows(cfg, out, runs)
+
+
+def _mc_key(cfg: StudyConfig, scene: str, light: str) -> str:
+    return _digest({**cfg.result_key(), "scene": scene, "light": light, "mc_probes": MC_PROBES})
 
 
 def collect_rows(cfg: StudyConfig, out: Path, runs: Sequence[RunSpec] | None = None) -> list[dict[str, Any]]:
@@ -719,8 +742,11 @@ def collect_rows(cfg: StudyConfig, out: Path, runs: Sequence[RunSpec] | None = N
         ref_npz = _load_npz(folder / "reference.npz", "packed", "gt")
         gt = ref_npz["gt"]
         ref_recon = cached_recon_scores(folder, "reference", ref["key"], ref["key"], ref_npz["packed"], gt, cfg)
-        # the scene-light's light level: the presets' light rule (spikesim.preset_rule) splits on it
+        # the scene-light's light level (docs: the study's light classes)
         y_median = float(np.median(gt))
+        probe = folder / "mc_probe.json"  # the sample rule's ratio (run the study again if absent)
+        mc_ratio = (float(_read_json(probe)["mc_ratio"]) if probe.exists() and _read_json(probe).get("key")
+                    == _mc_key(cfg, scene, light) else math.nan)
         block = []
         for spec in runs:
             p = folder / f"{_slug(spec.name)}.json"
@@ -738,7 +764,8 @@ def collect_rows(cfg: StudyConfig, out: Path, runs: Sequence[RunSpec] | None = N
             recon = (ref_recon if spec.knob == "reference" else
                      cached_recon_scores(folder, spec.name, row["key"], ref["key"], data["packed"], gt, cfg))
             block.append({
-                "scene": scene, "light": light, "ref_y_median": y_median, "run": spec.name, "knob": spec.knob,
+                "scene": scene, "light": light, "ref_y_median": y_median, "ref_mc_ratio": mc_ratio,
+                "ref_spp": cfg.ref_spp, "run": spec.name, "knob": spec.knob,
                 "render_s": row["render_s"], "simulate_s": row["simulate_s"], "total_s": total,
                 "render_ratio": row["render_s"] / ref_render, "simulate_ratio": row["simulate_s"] / ref["simulate_s"],
                 "time_ratio": total / ref_total, "speedup": ref_total / total, "renders": row["renders"],
@@ -774,10 +801,12 @@ COLUMNS = ("scene", "light", "run", "knob", "render_s", "simulate_s", "time_rati
            "same_session", "recon_tfp_span", "tfp_gt_psnr", "tfp_gt_dpsnr", "tfp_gt_floor", "pareto_tfp",
            "net_gt_psnr", "net_gt_dpsnr", "net_gt_floor", "pareto_net", "recon_note",
            "gt_spp", "gt_frame_s", "gt_time_ratio", "gt_self_err", "gt_self_psnr", "gt_ref_err_est", "pareto_gt",
-           "ref_y_median")
+           "ref_y_median", "ref_mc_ratio", "ref_spp")
 """The CSV's columns: a row per run, then (knob "gt") a row per ground truth of the ground-truth
 error axis, which fills only the scene, light, run, knob and gt_* columns. `ref_y_median`: the
-median of the reference's ground truth (spikes per step), the scene-light's light level."""
+median of the reference's ground truth (spikes per step), the scene-light's light level;
+`ref_mc_ratio`: its Monte Carlo ratio (MC_PROBES spectral 1-spp probes of the first step,
+spikesim.quality.monte_carlo_ratio); `ref_spp`: the reference's samples per pixel per step."""
 
 
 def write_csv(rows: Sequence[dict[str, Any]], path: Path) -> None:

@@ -1,5 +1,6 @@
 """The `fast` quality is the rule of spikesim.preset_rule applied to the shipped 400 x 250 study,
-and the light rule chooses each scene's samples where generation and its estimate run."""
+and its sample rule chooses each scene's samples from probe renders where generation and its
+estimate run."""
 from __future__ import annotations
 
 import dataclasses
@@ -11,23 +12,52 @@ import pytest
 
 from spikesim.generation import PRESETS as SIZES, plan_llr
 from spikesim.generation.estimate import Calibration, planned_work, with_motion_plans
-from spikesim.preset_rule import (FAST_TOLERANCE_DB, STUDY_CSV, cheapest_spp, choose_fast, gt_spp_needed,
-                                  light_split, load_study)
-from spikesim.quality import PRESETS, LowLight, QualitySettings, light_level
+from spikesim.preset_rule import (CHECK_CSV, FAST_TOLERANCE_DB, STUDY_CSV, choose_fast, gt_spp_needed, load_study,
+                                  loss_per_ratio)
+from spikesim.quality import PRESETS, QualitySettings, SampleRule, monte_carlo_ratio
 
 
 # ---- the preset is the rule applied to the shipped study -----------------------------------------
 def test_fast_preset_is_the_rule_applied_to_the_shipped_study():
-    rows = load_study()
-    choice = choose_fast(rows)
+    choice = choose_fast(load_study())
     fast = PRESETS["fast"]
-    assert fast.low_light == LowLight(y_max=choice.low_light_y, spp=choice.low_light_spp,
-                                      gt_spp=choice.low_light_gt_spp)
-    assert (fast.spp, fast.gt_spp) == (choice.spp, choice.gt_spp)
+    assert fast.sample_rule == SampleRule(loss_db_per_ratio=choice.loss_db_per_ratio, tolerance_db=FAST_TOLERANCE_DB,
+                                          max_spp=choice.max_spp)
+    assert fast.gt_spp == choice.gt_spp
+    assert fast.spp == choice.max_spp  # where no probe reads a scene, the most the study vouches for
     assert choice.tolerance_db == FAST_TOLERANCE_DB
-    # what the study shows (docs/tradeoff.md section 7): dark scenes need fewer samples per step
-    assert choice.low_light_spp < choice.spp
     assert fast.keyframe_policy == "every" and fast.noise == "all"
+
+
+def _study_blocks():
+    out = {}
+    for r in load_study() + load_study(CHECK_CSV):
+        if r["knob"] != "gt":
+            out.setdefault((r["scene"], r["light"]), []).append(r)
+    return out
+
+
+def test_the_rule_keeps_every_study_scene_within_the_tolerance_at_the_samples_it_chooses():
+    # The rule's own evidence: at the samples it gives each scene-light of the study and of the
+    # check set, and at every measured count above, each loss is within the larger of the noise
+    # floor and the tolerance; the study's dark ones get 1 spp; the prediction is never below what
+    # was lost at 1 spp where the loss was beyond the tolerance.
+    rule = PRESETS["fast"].sample_rule
+    for (scene, light), block in _study_blocks().items():
+        rho = block[0]["ref_mc_ratio"]
+        spp = rule.spp_for(rho)
+        runs = {int(r["run"][4:]): r for r in block if r["run"].startswith("spp=")}
+        assert any(s >= spp for s in runs) or block[0]["ref_spp"] >= spp, (scene, light, spp)  # measured there
+        for s, row in runs.items():
+            for axis in ("tfp", "net"):
+                loss, floor = -row[f"{axis}_gt_dpsnr"], row[f"{axis}_gt_floor"]
+                if s >= spp:  # at the samples chosen and above: within the tolerance
+                    assert loss <= max(floor, rule.tolerance_db), (scene, light, s, axis)
+                if s == 1 and loss > max(floor, rule.tolerance_db):  # the prediction covers what was lost
+                    assert rule.predicted_loss_db(rho, 1) >= loss / (1 - 1 / block[0]["ref_spp"]) - floor
+        if light == "low":
+            assert spp == 1
+    assert {light for _, light in _study_blocks()} == {"low", "normal", "rllr"}
 
 
 def test_the_shipped_study_covers_both_lights_and_every_scene_it_names():
@@ -40,13 +70,16 @@ def test_the_shipped_study_covers_both_lights_and_every_scene_it_names():
     for r in rows:
         if r["knob"] != "gt":
             assert r["ref_y_median"] > 0 and math.isfinite(r["net_gt_floor"])
+            assert r["ref_mc_ratio"] >= 0 and r["ref_spp"] == 32
 
 
 # ---- the rule on made-up studies -----------------------------------------------------------------
-def _block(scene, light, y, losses, floor=0.02, ref_psnr=25.0):
-    """Run rows of one scene-light: the reference and `spp=N` runs with the given loss (dB, both axes)."""
-    base = {"scene": scene, "light": light, "ref_y_median": y, "tfp_gt_floor": floor, "net_gt_floor": floor,
-            "gt_spp": math.nan, "gt_self_err": math.nan, "gt_self_psnr": math.nan}
+def _block(scene, light, rho, losses, floor=0.02, ref_psnr=25.0, ref_spp=32):
+    """Run rows of one scene-light: the reference and `spp=N` runs with the given loss (dB, TFP;
+    the network loses half as much)."""
+    base = {"scene": scene, "light": light, "ref_y_median": 0.01, "ref_mc_ratio": rho, "ref_spp": ref_spp,
+            "tfp_gt_floor": floor, "net_gt_floor": floor, "gt_spp": math.nan, "gt_self_err": math.nan,
+            "gt_self_psnr": math.nan}
     rows = [{**base, "run": "reference", "knob": "reference", "tfp_gt_dpsnr": 0.0, "net_gt_dpsnr": 0.0,
              "tfp_gt_psnr": ref_psnr - 5, "net_gt_psnr": ref_psnr}]
     rows += [{**base, "run": f"spp={s}", "knob": "spp", "tfp_gt_dpsnr": -loss, "net_gt_dpsnr": -loss / 2,
@@ -65,103 +98,131 @@ def _gt_rows(scene, light, e1, ref_spp=128, measured=(16, 64)):
     return rows
 
 
-def test_cheapest_spp_is_the_fewest_samples_within_the_floor_or_tolerance_in_every_scene():
-    rows = (_block("a", "normal", 0.08, {1: 0.5, 2: 0.09, 4: 0.01}) +
-            _block("b", "normal", 0.06, {1: 0.3, 2: 0.3, 4: 0.05}))
-    assert cheapest_spp(rows, "normal", 0.1)[0] == 4  # spp 2 fails in b
-    assert cheapest_spp(rows, "normal", 0.5)[0] == 1
-    wide_floor = (_block("a", "normal", 0.08, {1: 0.5, 2: 0.09}, floor=0.4) +
-                  _block("b", "normal", 0.06, {1: 0.3, 2: 0.3}, floor=0.4))
-    assert cheapest_spp(wide_floor, "normal", 0.1)[0] == 2  # within a floor wider than the tolerance
-    missing = _block("a", "normal", 0.08, {1: 0.0, 2: 0.0}) + _block("b", "normal", 0.06, {2: 0.0})
-    assert cheapest_spp(missing, "normal", 0.1)[0] == 2  # spp 1 unmeasured in b: not vouched for
-    with pytest.raises(ValueError, match="no measured spp keeps normal light within 0.1 dB"):
-        cheapest_spp(_block("a", "normal", 0.08, {1: 1.0, 4: 0.5}), "normal", 0.1)
-    with pytest.raises(ValueError, match="no 'low' light"):
-        cheapest_spp(rows, "low", 0.1)
+def test_loss_per_ratio_is_the_worst_scene_above_its_floor():
+    # a: 0.63 / (1 - 1/32) / 10 = 0.06503 -> 0.066 (scene b); scene a's 1-spp loss is inside its floor, so its
+    # large ratio-to-loss does not count; c is dark (ratio 0.5) and loses nothing.
+    rows = (_block("a", "normal", 100.0, {1: 0.3, 4: 0.1}, floor=0.4) + _block("b", "normal", 10.0, {1: 0.63, 4: 0.2})
+            + _block("c", "low", 0.5, {1: 0.0, 4: 0.0}))
+    a, ev = loss_per_ratio(rows, 0.2)
+    assert a == 0.066  # rounded up, never below the measured worst
+    assert ev["b_normal"] == {"mc_ratio": 10.0, "loss_1spp_db": round(0.63 / (1 - 1 / 32), 3), "counts": True}
+    assert ev["c_low"]["loss_1spp_db"] == 0.0 and not ev["c_low"]["counts"] and not ev["a_normal"]["counts"]
+    gt = _gt_rows("a", "normal", 1e-4) + _gt_rows("b", "normal", 1e-4) + _gt_rows("c", "low", 1e-4)
+    choice = choose_fast(rows + gt, check=[])
+    assert choice.loss_db_per_ratio == 0.066 and choice.max_spp == 4
+    # a check set's scene that loses more per unit of ratio sets the slope; the cap and the ground
+    # truth stay the study's
+    check = [r for r in _block("r", "rllr", 10.0, {1: 1.0}) if r["knob"] == "spp"]
+    both = choose_fast(rows + gt, check=check)
+    assert both.loss_db_per_ratio == math.ceil(1.0 / (1 - 1 / 32) / 10 * 1000) / 1000 and both.max_spp == 4
 
 
-def test_a_nan_score_is_never_within_the_tolerance():
-    rows = _block("a", "low", 1e-3, {1: 0.0, 2: 0.0})
-    rows[1]["net_gt_dpsnr"] = math.nan  # spp=1 not scored by the network
-    assert cheapest_spp(rows, "low", 0.1)[0] == 2
+def test_loss_per_ratio_refuses_a_study_that_cannot_measure_it():
+    with pytest.raises(ValueError, match="cannot measure"):
+        loss_per_ratio(_block("a", "low", 0.5, {1: 0.0, 2: 0.0}), 0.2)
+    with pytest.raises(ValueError, match="no spp=1 run"):
+        loss_per_ratio(_block("a", "normal", 5.0, {2: 0.3}), 0.2)
+    with pytest.raises(ValueError, match="ref_mc_ratio"):
+        loss_per_ratio(_block("a", "normal", math.nan, {1: 0.3}), 0.2)
 
 
-def test_light_split_is_the_geometric_mean_between_the_classes_and_refuses_overlap():
-    rows = _block("a", "low", 1e-3, {}) + _block("b", "low", 4e-3, {}) + _block("a", "normal", 0.064, {})
-    assert light_split(rows) == pytest.approx(math.sqrt(4e-3 * 0.064))
-    with pytest.raises(ValueError, match="overlap"):
-        light_split(_block("a", "low", 0.1, {}) + _block("a", "normal", 0.05, {}))
-    with pytest.raises(ValueError, match="both lights"):
-        light_split(_block("a", "low", 0.1, {}))
+def test_a_nan_score_does_not_count_as_a_loss():
+    rows = _block("a", "normal", 10.0, {1: 0.5})
+    rows[1]["net_gt_dpsnr"] = math.nan  # spp=1 not scored by the network: TFP's loss decides
+    assert loss_per_ratio(rows, 0.2)[0] == math.ceil(0.5 / (1 - 1 / 32) / 10 * 1000) / 1000
 
 
 def test_ground_truth_samples_follow_the_error_budget_and_stop_at_the_reference():
     # e1 = 0.01, best score 30 dB (e_R = 1e-3), tol 0.1 dB: spp >= 0.01 / (1e-3 (10^0.01 - 1)) = 429
-    rows = _block("a", "normal", 0.08, {}, ref_psnr=30.0) + _gt_rows("a", "normal", 0.01, ref_spp=1024)
-    spp, ev = gt_spp_needed(rows, "normal", 0.1)
+    rows = _block("a", "normal", 5.0, {}, ref_psnr=30.0) + _gt_rows("a", "normal", 0.01, ref_spp=1024)
+    spp, ev = gt_spp_needed(rows, 0.1)
     assert ev["a_normal"]["spp_needed"] == pytest.approx(0.01 / (1e-3 * (10 ** 0.01 - 1)), rel=1e-3)
     assert spp == 512
-    capped = _block("a", "normal", 0.08, {}, ref_psnr=30.0) + _gt_rows("a", "normal", 0.01, ref_spp=128)
-    assert gt_spp_needed(capped, "normal", 0.1)[0] == 128  # no better than the study's own
+    capped = _block("a", "normal", 5.0, {}, ref_psnr=30.0) + _gt_rows("a", "normal", 0.01, ref_spp=128)
+    assert gt_spp_needed(capped, 0.1)[0] == 128  # no better than the study's own
     # a lower score tolerates a noisier ground truth: 20 dB needs a tenth of that
-    dark = _block("a", "low", 1e-3, {}, ref_psnr=20.0) + _gt_rows("a", "low", 0.01, ref_spp=1024)
-    assert gt_spp_needed(dark, "low", 0.1)[0] == 64
+    dark = _block("a", "low", 0.1, {}, ref_psnr=20.0) + _gt_rows("a", "low", 0.01, ref_spp=1024)
+    assert gt_spp_needed(dark, 0.1)[0] == 64
+    assert gt_spp_needed(rows + dark, 0.1, light="low")[0] == 64
     with pytest.raises(ValueError, match="no ground-truth error rows"):
-        gt_spp_needed(_block("a", "low", 1e-3, {}), "low", 0.1)
+        gt_spp_needed(_block("a", "low", 0.1, {}), 0.1)
 
 
-def test_a_study_without_the_light_level_is_refused(tmp_path):
+def test_a_study_without_the_monte_carlo_ratio_is_refused(tmp_path):
     p = tmp_path / "old.csv"
-    p.write_text("scene,light,run,knob\nball,low,reference,reference\n")
-    with pytest.raises(ValueError, match="ref_y_median"):
+    p.write_text("scene,light,run,knob,ref_y_median\nball,low,reference,reference,0.001\n")
+    with pytest.raises(ValueError, match="ref_mc_ratio, ref_spp"):
         load_study(p)
     with pytest.raises(FileNotFoundError, match="not found"):
         load_study(tmp_path / "none.csv")
     with pytest.raises(ValueError, match="tol_db"):
-        choose_fast(load_study(), tol_db=0.0)
+        choose_fast(_block("a", "normal", 10.0, {1: 0.5}), check=[], tol_db=0.0)
 
 
-# ---- the light rule in QualitySettings -----------------------------------------------------------
-def test_for_light_switches_the_render_knobs_at_the_split_and_records_them():
-    q = QualitySettings.of("t", keyframe_policy="every", spp=8, gt_spp=64, low_light=LowLight(0.01, 1, 16))
-    dark, bright = q.for_light(0.01), q.for_light(0.0101)
-    assert (dark.spp, dark.gt_spp) == (1, 16) and (bright.spp, bright.gt_spp) == (8, 64)
-    assert dark.low_light is None and bright.low_light is None  # what rendered, not the rule
-    assert json.loads(json.dumps(q.record()))["settings"]["low_light"] == {"y_max": 0.01, "spp": 1, "gt_spp": 16}
-    assert PRESETS["balanced"].for_light(0.0) is PRESETS["balanced"]  # no rule: unchanged
-    for bad in (-1.0, math.nan, math.inf):
-        with pytest.raises(ValueError, match="light level"):
-            q.for_light(bad)
+# ---- the sample rule and the Monte Carlo ratio ---------------------------------------------------
+def test_spp_for_is_the_fewest_power_of_two_within_the_tolerance_up_to_the_cap():
+    rule = SampleRule(loss_db_per_ratio=0.05, tolerance_db=0.2, max_spp=16)
+    # predicted loss 0.05 rho / spp <= 0.2  <=>  spp >= rho / 4
+    assert [rule.spp_for(r) for r in (0.0, 4.0, 4.01, 8.0, 30.0, 64.0, 1e6)] == [1, 1, 2, 2, 8, 16, 16]
+    assert rule.predicted_loss_db(30.0, 8) == pytest.approx(0.1875)
+    for bad in (-1.0, math.nan, math.inf, True):
+        with pytest.raises(ValueError, match="Monte Carlo ratio"):
+            rule.spp_for(bad)
 
 
-@pytest.mark.parametrize("kwargs,field", [(dict(y_max=0.0, spp=1, gt_spp=1), "y_max"),
-                                          (dict(y_max=math.nan, spp=1, gt_spp=1), "y_max"),
-                                          (dict(y_max=True, spp=1, gt_spp=1), "y_max"),
-                                          (dict(y_max=0.01, spp=0, gt_spp=1), "spp"),
-                                          (dict(y_max=0.01, spp=1, gt_spp=True), "gt_spp")])
-def test_low_light_knobs_are_validated(kwargs, field):
+@pytest.mark.parametrize("kwargs,field", [(dict(loss_db_per_ratio=0.0, tolerance_db=0.2, max_spp=4), "loss_db_per_ratio"),
+                                          (dict(loss_db_per_ratio=math.nan, tolerance_db=0.2, max_spp=4), "loss_db_per_ratio"),
+                                          (dict(loss_db_per_ratio=0.1, tolerance_db=True, max_spp=4), "tolerance_db"),
+                                          (dict(loss_db_per_ratio=0.1, tolerance_db=0.2, max_spp=0), "max_spp"),
+                                          (dict(loss_db_per_ratio=0.1, tolerance_db=0.2, max_spp=4, probes=1), "probes")])
+def test_sample_rule_knobs_are_validated(kwargs, field):
     with pytest.raises(ValueError, match=field):
-        LowLight(**kwargs)
+        SampleRule(**kwargs)
 
 
-def test_light_level_is_the_median_and_refuses_bad_frames():
-    assert light_level(np.array([[0.0, 1.0, 3.0]])) == 1.0
-    with pytest.raises(ValueError, match="light level"):
-        light_level(np.array([np.nan]))
-    with pytest.raises(ValueError, match="light level"):
-        light_level(np.zeros(0))
+def test_for_scene_sets_the_samples_and_records_what_rendered():
+    rule = SampleRule(loss_db_per_ratio=0.05, tolerance_db=0.2, max_spp=16)
+    q = QualitySettings.of("t", keyframe_policy="every", spp=16, gt_spp=64, sample_rule=rule)
+    dark, noisy = q.for_scene(1.0), q.for_scene(30.0)
+    assert (dark.spp, dark.gt_spp) == (1, 64) and (noisy.spp, noisy.gt_spp) == (8, 64)
+    assert dark.sample_rule is None and noisy.sample_rule is None  # what rendered, not the rule
+    assert json.loads(json.dumps(q.record()))["settings"]["sample_rule"] == dataclasses.asdict(rule)
+    assert "sample_rule" not in PRESETS["balanced"].to_dict()  # no rule: the study's cache keys unchanged
+    assert PRESETS["balanced"].for_scene(100.0) is PRESETS["balanced"]
+
+
+def test_monte_carlo_ratio_is_monte_carlo_over_shot_noise_variance():
+    # Probes of a flat y = 0.01 with Monte Carlo noise of variance 1e-6: N_e var / y = 1000 * 1e-6 /
+    # 0.01 = 0.1; two probes give the pair's (a - b)^2 / 2 exactly.
+    rng = np.random.default_rng(0)
+    probes = 0.01 + rng.normal(0, 1e-3, (8, 64, 64))
+    assert monte_carlo_ratio(probes, 1000.0) == pytest.approx(0.1, rel=0.02)
+    assert monte_carlo_ratio(probes, 100.0) == pytest.approx(0.01, rel=0.02)
+    pair = np.array([[[0.2, 0.0]], [[0.0, 0.0]]])
+    assert monte_carlo_ratio(pair, 1000.0) == pytest.approx(1000 * (0.02 / 2) / 0.05)
+    assert monte_carlo_ratio(np.zeros((2, 3, 3)), 1000.0) == 0.0  # black: nothing to render
+    for bad, match in ((np.ones((1, 3, 3)), "n >= 2"), (np.ones((2, 3)), "n >= 2"),
+                       (np.full((2, 3, 3), np.nan), "finite"), (-np.ones((2, 3, 3)), "finite")):
+        with pytest.raises(ValueError, match=match):
+            monte_carlo_ratio(bad, 1000.0)
+    with pytest.raises(ValueError, match="threshold_electrons"):
+        monte_carlo_ratio(np.ones((2, 3, 3)), 0.0)
 
 
 # ---- where it runs: the estimate and run_job -----------------------------------------------------
-class _Lit:
-    """A renderer stand-in whose frames are at light level y everywhere and that never moves."""
+class _Noisy:
+    """A renderer stand-in: frames at y everywhere with Monte Carlo noise of standard deviation sd
+    per 1-spp render, and no motion."""
 
-    def __init__(self, y):
-        self.y = y
+    def __init__(self, y, sd):
+        self.y, self.sd = y, sd
 
     def render_step(self, step, spp=None):
-        return np.full((4, 4), self.y, np.float32)
+        return np.full((16, 16), self.y, np.float32)
+
+    def probe_frames(self, step, count, spp=1):
+        rng = np.random.default_rng(step)
+        return np.abs(self.y + self.sd * rng.standard_normal((count, 16, 16))).astype(np.float32)
 
     def motion_px(self, step):
         return 0.0
@@ -170,16 +231,17 @@ class _Lit:
         return 1
 
 
-def test_the_estimate_takes_each_lights_samples_from_its_probe_frame():
+def test_the_estimate_takes_each_scenes_samples_from_its_probe_renders():
     jobs = plan_llr(SIZES["small"], scenes=["ball", "fan"], quality="fast")  # 2 scenes x 2 lights
     works = [planned_work(j) for j in jobs]
     assert {w.spp for w in works} == {PRESETS["fast"].spp}  # planned at the quality's own knobs
-    low = PRESETS["fast"].low_light
-    out, n = with_motion_plans(jobs, works, load=lambda j: _Lit(low.y_max / 10 if j.source["light"] == "low" else 1.0))
-    assert n == 4  # with a light rule each light is read
+    # ratio = 1000 sd^2 / y: 0.001 in the low light (1 spp), 1000 * 0.01 / 0.1 = 100 in normal
+    out, n = with_motion_plans(jobs, works, load=lambda j: _Noisy(0.001, 1e-3) if j.source["light"] == "low"
+                               else _Noisy(0.1, 0.1))
+    assert n == 4  # with a sample rule each light is read
+    rule = PRESETS["fast"].sample_rule
     for j, w in zip(jobs, out):
-        want = (low.spp, low.gt_spp) if j.source["light"] == "low" else (PRESETS["fast"].spp, PRESETS["fast"].gt_spp)
-        assert (w.spp, w.gt_spp) == want
+        assert w.spp == (1 if j.source["light"] == "low" else rule.spp_for(100.0)) and w.gt_spp == PRESETS["fast"].gt_spp
     cal = Calibration("x", works[0].pixels, startup_s=0.0, fixed_s=0.0, per_sample_pixel_s=1e-7,
                       sensor_per_pixel_step_s=0.0)
     ball = {j.source["light"]: dataclasses.replace(w, render_scale=1.0) for j, w in zip(jobs, out)
@@ -192,25 +254,25 @@ def test_an_unread_job_gets_the_mean_samples_of_its_light(monkeypatch):
     monkeypatch.setattr(est, "MOTION_SAMPLE_SCENES", 2)
     jobs = plan_llr(SIZES["small"], scenes=["ball", "fan"], quality="fast")
     works = [planned_work(j) for j in jobs]
-    low = PRESETS["fast"].low_light
-    out, n = with_motion_plans(jobs, works, load=lambda j: _Lit(0.0 if j.source["light"] == "low" else 1.0))
+    out, n = with_motion_plans(jobs, works, load=lambda j: _Noisy(0.001, 0.0) if j.source["light"] == "low"
+                               else _Noisy(0.1, 0.1))
     assert n == 2
     for j, w in zip(jobs, out):
-        assert w.spp == (low.spp if j.source["light"] == "low" else PRESETS["fast"].spp)
+        assert w.spp == (1 if j.source["light"] == "low" else PRESETS["fast"].sample_rule.spp_for(100.0))
 
 
-def test_generate_with_the_light_rule_renders_and_records_each_lights_samples(tmp_path):
+def test_generate_with_the_sample_rule_renders_and_records_each_scenes_samples(tmp_path):
     pytest.importorskip("mitsuba")
     from spikesim.dataset import open_dataset
     from spikesim.generation import generate
     preset = SIZES["small"].replace(height=16, width=24, llr_windows=1)
     jobs = plan_llr(preset, scenes=["ball"], quality="fast")
     generate(jobs, tmp_path, workers=1, show_progress=False)
-    by_light = {s.name.rsplit("_", 1)[1]: s.meta["quality"] for s in open_dataset(tmp_path)}
-    low, normal = by_light["low"], by_light["normal"]
-    rule = PRESETS["fast"].low_light
-    assert low["light_rule"]["low"] and low["light_rule"]["y_level"] <= rule.y_max
-    assert (low["settings"]["spp"], low["settings"]["gt_spp"]) == (rule.spp, rule.gt_spp)
-    assert not normal["light_rule"]["low"] and normal["light_rule"]["y_level"] > rule.y_max
-    assert normal["settings"]["spp"] == PRESETS["fast"].spp
-    assert dataclasses.asdict(rule) == low["light_rule"]["low_light"]
+    rule = PRESETS["fast"].sample_rule
+    for scene in open_dataset(tmp_path):
+        q = scene.meta["quality"]
+        chosen = q["sample_rule"]
+        assert chosen["rule"] == dataclasses.asdict(rule) and chosen["mc_ratio"] >= 0
+        assert q["settings"]["spp"] == chosen["spp"] == rule.spp_for(chosen["mc_ratio"])
+        assert chosen["predicted_loss_db"] <= rule.tolerance_db or chosen["spp"] == rule.max_spp
+        assert q["settings"]["gt_spp"] == PRESETS["fast"].gt_spp

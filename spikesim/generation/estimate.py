@@ -69,7 +69,7 @@ class PlannedWork:
     frame_renders: int
     gt_renders: int
     spp: float
-    """Samples per pixel of a frame render (a mean over the lights where a light rule chooses them)."""
+    """Samples per pixel of a frame render (a mean over the read scenes where a sample rule chooses them)."""
     gt_spp: float
     pixels: int
     steps: int
@@ -128,19 +128,20 @@ def frame_render_count(renderer: Any, job: "SceneJob") -> int:
     return sum(int(substeps(s)) if substeps is not None else 1 for s in steps)
 
 
-def light_rule(job: "SceneJob") -> Any:
-    """The job's quality when it chooses its render knobs by the scene's light (`low_light`), else None."""
+def sample_rule(job: "SceneJob") -> Any:
+    """The job's quality when it chooses its samples per scene (`sample_rule`), else None."""
     if job.quality is None or job.source.get("type") == "pattern":
         return None
     from spikesim.quality import QualitySettings
     q = QualitySettings.from_name(job.quality)
-    return q if q.low_light is not None else None
+    return q if q.sample_rule is not None else None
 
 
 def _motion_key(job: "SceneJob") -> str:
-    """Jobs with the same key render alike (the light does not move anything; it does choose the
-    samples of a quality with a light rule, so there each light and power factor is read)."""
-    light = [job.source.get("light"), job.light_power_factor] if light_rule(job) is not None else None
+    """Jobs with the same key render alike (the light does not move anything; it does change the
+    Monte Carlo noise that chooses the samples of a quality with a sample rule, so there each light
+    and power factor is read)."""
+    light = [job.source.get("light"), job.light_power_factor] if sample_rule(job) is not None else None
     return json.dumps([{k: v for k, v in job.source.items() if k != "light"}, job.num_steps, job.keyframe_every,
                        adaptive_policy(job) is not None, light], sort_keys=True, default=str)
 
@@ -150,18 +151,18 @@ def with_motion_plans(jobs: Sequence["SceneJob"], works: list[PlannedWork], devi
     """`works` with each job's frame renders read from its scene's motion (`frame_render_count`) and
     its render speed relative to the first job's (one render at the job's samples after a warm-up,
     where the renderer renders): up to MOTION_SAMPLE_SCENES distinct scenes exactly, the other jobs
-    at the sampled scenes' means. A quality with a light rule takes each read job's samples from
-    its warm-up frame's light level as run_job does, and gives the others the mean samples of the
-    read jobs of the same light name (else of all read ones). `load(job)` gives a job's renderer
+    at the sampled scenes' means. A quality with a sample rule takes each read job's samples from
+    its probe renders as run_job does, and gives the others the mean samples of the read jobs of
+    the same light name (else of all read ones). `load(job)` gives a job's renderer
     (default: the job's own scene, loaded in a temporary folder). Returns the works and how many
     scenes were read."""
     import dataclasses
 
     import numpy as np
 
-    from spikesim.quality import light_level
+    from spikesim.generation.job import sample_rule_choice
     rendered = [i for i, j in enumerate(jobs) if works[i].frame_renders and j.source.get("type") != "pattern"]
-    knobs: dict[str, tuple[int, int]] = {}  # light-rule jobs read: (spp, gt_spp) by motion key
+    knobs: dict[str, tuple[int, int]] = {}  # sample-rule jobs read: (spp, gt_spp) by motion key
 
     def read(job: "SceneJob", spp: int) -> tuple[int, float | None] | None:
         with tempfile.TemporaryDirectory(prefix="spikesim-motion-") as tmp:  # a random scene's files
@@ -174,11 +175,13 @@ def with_motion_plans(jobs: Sequence["SceneJob"], works: list[PlannedWork], devi
                 return None
             seconds = None
             if hasattr(renderer, "render_step"):
-                q = light_rule(job)  # its probe is at the quality's own samples, as in run_job
-                probe = renderer.render_step(0, spp=q.spp if q is not None else 1)  # warm-up: kernels compile
-                if q is not None and probe is not None:
-                    chosen = q.for_light(light_level(np.asarray(probe) * job.light_power_factor))
-                    knobs[_motion_key(job)] = (chosen.spp, chosen.gt_spp)
+                renderer.render_step(0, spp=1)  # warm-up: kernels compile
+                q = sample_rule(job)
+                if q is not None:  # the samples run_job will choose, from the same probes
+                    from spikesim.camera import SpikeCamera
+                    ne = SpikeCamera.from_dict(job.camera).threshold_electrons
+                    chosen = sample_rule_choice(q, renderer, job.light_power_factor, ne)
+                    knobs[_motion_key(job)] = (chosen["spp"], q.gt_spp)
                 t0 = time.perf_counter()
                 renderer.render_step(1, spp=max(spp, 1))
                 seconds = time.perf_counter() - t0
@@ -211,7 +214,7 @@ def with_motion_plans(jobs: Sequence["SceneJob"], works: list[PlannedWork], devi
     for i in rendered:
         key = _motion_key(jobs[i])
         extra: dict[str, Any] = {}
-        if light_rule(jobs[i]) is not None and every:
+        if sample_rule(jobs[i]) is not None and every:
             spp, gt_spp = knobs.get(key) or tuple(np.mean(by_light.get(jobs[i].source.get("light"), every), axis=0))
             extra = {"spp": spp, "gt_spp": gt_spp}
         out[i] = dataclasses.replace(works[i], frame_renders=max(1, round(ratios.get(key, mean) * works[i].frame_renders)),

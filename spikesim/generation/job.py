@@ -27,6 +27,19 @@ if TYPE_CHECKING:
 log = logging.getLogger("spikesim.generate")
 
 
+def sample_rule_choice(quality: Any, renderer: Any, scale: float, threshold_electrons: float) -> dict[str, Any]:
+    """What a quality's sample rule makes of a scene: its probe renders at step 0 (scaled by the
+    job's light factor), their Monte Carlo ratio, the samples chosen and the predicted loss, as
+    meta.json records them (`generate` and its estimate read scenes alike)."""
+    from spikesim.quality import monte_carlo_ratio
+    rule = quality.sample_rule
+    probes = renderer.probe_frames(0, rule.probes, spp=1) * np.float32(scale)
+    ratio = monte_carlo_ratio(probes, threshold_electrons)
+    spp = rule.spp_for(ratio)
+    return {"mc_ratio": ratio, "y_mean": float(probes.mean()), "spp": spp,
+            "predicted_loss_db": rule.predicted_loss_db(ratio, spp), "rule": dataclasses.asdict(rule)}
+
+
 class _FrameSource:
     """What a job renders from: frames(start, n, keyframe_every), ground_truth(step), describe()."""
 
@@ -34,7 +47,6 @@ class _FrameSource:
         src = job.source
         self.scale = job.light_power_factor
         self.gt_images, self.gt_max = 0, 0.0
-        self.gt_spp: int | None = None  # None: the render settings' (a quality's light rule sets it)
         h, w = job.camera["height"], job.camera["width"]
         if src["type"] == "pattern":
             from spikesim.patterns import MovingPattern
@@ -90,7 +102,7 @@ class _FrameSource:
             yield f * np.float32(self.scale) if self.scale != 1.0 else f
 
     def ground_truth(self, step: int) -> np.ndarray:
-        img = (self._renderer.ground_truth(step, spp=self.gt_spp) if self._renderer is not None
+        img = (self._renderer.ground_truth(step) if self._renderer is not None
                else self._pattern.frame(step))
         self.gt_images += 1
         self.gt_max = max(self.gt_max, float(np.max(img))) if img.size else self.gt_max
@@ -201,25 +213,24 @@ def run_job(job: SceneJob, root: str | Path, progress: Callable[[str, int, int],
         cam = SpikeCamera.from_dict(job.camera)
         quality_record = None
         if job.quality is not None and source.renderer is not None:
-            from spikesim.quality import QualitySettings, light_level
+            from spikesim.quality import QualitySettings
             q = QualitySettings.from_name(job.quality)
-            y_levels = light = None
-            if q.noise == "auto" or q.low_light is not None:  # a probe frame: the light decides
+            y_levels = sampling = None
+            if q.sample_rule is not None:  # probe renders: the scene's Monte Carlo noise decides the samples
+                sampling = sample_rule_choice(q, source.renderer, source.scale, cam.threshold_electrons)
+                q = q.for_scene(sampling["mc_ratio"])
+                log.info("%s: Monte Carlo ratio %.3g (mean y %.3g spikes/step): %d spp per step, predicted "
+                         "loss %.2f dB", job.name, sampling["mc_ratio"], sampling["y_mean"], q.spp,
+                         sampling["predicted_loss_db"])
+            if q.noise == "auto":  # a probe frame: the light decides the noise terms
                 probe = source.renderer.render_step(0) * np.float32(source.scale)
                 y_levels = np.percentile(probe, [5, 50, 95])
-                if q.low_light is not None:  # the render knobs for this light (spikesim.preset_rule)
-                    light = {"y_level": light_level(probe), "low_light": dataclasses.asdict(q.low_light)}
-                    q = q.for_light(light["y_level"])
-                    light["low"] = light["y_level"] <= light["low_light"]["y_max"]
-                    source.gt_spp = q.gt_spp
-                    log.info("%s: light level y=%.3g spikes/step: %s light, %d spp per step, ground truth %d spp",
-                             job.name, light["y_level"], "low" if light["low"] else "normal", q.spp, q.gt_spp)
-            cam, decisions = q.camera(cam, y_levels if q.noise == "auto" else None)
+            cam, decisions = q.camera(cam, y_levels)
             for d in decisions:
                 log.debug("%s: noise %s", job.name, d.to_dict())
             quality_record = q.record(decisions)
-            if light is not None:
-                quality_record["light_rule"] = light
+            if sampling is not None:
+                quality_record["sample_rule"] = sampling
         renderer = source.renderer
         if backend == "auto" and renderer is not None:
             backend = renderer.device  # the sensor where the frames are

@@ -182,10 +182,10 @@ def resolve_settings(kind: str, preset: str | Preset = "small", xml: str | Path 
         from spikesim.quality import QualitySettings
         layers.append((f"--quality {quality}", QualitySettings.from_name(quality).render_kwargs()))
     values, origins = merge_layers(layers)
-    if quality is not None and (low := QualitySettings.from_name(quality).low_light) is not None:
-        for what in ("spp", "gt_spp"):  # the light rule: run_job picks these per scene from a probe frame
-            if origins.get(what) == f"--quality {quality}":
-                origins[what] += f"; {getattr(low, what)} where the scene's light y <= {low.y_max:g}"
+    if quality is not None and (rule := QualitySettings.from_name(quality).sample_rule) is not None:
+        if origins.get("spp") == f"--quality {quality}":  # run_job picks it per scene from probe renders
+            origins["spp"] = (f"--quality {quality}: per scene, 1-{rule.max_spp} by its Monte Carlo noise "
+                              f"(predicted loss <= {rule.tolerance_db:g} dB)")
     if kind == "scene" and any(origins.get(k, "").startswith("--") for k in ("rllr_steps", "rllr_gt_stride")):
         kind = "scene-steps"
     planned = {k: v for k, v in values.items() if k != "camera"}

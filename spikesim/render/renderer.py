@@ -33,6 +33,7 @@ from .scene_checks import check_camera, check_frame
 
 #: Seed streams, so frames and ground truth at the same step use independent samples.
 _FRAMES, _GROUND_TRUTH, _PREVIEW = 0, 1, 2
+_PROBES = 3  # probe i renders as stream _PROBES + i: seeds of their own, apart from the frames
 
 
 def _seed(*parts: int) -> int:
@@ -212,6 +213,15 @@ class SceneRenderer:
         if self._gain_device is None:
             self._gain_device = mi.Float(self._gain.ravel())
         return dr.maximum(values * self._gain_device, 0.0)
+
+    def probe_frames(self, step: int, count: int, spp: int = 1) -> np.ndarray:
+        """`count` renders of y at step `step` with independent seeds (none of them a frame's or the
+        ground truth's), float32 (count, H, W): the Monte Carlo noise of one step, which
+        spikesim.quality.monte_carlo_ratio reads."""
+        if isinstance(count, bool) or not isinstance(count, int) or count < 1:
+            raise ValueError(f"count={count!r} must be a positive integer")
+        step = self._check_step(step)
+        return np.stack([self._to_y(step, self._film(step, spp, _PROBES + i)) for i in range(count)])
 
     def ground_truth(self, step: int, spp: int | None = None) -> np.ndarray:
         """Ground-truth y at step `step`: the same mean over the readout period, with gt_spp."""
