@@ -20,7 +20,7 @@ The rule, for a tolerance `tol_db` (FAST_TOLERANCE_DB, 0.2 dB, for `fast`):
   study measured (spikesim.quality.SampleRule). Why not the light level (the rule before): in the
   study, light level and ratio moved together (dark scenes had ratios 0.1-1.4, bright ones 6-140),
   but out of sample two dark random scenes of ratio 28-30 lost 0.7-1.3 dB at 1 spp while two of
-  ratio 0.7-2 lost nothing (docs/tradeoff.md section 8).
+  ratio 0.7-1.3 lost nothing (docs/tradeoff.md section 7).
 - **Ground-truth samples.** The ground truth's own error adds to every score's squared error:
   a reconstruction of aligned PSNR R scored against a ground truth of error e_gt loses
   10 log10(1 + e_gt / e_R) dB, e_R = 10^(-R / 10). The study measures e_gt at two sample counts
@@ -57,8 +57,8 @@ CHECK_CSV = Path(__file__).parent / "data" / "rllr_check_200.csv"
 #: The loss of aligned PSNR `fast` accepts beyond the noise floor: under the 0.3 dB by which the
 #: shipped network's recipe, retrained with another seed, moves its LLR score (docs/model.md, the
 #: factor study: 0.01-0.3 dB over 3 seeds), so data made at `fast` rank methods as reference data
-#: do, up to retraining noise. At 0.1 dB the rule asks 16 spp in normal light (Car's 0.19 dB loss
-#: at 4 spp decides), which puts the paper LLR past 10 minutes on 2 cores (docs/tradeoff.md s. 7).
+#: do, up to retraining noise. At 0.1 dB every scene's samples double (the slope is the same), which
+#: puts the paper LLR far past 10 minutes on 2 cores (docs/tradeoff.md section 7).
 FAST_TOLERANCE_DB = 0.2
 _SPP_RUN = re.compile(r"^spp=(\d+)$")
 

@@ -218,7 +218,12 @@ def run_job(job: SceneJob, root: str | Path, progress: Callable[[str, int, int],
             y_levels = sampling = None
             if q.sample_rule is not None:  # probe renders: the scene's Monte Carlo noise decides the samples
                 sampling = sample_rule_choice(q, source.renderer, source.scale, cam.threshold_electrons)
+                rule = q.sample_rule
                 q = q.for_scene(sampling["mc_ratio"])
+                if sampling["predicted_loss_db"] > rule.tolerance_db:  # the cap binds
+                    log.warning("%s: Monte Carlo ratio %.3g asks more than the %d spp the rule may give: "
+                                "predicted loss %.2f dB (tolerance %.2g)", job.name, sampling["mc_ratio"],
+                                rule.max_spp, sampling["predicted_loss_db"], rule.tolerance_db)
                 log.info("%s: Monte Carlo ratio %.3g (mean y %.3g spikes/step): %d spp per step, predicted "
                          "loss %.2f dB", job.name, sampling["mc_ratio"], sampling["y_mean"], q.spp,
                          sampling["predicted_loss_db"])
