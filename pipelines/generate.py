@@ -85,6 +85,23 @@ def settings_from_args(args: argparse.Namespace) -> ResolvedSettings:
                             quality=args.quality, camera=args.camera)
 
 
+def _estimate_only(args: argparse.Namespace, jobs: list, device: str, resolved: ResolvedSettings) -> int:
+    """The plan's renders and time as `generate` would print them before starting, every job
+    counted (what -o already holds is not looked at), and nothing written."""
+    from spikesim.generation.estimate import estimate
+    from spikesim.generation.run import local_workers
+    est = estimate(jobs, local_workers(jobs, args.workers, device), device, calibrate_at=0,
+                   sample_scenes=args.estimate_scenes)
+    if args.json:
+        print(json.dumps({"settings": resolved.table(), "estimate": {
+            "renders": est.renders, "gt_renders": est.gt_renders, "seconds": est.seconds, "workers": est.workers,
+            "scenes_read": est.motion_scenes, "samples": [list(p) for p in est.samples],
+            "calibration": dataclasses.asdict(est.calibration) if est.calibration else None}}, indent=2, default=str))
+    else:
+        print(est.summary())
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
     _refuse_options_for_other_kinds(args)
     if args.kind == "scene" and args.xml is None:
@@ -110,11 +127,13 @@ def run(args: argparse.Namespace) -> int:
     if not args.json:
         print(resolved.summary())
     jobs = [dataclasses.replace(job, settings=resolved.table()) for job in jobs]
+    if args.estimate_only:
+        return _estimate_only(args, jobs, device, resolved)
     try:
         report = generate(jobs, args.out, workers=args.workers, ray_address=args.ray,
                           info={"kind": args.kind, "preset": preset.to_dict(), "seed": args.seed},
                           overwrite_stale=args.overwrite, show_progress=not args.quiet, check=args.check,
-                          estimate_time=args.estimate_time,
+                          estimate_time=args.estimate_time, estimate_scenes=args.estimate_scenes,
                           command="spikesim " + shlex.join(sys.argv[1:]), device=device)
     except Terminated as exc:
         print(f"spikesim generate: {exc}: the scenes in progress were removed and finished ones kept; "
@@ -245,6 +264,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                           "plans of 2,000 renders or more; a few seconds)")
     est.add_argument("--no-estimate", dest="estimate_time", action="store_false",
                      help="start at once, without the calibration (default: calibrate for plans of 2,000 renders or more)")
+    est.add_argument("--estimate-only", action="store_true",
+                     help="print the plan's renders and time estimate and stop: nothing is generated or written "
+                          "(every job counted, whatever -o holds)")
+    p.add_argument("--estimate-scenes", type=positive_int, default=None, metavar="N",
+                   help="scenes the estimate reads (motion, render speed and, with --quality fast, samples; "
+                        "default 6, the others at their mean); more is slower and closer")
     p.add_argument("--json", action="store_true", help="print the settings and the run's report as JSON")
     p.set_defaults(func=run)
     v = sub.add_parser("verify", help="check a dataset against its manifest", epilog=VERIFY_EPILOG,

@@ -148,3 +148,24 @@ def test_a_scene_that_renders_slower_is_estimated_slower():
                       sensor_per_pixel_step_s=0.0)
     assert out[1].seconds(cal) == pytest.approx(scale["fan"] * out[0].seconds(cal) * out[1].frame_renders
                                                 / out[0].frame_renders)
+
+
+def test_estimate_only_prints_the_plan_and_writes_nothing(tmp_path, capsys):
+    # `generate --estimate-only`: the renders and the time `generate` would print, with a quality's
+    # per-scene samples read from every scene asked for, and no output folder made.
+    import json
+
+    from pipelines.cli import main
+    out = tmp_path / "never"
+    args = ["generate", "llr", "--preset", "small", "--scenes", "ball", "--windows", "1", "--height", "16",
+            "--width", "24", "--quality", "fast", "--workers", "1", "--estimate-only", "-o", str(out)]
+    assert main([*args, "--estimate-scenes", "2", "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    e = doc["estimate"]
+    assert e["renders"] == 2 * 41 and e["gt_renders"] == 2 and e["seconds"] > 0 and e["scenes_read"] == 2
+    assert sum(n for _, n in e["samples"]) == 2 and all(1 <= spp <= 16 for spp, _ in e["samples"])
+    assert not out.exists()
+    assert main(args) == 0
+    text = capsys.readouterr().out
+    assert "plan: 82 frame renders and 2 ground-truth renders" in text and "samples per step:" in text
+    assert not out.exists()

@@ -147,7 +147,7 @@ def _motion_key(job: "SceneJob") -> str:
 
 
 def with_motion_plans(jobs: Sequence["SceneJob"], works: list[PlannedWork], device: str = "auto",
-                      load: Any = None) -> tuple[list[PlannedWork], int]:
+                      load: Any = None, sample_scenes: int | None = None) -> tuple[list[PlannedWork], int]:
     """`works` with each job's frame renders read from its scene's motion (`frame_render_count`) and
     its render speed relative to the first job's (one render at the job's samples after a warm-up,
     where the renderer renders): up to MOTION_SAMPLE_SCENES distinct scenes exactly, the other jobs
@@ -155,7 +155,7 @@ def with_motion_plans(jobs: Sequence["SceneJob"], works: list[PlannedWork], devi
     its probe renders as run_job does, and gives the others the mean samples of the read jobs of
     the same light name (else of all read ones). `load(job)` gives a job's renderer
     (default: the job's own scene, loaded in a temporary folder). Returns the works and how many
-    scenes were read."""
+    scenes were read. `sample_scenes` replaces MOTION_SAMPLE_SCENES (`generate --estimate-scenes`)."""
     import dataclasses
 
     import numpy as np
@@ -191,7 +191,7 @@ def with_motion_plans(jobs: Sequence["SceneJob"], works: list[PlannedWork], devi
     speeds: dict[str, float] = {}
     for i in rendered:
         key = _motion_key(jobs[i])
-        if key in ratios or len(ratios) >= MOTION_SAMPLE_SCENES:
+        if key in ratios or len(ratios) >= (MOTION_SAMPLE_SCENES if sample_scenes is None else sample_scenes):
             continue
         got = read(jobs[i], works[i].spp)
         if got is None:
@@ -283,11 +283,15 @@ class Estimate:
     calibration: Calibration | None
     motion_scenes: int = 0
     """Scenes whose motion set the jobs' frame renders (0: every planned keyframe counted once)."""
+    samples: tuple[tuple[int, int], ...] = ()
+    """(samples per step, jobs) over the plan where a quality's sample rule chose them per scene."""
 
     def summary(self) -> str:
         what = f"{self.renders:,} frame renders and {self.gt_renders:,} ground-truth renders"
         if self.motion_scenes:
             what += f" (read from the motion and render speed of {self.motion_scenes} scene(s))"
+        if self.samples:
+            what += "; samples per step: " + ", ".join(f"{n} job(s) at {spp}" for spp, n in self.samples)
         if self.calibration is None:
             return f"plan: {what}; no time estimate for a plan this small (--estimate for one)"
         c = self.calibration
@@ -300,17 +304,18 @@ class Estimate:
 
 
 def estimate(jobs: Sequence["SceneJob"], workers: int, device: str = "auto", calibrate_at: int | None = None,
-             calibration: Calibration | None = None, motion_loader: Any = None) -> Estimate:
+             calibration: Calibration | None = None, motion_loader: Any = None,
+             sample_scenes: int | None = None) -> Estimate:
     """The plan's renders and, for a plan of at least `calibrate_at` renders (ESTIMATE_MIN_RENDERS),
     its wall time from a calibration on its first job, the frame renders read from the scenes'
-    motion (`with_motion_plans`; `motion_loader` as its `load`)."""
+    motion (`with_motion_plans`; `motion_loader` as its `load`, up to `sample_scenes` scenes)."""
     works = [planned_work(j) for j in jobs]
     renders, gts = sum(w.frame_renders for w in works), sum(w.gt_renders for w in works)
     threshold = ESTIMATE_MIN_RENDERS if calibrate_at is None else calibrate_at
     if calibration is None and (not jobs or renders + gts < threshold):
         return Estimate(renders, gts, 0.0, workers, None)
     cal = calibration or calibrate(jobs[0], device)
-    works, motion_scenes = with_motion_plans(jobs, works, device, load=motion_loader)
+    works, motion_scenes = with_motion_plans(jobs, works, device, load=motion_loader, sample_scenes=sample_scenes)
     renders = sum(w.frame_renders for w in works)
     # the calibration rendered with every core; W workers share them, so each job takes about
     # min(W, cores) times its calibrated time (Dr.Jit's renders scale with cores, measured 1.6-1.9x on 2)
@@ -318,7 +323,9 @@ def estimate(jobs: Sequence["SceneJob"], workers: int, device: str = "auto", cal
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     slow = min(workers, cores)
     seconds = share_out([w.seconds(cal) * slow for w in works], workers)
-    return Estimate(renders, gts, seconds, workers, cal, motion_scenes)
+    ruled = [round(w.spp) for j, w in zip(jobs, works) if sample_rule(j) is not None]
+    samples = tuple(sorted((spp, ruled.count(spp)) for spp in set(ruled)))
+    return Estimate(renders, gts, seconds, workers, cal, motion_scenes, samples)
 
 
 def log_estimate(est: Estimate) -> None:

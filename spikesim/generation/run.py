@@ -302,7 +302,7 @@ def _remove_debris(root: Path, jobs: list[SceneJob]) -> None:
 def generate(jobs: list[SceneJob], root: str | Path, workers: int | None = None, ray_address: str | None = None,
              info: dict[str, Any] | None = None, overwrite_stale: bool = False, show_progress: bool = True,
              check: bool = False, command: str | None = None, device: str = "auto",
-             estimate_time: bool | None = None) -> dict[str, Any]:
+             estimate_time: bool | None = None, estimate_scenes: int | None = None) -> dict[str, Any]:
     """Run the jobs that are not done yet, then write the manifest from the scenes that pass their
     checks. `check` hashes every file of the finished scenes (default: sizes only). Returns a report.
 
@@ -313,7 +313,7 @@ def generate(jobs: list[SceneJob], root: str | Path, workers: int | None = None,
 
     Before the jobs start it logs the renders planned and, for a plan of ESTIMATE_MIN_RENDERS or more
     (estimate_time None), always (True) or never (False), a time estimate from a calibration on the
-    first job (spikesim.generation.estimate)."""
+    first job (spikesim.generation.estimate), reading up to `estimate_scenes` scenes (None: its default)."""
     root = Path(root)
     names = [j.name for j in jobs]
     if len(set(names)) != len(names):
@@ -336,7 +336,7 @@ def generate(jobs: list[SceneJob], root: str | Path, workers: int | None = None,
             if todo and estimate_time is not False and ray_address is None:
                 from spikesim.generation.estimate import estimate
                 est = estimate(todo, local_workers(todo, workers, device), device,
-                               calibrate_at=0 if estimate_time else None)
+                               calibrate_at=0 if estimate_time else None, sample_scenes=estimate_scenes)
                 log.info("%s", est.summary())
             t0 = time.perf_counter()
             results = _run_jobs(todo, root, workers, ray_address, show_progress, device)
