@@ -744,9 +744,9 @@ def collect_rows(cfg: StudyConfig, out: Path, runs: Sequence[RunSpec] | None = N
         ref_recon = cached_recon_scores(folder, "reference", ref["key"], ref["key"], ref_npz["packed"], gt, cfg)
         # the scene-light's light level (docs: the study's light classes)
         y_median = float(np.median(gt))
-        probe = folder / "mc_probe.json"  # the sample rule's ratio (run the study again if absent)
-        mc_ratio = (float(_read_json(probe)["mc_ratio"]) if probe.exists() and _read_json(probe).get("key")
-                    == _mc_key(cfg, scene, light) else math.nan)
+        probe = _read_json(folder / "mc_probe.json") if (folder / "mc_probe.json").exists() else {}
+        # the sample rule's ratio (NaN until the study is run again: it renders only the probes)
+        mc_ratio = float(probe["mc_ratio"]) if probe.get("key") == _mc_key(cfg, scene, light) else math.nan
         block = []
         for spec in runs:
             p = folder / f"{_slug(spec.name)}.json"
