@@ -16,7 +16,7 @@ The rule, for a tolerance `tol_db` (FAST_TOLERANCE_DB, 0.2 dB, for `fast`):
   what it needs (1 spp or more) from any a; its loss is mostly the sensor's noise (a 0.06 dB
   "loss" of a dark scene of ratio 0.27 would claim a slope of 0.24 dB per unit, seven times the
   slope of every scene that does lose). A scene of ratio rho
-  then gets the fewest samples, a power of two, with a rho / spp <= tol_db, at most the most the
+  then gets the fewest samples with a rho / spp <= tol_db (whole samples), at most the most the
   study measured (spikesim.quality.SampleRule). Why not the light level (the rule before): in the
   study, light level and ratio moved together (dark scenes had ratios 0.1-1.4, bright ones 6-140),
   but out of sample two dark random scenes of ratio 28-30 lost 0.7-1.3 dB at 1 spp while two of

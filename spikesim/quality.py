@@ -142,8 +142,8 @@ class SampleRule:
     of probe renders): with a fresh render seed every step, Monte Carlo noise adds variance to a
     window's charge as shot noise does, and the loss of reconstruction quality it causes falls as
     1 / spp; the trade study measured the loss at 1 spp per unit of ratio (spikesim.preset_rule).
-    The rule takes the fewest samples, a power of two, whose predicted loss is within the
-    tolerance, at most `max_spp` (the most the study measured)."""
+    The rule takes the fewest samples whose predicted loss is within the tolerance, at most
+    `max_spp` (the most the study measured)."""
 
     loss_db_per_ratio: float
     """Aligned-PSNR loss at 1 spp per unit of Monte Carlo ratio (dB): the study's largest."""
@@ -166,13 +166,13 @@ class SampleRule:
         return self.loss_db_per_ratio * ratio / spp
 
     def spp_for(self, ratio: float) -> int:
-        """The fewest samples (a power of two, at most max_spp) within the tolerance at `ratio`."""
+        """The fewest samples (at most max_spp) within the tolerance at `ratio`."""
         if isinstance(ratio, bool) or not isinstance(ratio, (int, float, np.floating)) or not (math.isfinite(ratio) and ratio >= 0):
             raise ValueError(f"Monte Carlo ratio {ratio!r} must be a finite number >= 0")
-        spp = 1
-        while spp < self.max_spp and self.predicted_loss_db(ratio, spp) > self.tolerance_db:
-            spp *= 2
-        return min(spp, self.max_spp)
+        # the fewest whole samples: the renderer's independent sampler takes any count, and the
+        # loss falls as 1 / spp between the powers of two the study measured as at them
+        need = math.ceil(self.loss_db_per_ratio * ratio / self.tolerance_db - 1e-12)
+        return int(min(max(need, 1), self.max_spp))
 
 
 def monte_carlo_ratio(probes: Any, threshold_electrons: float) -> float:
@@ -371,7 +371,7 @@ def _fast() -> QualitySettings:
     out-of-sample check set (their CSVs ship as spikesim/data/tradeoff_400.csv and
     rllr_check_200.csv; tests/test_preset_rule.py checks these equal the rule's output): a render
     every step with a fresh seed, the samples per step chosen per scene from 4 probe renders (its
-    Monte Carlo ratio rho): the fewest, a power of two, whose predicted loss of aligned PSNR
+    Monte Carlo ratio rho): the fewest whose predicted loss of aligned PSNR
     (TFP-205 and the shipped network), 0.048 dB x rho / spp, is within 0.2 dB
     (spikesim.preset_rule.FAST_TOLERANCE_DB says why 0.2), at most the 16 the study measured.
     The slope is the worst measured: a random RLLR scene at 200 x 125 (the study's own worst,
