@@ -149,3 +149,22 @@ def test_references_through_parameters_and_filename_attributes_are_inputs(tmp_pa
     (xml.parent / "data" / "r.spd").unlink()
     with pytest.raises(ValueError, match=r"scene.xml: references file 'data/r.spd'"):
         plan_user(str(xml), "normal", tiny_preset())
+
+
+def test_a_quality_presets_settings_are_part_of_the_jobs_identity(monkeypatch):
+    # A job made with --quality is its preset's settings too: when a version's preset changes
+    # (the fast rule's slope, say), the same job is another job, and a rerun rebuilds it saying why.
+    import dataclasses
+
+    import spikesim.quality as quality
+    from spikesim.generation.inputs import changes
+    from spikesim.generation.plan import PRESETS as SIZES, plan_llr
+    before = plan_llr(SIZES["small"], scenes=["ball"], lights=("low",), quality="fast")[0]
+    assert "quality fast" in before.inputs
+    assert "quality fast" not in plan_llr(SIZES["small"], scenes=["ball"], lights=("low",))[0].inputs
+    fast = quality.PRESETS["fast"]
+    monkeypatch.setitem(quality.PRESETS, "fast", dataclasses.replace(
+        fast, sample_rule=dataclasses.replace(fast.sample_rule, loss_db_per_ratio=0.1)))
+    after = plan_llr(SIZES["small"], scenes=["ball"], lights=("low",), quality="fast")[0]
+    assert after.digest != before.digest
+    assert [c.split(" (")[0] for c in changes(before.inputs, after.inputs)] == ["quality fast changed"]

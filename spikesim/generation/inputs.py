@@ -10,6 +10,8 @@ scene's identity covers (`SceneJob.digest`) and what its meta.json records about
   (`scenes.random_scene.GENERATOR_VERSION`), raised whenever a change of the generator builds
   another scene from the same seed.
 - The built-in pattern: nothing but the job's own parameters.
+- A job with a quality preset (`--quality`): the preset's settings, by the sha256 of their
+  record, so a version whose preset chooses other samples (the `fast` rule) rebuilds its scenes.
 - Every job: the version of the code that turns a job into bytes (`DATA_VERSION`) and the dataset
   layout (`spikesim.dataset.LAYOUT_VERSION`).
 
@@ -22,6 +24,8 @@ Inputs are named as a person finds them: relative to the scene XML's folder (`sc
 """
 from __future__ import annotations
 
+import hashlib
+import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterable
@@ -46,7 +50,7 @@ class JobInput:
     """How a person finds it: a path relative to the scene XML's folder, an absolute path for a
     file outside it, or the name of the code that builds it."""
     role: str
-    """"xml", "motion", "lights", "file" (referenced by the XML), "generator" or "code"."""
+    """"xml", "motion", "lights", "file" (referenced by the XML), "generator", "quality" or "code"."""
     identity: str
     """The sha256 of a file's bytes, or "version N" for code."""
     path: str | None = None
@@ -82,9 +86,18 @@ def scene_file_inputs(scene: str, motion: str | None = None, lights: str | None 
     return [i for i in out if not (i.name in seen or seen.add(i.name))]
 
 
-def job_inputs(source: dict[str, Any]) -> list[JobInput]:
-    """Everything a job with this `source` (SceneJob.source) is made from, with its sha256 or
-    version (see the module's docstring)."""
+def quality_input(quality: str) -> JobInput:
+    """A quality preset by the sha256 of its settings (rule included): a version whose preset
+    chooses other samples or terms makes other bytes from the same job, so the job's scenes are
+    rebuilt, with the reason "quality fast changed"."""
+    from spikesim.quality import QualitySettings
+    text = json.dumps(QualitySettings.from_name(quality).to_dict(), sort_keys=True, default=str)
+    return JobInput(f"quality {quality}", "quality", hashlib.sha256(text.encode()).hexdigest()[:16])
+
+
+def job_inputs(source: dict[str, Any], quality: str | None = None) -> list[JobInput]:
+    """Everything a job with this `source` (SceneJob.source) and `quality` is made from, with its
+    sha256 or version (see the module's docstring)."""
     kind = source.get("type")
     if kind == "scene":
         out = scene_file_inputs(source["scene"], source.get("motion"), source.get("lights"))
@@ -100,7 +113,7 @@ def job_inputs(source: dict[str, Any]) -> list[JobInput]:
         out = []
     else:
         raise ValueError(f"job source type {kind!r}; expected 'scene', 'random' or 'pattern'")
-    return [*out, code_input()]
+    return [*out, *([quality_input(quality)] if quality is not None else []), code_input()]
 
 
 def identities(inputs: Iterable[JobInput]) -> dict[str, str]:

@@ -179,7 +179,7 @@ def _inputs_as_planned(job: SceneJob) -> list[Any]:
     ones it was planned with: a file edited while the run was going would otherwise be written
     under the identity of its earlier content."""
     from spikesim.generation.inputs import changes, identities, job_inputs
-    inputs = job_inputs(job.source)
+    inputs = job_inputs(job.source, job.quality)
     if (found := changes(job.inputs, identities(inputs))):
         raise ValueError(f"{job.name}: {', '.join(found)} since this run was planned; run generate again")
     return inputs

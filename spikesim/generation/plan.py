@@ -115,7 +115,7 @@ class SceneJob:
         check_scene_name(self.name)
         if self.inputs is None:
             from spikesim.generation.inputs import identities, job_inputs
-            object.__setattr__(self, "inputs", identities(job_inputs(self.source)))
+            object.__setattr__(self, "inputs", identities(job_inputs(self.source, self.quality)))
         if self.quality is not None:
             from spikesim.quality import QualitySettings
             QualitySettings.from_name(self.quality)  # validates the name

@@ -88,7 +88,7 @@ def _compare_with_record(job: SceneJob, meta: dict[str, Any], digest: str) -> tu
         if digest != job.legacy_digest:
             return "stale", parameter_changes(recorded, job.parameters())
         source = meta.get("source") if isinstance(meta.get("source"), dict) else {}
-        found = legacy_changes(job.source, source.get("sha256"), job_inputs(job.source))
+        found = legacy_changes(job.source, source.get("sha256"), job_inputs(job.source, job.quality))
         if found is None:
             return "changed", ["its record does not say which files it was made from"]
         return ("changed", found) if found else ("done", [])
