@@ -27,7 +27,7 @@ import numpy as np
 from pipelines.argtypes import bundled_scene, positive_int
 from spikesim.camera import SpikeCamera
 from spikesim.keyframes import keyframe_count, steps_covered
-from spikesim.simulate import BatchSimulator, Simulator, available_backends
+from spikesim.simulate import BatchSimulator, Simulator, aligned_empty, available_backends
 
 REAL_TIME_PIXEL_STEPS_PER_S = 400 * 250 * 40_000
 STAGES = ("sensor", "render", "pipeline")
@@ -69,7 +69,12 @@ def _row(stage: str, what: str, device: str, rate: float, ref: float | None, **e
 def measure_sensor(height: int, width: int, steps: int, numpy_steps: int, backends: list[str], repeats: int,
                    streams: int, keyframe_every: tuple[int, ...] = (1, 8)) -> list[dict[str, Any]]:
     rng = np.random.default_rng(0)
-    frames = rng.uniform(0.0, 0.3, size=(steps, height, width)).astype(np.float32)
+    # Frames as the simulator's own buffers hold them: rows on 64-byte boundaries. A copy 16 bytes
+    # off (where NumPy's allocator may put an array) shows what unaligned rows cost on the CPU.
+    frames = aligned_empty((steps, height, width))
+    frames[:] = rng.uniform(0.0, 0.3, size=(steps, height, width))
+    unaligned = aligned_empty((steps * height * width + 4,))[4:].reshape(steps, height, width)
+    unaligned[:] = frames
     rows = []
     for model, cam in (("noiseless", SpikeCamera.noiseless(height=height, width=width)),
                        ("realistic", SpikeCamera.realistic(height=height, width=width)),
@@ -91,6 +96,12 @@ def measure_sensor(height: int, width: int, steps: int, numpy_steps: int, backen
                 t = _best(run(sim, f, k), repeats)
                 what = f"{model}, frames every step" if k == 1 else f"{model}, keyframes every {k}"
                 rows.append(_row("sensor", what, b, n * height * width / t, ref))
+                if k == 1 and b == "llvm" and model == "noiseless":
+                    sim = Simulator(cam, backend=b, seed=0)
+                    run(sim, unaligned[:2], k)()
+                    t = _best(run(sim, unaligned, k), repeats)
+                    rows.append(_row("sensor", f"{model}, frames every step, rows 16 bytes off 64", b,
+                                     steps * height * width / t, ref))
             if streams > 1:
                 batch = BatchSimulator(cam, list(range(streams)), backend=b)
                 fb = np.broadcast_to(frames[:, None], (steps, streams, height, width)).copy()

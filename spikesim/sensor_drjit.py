@@ -7,6 +7,10 @@ Layout, chosen from the roofline in docs/performance.md:
 - One lane per (stream, pixel): loads of irradiance and pixel parameters are contiguous across
   lanes (SIMD on the CPU, coalesced on the GPU), and several streams (scenes, seeds, RLLR
   samples) share one launch, so a small frame still fills a GPU.
+- With a frame every step on the CPU, a launch of one 32-step word takes its frames as 32 input
+  arrays (host rows wrapped in place, or the renderer's frames) and runs them unrolled: each
+  read is a vector load, where an index computed in a loop compiles to a gather (16 scalar
+  loads). Other launches (keyframes, a word cut by a call's end, the GPU) run the general loop.
 - Each lane keeps the spikes of 32 consecutive steps in one UInt32 (bit i = step i) and writes
   one word per 32 steps. A second, cheap kernel transposes 32 x 32 bit blocks into the `.dat`
   frame layout (32 pixels per word, least significant bit first). Only packed words leave the
@@ -100,31 +104,97 @@ def draws_per_step(camera: SpikeCamera) -> bool:
 class DevicePacked:
     """Spikes of S streams over n steps, packed on the device: UInt32 words (S, n, G), G =
     ceil(H W / 32), word g of a frame holding pixels 32 g .. 32 g + 31 (row-major, top-down),
-    least significant bit first: the `.dat` frame layout before the optional flip."""
+    least significant bit first: the `.dat` frame layout before the optional flip. Held as
+    parts (S, n_i, G) that follow each other in time, joined on the way out: a join on the
+    device costs a scatter kernel per part (docs/performance.md section 3c)."""
 
-    words: Any
+    parts: list
+    part_steps: list
     num_streams: int
-    num_steps: int
     height: int
     width: int
+    _joined: Any = None
+
+    @property
+    def num_steps(self) -> int:
+        return int(sum(self.part_steps))
 
     @property
     def words_per_frame(self) -> int:
         return (self.height * self.width + 31) // 32
 
+    def _views(self):
+        return [(p, n) for p, n in zip(self.parts, self.part_steps) if n]
+
+    @property
+    def words(self):
+        """The words as one device array (S n G,), joined on the device once."""
+        if self._joined is None:
+            self._joined = self._join()
+        return self._joined
+
+    def _join(self):
+        views = self._views()
+        if len(views) <= 1:
+            return views[0][0] if views else self.parts[0]
+        S, G = self.num_streams, self.words_per_frame
+        index, base = [], 0
+        for _, n in views:  # part i's (s, j, g) word lands at (s, before_i + j, g)
+            index.append(np.arange(S)[:, None, None] * (n * G) + np.arange(n * G).reshape(1, n, G) + base)
+            base += S * n * G
+        src = np.concatenate(index, axis=1).reshape(-1).astype(np.uint32)
+        joined = dr.concat([p for p, _ in views])
+        return dr.gather(type(joined), joined, dr.uint32_array_t(type(joined))(src))
+
     def to_numpy(self) -> np.ndarray:
         """uint8 (S, n, ceil(H W / 8)): the host copy, the only transfer off the device."""
         nbytes = (self.height * self.width + 7) // 8
-        w = np.asarray(self.words.numpy(), dtype=np.uint32).reshape(self.num_streams, self.num_steps,
-                                                                     self.words_per_frame)
+        S, G = self.num_streams, self.words_per_frame
+        parts = [np.asarray(p.numpy(), dtype=np.uint32).reshape(S, n, G) for p, n in self._views()]
+        if not parts:
+            return np.zeros((S, 0, nbytes), dtype=np.uint8)
+        w = parts[0] if len(parts) == 1 else np.concatenate(parts, axis=1)
         b = w.view(np.uint8)
         return b if b.shape[2] == nbytes else np.ascontiguousarray(b[:, :, :nbytes])
 
     def to_torch(self):
-        """A torch tensor (S, n, G) of the words, sharing the device memory (DLPack, no copy).
+        """A torch tensor (S, n, G) of `words`, sharing the device memory (DLPack, no copy).
         torch has no bit unpacking of its own: `spikesim.torch_interop.unpack_words` does it."""
         import torch
         return torch.from_dlpack(self.words).view(self.num_streams, self.num_steps, self.words_per_frame)
+
+
+class FrameBlock:
+    """Keyframes as the two kernels read them: one flat Float32 array (m S P,) for the general
+    kernel, and frame i as an array of its own for the frame-per-step kernel, whose loads then
+    need no gather. Neither is copied where the input allows: NumPy frames are wrapped in place
+    on the CPU, and a list of device frames is joined only if the general kernel needs it."""
+
+    def __init__(self, m, keyframes: Any, values: int):
+        self._m, self._flat, self._host, self._list = m, None, None, None
+        if isinstance(keyframes, np.ndarray):
+            self._host = np.ascontiguousarray(keyframes, dtype=np.float32).reshape(-1, values)
+        else:
+            self._list = [p if isinstance(p, m.Float32) else m.Float32(p) for p in keyframes]
+
+    @property
+    def flat(self):
+        if self._flat is None:
+            if self._host is not None:
+                self._flat = self._m.Float32(self._host.reshape(-1))
+            else:
+                self._flat = self._list[0] if len(self._list) == 1 else dr.concat(self._list)
+        return self._flat
+
+    def rows(self, lo: int, hi: int):
+        """Frames [lo, hi) as one flat array: a view of host rows, or the device frames joined."""
+        if self._host is not None:
+            return self._m.Float32(self._host[lo:hi].reshape(-1))
+        return self._list[lo] if hi - lo == 1 else dr.concat(self._list[lo:hi])
+
+    def row(self, i: int):
+        """Frame i (S P values) as its own array: a host row wrapped in place, or the device frame."""
+        return self._m.Float32(self._host[i]) if self._host is not None else self._list[i]
 
 
 class DrJitSensor:
@@ -187,6 +257,7 @@ class DrJitSensor:
         self._counts = ((self._owned(dr.zeros(m.UInt32, self.width_lanes)),
                          self._owned(dr.zeros(m.UInt32, self.width_lanes))) if self.renewal else ())
         self._integrate = dr.freeze(self._integrate_traced, warn_after=20)
+        self._integrate_rows = dr.freeze(self._integrate_rows_traced, warn_after=20)
         self._pack = dr.freeze(self._pack_traced, warn_after=20)
 
     @staticmethod
@@ -199,15 +270,10 @@ class DrJitSensor:
         return out
 
     # ------------------------------------------------------------------------------------------
-    def keyframe_block(self, keyframes: Any):
-        """The device array the kernel reads: (m, S, P) keyframes as one flat Float32 array.
-        NumPy input is wrapped without a copy on the CPU (copied once to a GPU); a list of Dr.Jit
-        arrays (each a frame of S P values, e.g. from the renderer) is concatenated on the device."""
-        m = self.m
-        if isinstance(keyframes, np.ndarray):
-            return m.Float32(np.ascontiguousarray(keyframes, dtype=np.float32).reshape(-1))
-        parts = [p if isinstance(p, m.Float32) else m.Float32(p) for p in keyframes]
-        return parts[0] if len(parts) == 1 else dr.concat(parts)
+    def keyframe_block(self, keyframes: Any) -> "FrameBlock":
+        """The keyframes the kernels read, (m, S, P): a NumPy array (wrapped without a copy on the
+        CPU, copied once to a GPU) or a list of Dr.Jit arrays of S P values (the renderer's)."""
+        return FrameBlock(self.m, keyframes, self.width_lanes)
 
     def run_device(self, block, first_key: int, phase: int, keyframe_every: int, num_steps: int,
                    first_step: int) -> DevicePacked:
@@ -226,32 +292,18 @@ class DrJitSensor:
                   for s0, n in ((0, head), (head, num_steps - head - tail), (num_steps - tail, tail)) if n]
         state = (self._acc, self._comp, self._fired, *self._counts)
         bad = dr.opaque(self.m.Bool, False, self.width_lanes)
-        outs = []
+        parts = []
         for s0, n, masked in pieces:
             state, bad, out = self._run_piece(block, first_key, phase + s0, keyframe_every, n, first_step + s0,
                                               masked, state, bad)
-            outs.append((out, n))
+            parts.append((out, n))
         if bool(dr.any(bad)[0]):
             raise InvalidFrames("a frame holds NaN, infinite or negative irradiance")
         # The state is committed only now: an invalid frame leaves it as it was.
         self._acc, self._comp, self._fired, *counts = state
         self._counts = tuple(counts)
         cam = self.camera
-        return DevicePacked(self._join_steps(outs), self.num_streams, num_steps, cam.height, cam.width)
-
-    def _join_steps(self, outs: list):
-        """One (S, n, G) word array from pieces (S, n_i, G) that follow each other in time."""
-        if len(outs) == 1:
-            return outs[0][0]
-        if self.num_streams == 1:
-            return dr.concat([o for o, _ in outs])
-        G, S, m = self._words_per_frame(), self.num_streams, self.m
-        index, base = [], 0
-        for _, n in outs:  # piece i's (s, j, g) word lands at (s, before_i + j, g)
-            index.append((np.arange(S)[:, None, None] * (n * G) + np.arange(n * G).reshape(1, n, G) + base))
-            base += S * n * G
-        src = np.concatenate(index, axis=1).reshape(-1).astype(np.uint32)
-        return dr.gather(m.UInt32, dr.concat([o for o, _ in outs]), m.UInt32(src))
+        return DevicePacked([p for p, _ in parts], [n for _, n in parts], self.num_streams, cam.height, cam.width)
 
     def _run_piece(self, block, first_key: int, phase: int, k: int, num_steps: int, first_step: int,
                    masked: bool, state: tuple, bad):
@@ -265,83 +317,78 @@ class DrJitSensor:
         span = offset + num_steps
         fixed = (self._gain, self._dark, self._threshold, self._key_hi, self._key_lo, self._pixel, self._renewal_s)
         op = lambda v: dr.opaque(m.UInt32, v)  # noqa: E731
+        # A frame every step on the CPU: each launch reads its own frames, as row arrays where it
+        # runs whole words unmasked, else as one flat array of just those frames.
+        own_rows = self.row_kernel and k == 1
         words = []
         for a in range(0, span, L):
             lo, hi = max(a, offset), min(a + L, span)
             t, step = phase + lo - offset, first_step + lo - offset
-            control = (op((first_key + t // k) * SP), op(t % k), op(k), op(hi - lo), op(lo - a),
-                       op((step // G) & 0xFFFFFFFF), op((step // G) >> 32 & 0xFFFFFFFF))
-            state, bad, w = self._integrate(k > 1, masked, block, fixed, state, bad, control)
+            groups = (op((step // G) & 0xFFFFFFFF), op((step // G) >> 32 & 0xFFFFFFFF))
+            if own_rows and not masked and lo == a and hi - lo == WORD_STEPS:
+                rows = tuple(block.row(first_key + t + j) for j in range(WORD_STEPS))
+                state, bad, w = self._integrate_rows(rows, fixed, state, bad, groups)
+            elif own_rows:
+                control = (op(0), op(0), op(1), op(hi - lo), op(lo - a), *groups)
+                state, bad, w = self._integrate(False, masked, block.rows(first_key + t, first_key + t + hi - lo),
+                                                fixed, state, bad, control)
+            else:
+                control = (op((first_key + t // k) * SP), op(t % k), op(k), op(hi - lo), op(lo - a), *groups)
+                state, bad, w = self._integrate(k > 1, masked, block.flat, fixed, state, bad, control)
             words.append(w)
-        words = words[0] if len(words) == 1 else dr.concat(words)
+        words = self._concat(words)
         W = self._words_per_frame()
         blocks = (span + WORD_STEPS - 1) // WORD_STEPS
         out = self._pack(words, dr.arange(m.UInt32, blocks * self.num_streams * W),
                          dr.empty(m.UInt32, self.num_streams * num_steps * W), (op(offset), op(span), op(num_steps)))
         return tuple(state), bad, out
 
+    def _concat(self, arrays: list):
+        """Equal-sized launch outputs, one after the other, in one kernel (`dr.concat` runs a
+        scatter kernel per array: 4 % of the noiseless sensor's time)."""
+        if len(arrays) == 1:
+            return arrays[0]
+        n = dr.width(arrays[0])
+        out = dr.empty(type(arrays[0]), n * len(arrays))
+        lane = dr.arange(self.m.UInt32, n)
+        for i, a in enumerate(arrays):  # disjoint writes: Permute keeps them in one kernel
+            dr.scatter(out, a, i * n + lane, mode=dr.ReduceMode.Permute)
+        dr.eval(out)
+        return out
+
+    @property
+    def row_kernel(self) -> bool:
+        """Whether whole-word launches with a frame every step read the rows as host arrays
+        (packet loads): the CPU backend only, whose arrays wrap host memory without a copy."""
+        return self.name == "llvm" and self.steps_per_launch == WORD_STEPS
+
     def _words_per_frame(self) -> int:
         return (self.camera.num_pixels + WORD_STEPS - 1) // WORD_STEPS
 
     # ------------------------------------------------------------------------------------------
-    def _integrate_traced(self, interpolate: bool, masked: bool, block, fixed: tuple, state: tuple, bad,
-                          control: tuple):
-        """One launch: integrate-and-fire over at most `steps_per_launch` steps. Returns the new
-        state, the invalid-input mask and the spike words (steps_per_launch / 32 words per lane:
-        bit i of word w is step base + 32 w + i; base is the first step, rounded down to a multiple
-        of the steps that share a Philox call).
-
-        Frozen (dr.freeze): traced once per input layout, then replayed without Python tracing,
-        which otherwise costs more than a short launch computes (0.3-1.6 ms, measured). So every
-        value that changes between calls is an opaque 1-wide array in `control`, and every size
-        in the code is fixed per sensor."""
+    def _step_rules(self, fixed: tuple):
+        """The readout step and its temporal-noise draws, in the order of sensor_numpy, shared by
+        both kernels. `fixed` holds the pixel parameters, the key and the Philox pixel counter.
+        Returns (step, group_normals)."""
         cam, m, Float, UInt32 = self.camera, self.m, self.Float, self.m.UInt32
-        SP = self.width_lanes
-        row0, key_phase, k, n, offset, group_lo, group_hi = control
         gain, dark, thr, key_hi, key_lo, pixel, renewal_s = fixed
-        span = offset + n                 # steps from base; the first `offset` are not ours
-        num_words = (span + (WORD_STEPS - 1)) >> 5
-        lane = dr.arange(UInt32, SP)
-        words = dr.empty(UInt32, self.steps_per_launch // WORD_STEPS * SP)
-
         shot = cam.shot_noise == "gaussian"
         renewal = cam.shot_noise == "renewal"
         comparator = cam.comparator_noise > 0
-        G = self.group                    # steps an iteration runs; one Philox call serves them
-        per_step_draws = draws_per_step(cam)
-        if renewal:
-            s_shot = renewal_s if renewal_s is not None else Float(float(
-                threshold_charge_scale(1.0, cam.threshold_electrons, self.dtype)))
         reset_loss = cam.reset_loss > 0
         inv_ne = 1.0 / cam.threshold_electrons
         retain = 1.0 - cam.reset_loss
         sigma_c = cam.comparator_noise
         threshold = thr if thr is not None else Float(1.0)
+        if renewal:
+            s_shot = renewal_s if renewal_s is not None else Float(float(
+                threshold_charge_scale(1.0, cam.threshold_electrons, self.dtype)))
 
-        def read_y(row, r, active):
-            """y of this step: keyframe row (and the next, weighted r / k), bounded, and whether a
-            value read was invalid. `active` (None: always) marks the steps that are ours: the
-            others read the block's first row instead (a select of the index is much cheaper than a
-            masked gather on the CPU) and their results are discarded by the caller."""
-            y = Float(dr.gather(m.Float32, block, row + lane if active is None else dr.select(active, row + lane, lane)))
-            invalid = ~((y >= 0.0) & (y < math.inf))
-            if interpolate:
-                later = r > 0 if active is None else active & (r > 0)
-                yb = Float(dr.gather(m.Float32, block, row + SP + lane, later))
-                w = Float(r) / Float(k)
-                invalid |= ~((yb >= 0.0) & (yb < math.inf))
-                y = dr.select(later, y * (1.0 - w) + yb * w, y)
-            return dr.minimum(y, Y_MAX), invalid
-
-        def next_row(row, r):
-            if not interpolate:
-                return row + SP, r
-            r = r + 1
-            wrap = r == k
-            return dr.select(wrap, row + SP, row), dr.select(wrap, UInt32(0), r)
-
-        def keep(active, new, old):
-            return new if active is None else dr.select(active, new, old)
+        def group_normals(c, c_hi):
+            """(shot, comparator) normals of the `group` steps of Philox call c (64 bits: c_hi,
+            c): a word a step, a normal from each of its 16-bit halves."""
+            u = philox4x32(m, (key_hi, key_lo), (pixel, c, c_hi, UInt32(0)))
+            return [half_word_normals(m, u[q]) for q in range(self.group)]
 
         def threshold_charge(counts):
             """The charge of the interval that a spike now would start, over the threshold:
@@ -356,7 +403,7 @@ class DrJitSensor:
             return threshold * (g * g * g)
 
         def step(y, z, acc, comp, fired, counts):
-            """One readout step, in the order of sensor_numpy."""
+            """One readout step: the spikes, and the new accumulator, compensation and counts."""
             e = y * gain if gain is not None else y
             if dark is not None:
                 e = e + dark
@@ -377,17 +424,99 @@ class DrJitSensor:
             else:
                 total = dr.select(f, total - threshold, total)
             return f, dr.minimum(dr.maximum(total, -threshold), threshold + threshold), comp, counts
+        return step, group_normals
+
+    @staticmethod
+    def _invalid(y):
+        """NaN, infinite or negative irradiance."""
+        return ~((y >= 0.0) & (y < math.inf))
+
+    def _integrate_rows_traced(self, rows: tuple, fixed: tuple, state: tuple, bad, control: tuple):
+        """One launch over one whole 32-step word with a frame every step (the common case). Step
+        j's frame is its own input array `rows[j]`, so each read is a packet load where
+        `_integrate_traced` gathers (a gather per step bounded that kernel, docs/performance.md
+        section 3c), and the 32 steps are unrolled. Bit-identical to `_integrate_traced`
+        (tested); returns what it returns (the words of one launch, created inside: a frozen
+        function copies an array passed in to be written, measured slower). `control`: the first
+        step's Philox call (64 bits)."""
+        m, UInt32, Float = self.m, self.m.UInt32, self.Float
+        group_lo, group_hi = control
+        step, group_normals = self._step_rules(fixed)
+        acc, comp, fired, *counts = state
+        counts = tuple(counts)
+        bits = UInt32(0)
+        G, draws = self.group, draws_per_step(self.camera)
+        z = [(None, None)] * G
+        for j in range(WORD_STEPS):
+            if draws and j % G == 0:
+                c = group_lo + (j // G)
+                z = group_normals(c, group_hi + dr.select(c < group_lo, UInt32(1), UInt32(0)))
+            y = Float(rows[j])
+            bad = bad | self._invalid(y)
+            f, acc, comp, counts = step(dr.minimum(y, Y_MAX), z[j % G], acc, comp, fired, counts)
+            if self.camera.reset_loss > 0:
+                fired = f
+            bits = bits | dr.select(f, UInt32(1 << j), UInt32(0))
+        new = (acc, comp, fired, *counts)
+        dr.eval(bits, new, bad)
+        return new, bad, bits
+
+    def _integrate_traced(self, interpolate: bool, masked: bool, block, fixed: tuple, state: tuple, bad,
+                          control: tuple):
+        """One launch: integrate-and-fire over at most `steps_per_launch` steps. Returns the new
+        state, the invalid-input mask and the spike words (steps_per_launch / 32 words per lane:
+        bit i of word w is step base + 32 w + i; base is the first step, rounded down to a multiple
+        of the steps that share a Philox call).
+
+        Frozen (dr.freeze): traced once per input layout, then replayed without Python tracing,
+        which otherwise costs more than a short launch computes (0.3-1.6 ms, measured). So every
+        value that changes between calls is an opaque 1-wide array in `control`, and every size
+        in the code is fixed per sensor."""
+        m, Float, UInt32 = self.m, self.Float, self.m.UInt32
+        SP = self.width_lanes
+        row0, key_phase, k, n, offset, group_lo, group_hi = control
+        span = offset + n                 # steps from base; the first `offset` are not ours
+        num_words = (span + (WORD_STEPS - 1)) >> 5
+        lane = dr.arange(UInt32, SP)
+        words = dr.empty(UInt32, self.steps_per_launch // WORD_STEPS * SP)
+        step, group_normals = self._step_rules(fixed)
+        G = self.group                    # steps an iteration runs; one Philox call serves them
+        per_step_draws = draws_per_step(self.camera)
+        reset_loss = self.camera.reset_loss > 0
+
+        def read_y(row, r, active):
+            """y of this step: keyframe row (and the next, weighted r / k), bounded, and whether a
+            value read was invalid. `active` (None: always) marks the steps that are ours: the
+            others read the block's first row instead (a select of the index is much cheaper than a
+            masked gather on the CPU) and their results are discarded by the caller."""
+            y = Float(dr.gather(m.Float32, block, row + lane if active is None else dr.select(active, row + lane, lane)))
+            invalid = self._invalid(y)
+            if interpolate:
+                later = r > 0 if active is None else active & (r > 0)
+                yb = Float(dr.gather(m.Float32, block, row + SP + lane, later))
+                w = Float(r) / Float(k)
+                invalid = invalid | self._invalid(yb)
+                y = dr.select(later, y * (1.0 - w) + yb * w, y)
+            return dr.minimum(y, Y_MAX), invalid
+
+        def next_row(row, r):
+            if not interpolate:
+                return row + SP, r
+            r = r + 1
+            wrap = r == k
+            return dr.select(wrap, row + SP, row), dr.select(wrap, UInt32(0), r)
+
+        def keep(active, new, old):
+            return new if active is None else dr.select(active, new, old)
 
         def inner_body(i, bits, row, r, acc, comp, fired, counts, bad, w):
             local = w * WORD_STEPS + i    # step index from base
-            if per_step_draws:  # the step's word: (shot, comparator) normals from its 16-bit halves
+            if per_step_draws:  # the group's words: (shot, comparator) normals from their halves
                 c = group_lo + (local >> (G.bit_length() - 1))
-                carry = dr.select(c < group_lo, UInt32(1), UInt32(0))
-                u = philox4x32(m, (key_hi, key_lo), (pixel, c, group_hi + carry, UInt32(0)))
-                halves = [(q, half_word_normals(m, u[q])) for q in range(G)]
+                zs = group_normals(c, group_hi + dr.select(c < group_lo, UInt32(1), UInt32(0)))
             else:  # no per-step draw (the renewal camera's charges have their own)
-                halves = [(0, (None, None))]
-            for half, z in halves:
+                zs = [(None, None)]
+            for half, z in enumerate(zs):
                 # Only a masked piece (a group cut by the call's ends) has steps that are not ours.
                 active = (local + half >= offset) & (local + half < span) if masked else None
                 y, invalid = read_y(row, r, active)
@@ -398,11 +527,11 @@ class DrJitSensor:
                 counts = tuple(keep(active, a, b) for a, b in zip(counts2, counts))
                 if reset_loss:
                     fired = keep(active, f, fired)
-                bad |= invalid
-                bits |= dr.select(f, UInt32(1) << (i + half), UInt32(0))
+                bad = bad | invalid
+                bits = bits | dr.select(f, UInt32(1) << (i + half), UInt32(0))
                 row2, r2 = next_row(row, r)
                 row, r = keep(active, row2, row), keep(active, r2, r)
-            return i + len(halves), bits, row, r, acc, comp, fired, counts, bad, w
+            return i + len(zs), bits, row, r, acc, comp, fired, counts, bad, w
 
         def word_body(w, row, r, acc, comp, fired, counts, bad):
             limit = dr.minimum(span - w * WORD_STEPS, UInt32(WORD_STEPS))
