@@ -29,7 +29,7 @@ Layout, chosen from the roofline in docs/performance.md:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Sequence
 
 import numpy as np
@@ -113,7 +113,7 @@ class DevicePacked:
     num_streams: int
     height: int
     width: int
-    _joined: Any = None
+    _joined: Any = field(default=None, init=False, repr=False)
 
     @property
     def num_steps(self) -> int:
