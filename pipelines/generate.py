@@ -269,7 +269,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                           "(every job counted, whatever -o holds)")
     p.add_argument("--estimate-scenes", type=positive_int, default=None, metavar="N",
                    help="scenes the estimate reads (motion, render speed and, with --quality fast, samples; "
-                        "default 6, the others at their mean); more is slower and closer")
+                        "default 6, every scene with --quality fast; the others at their mean, with the spread "
+                        "that leaves); more is slower and closer")
     p.add_argument("--json", action="store_true", help="print the settings and the run's report as JSON")
     p.set_defaults(func=run)
     v = sub.add_parser("verify", help="check a dataset against its manifest", epilog=VERIFY_EPILOG,

@@ -14,7 +14,8 @@ What a job renders depends on its scene's motion: adaptive keyframes (the `balan
 qualities) render only the steps the motion plan needs, and a step that moves by more than the
 blur threshold is several renders (motion-blur sub-steps). And scenes render at different speeds.
 So the estimate reads up to MOTION_SAMPLE_SCENES of the plan's scenes (loading each and timing
-one render, a few seconds each) and gives every other job their means. Measured on a paper-size
+one render, a few seconds each; every scene where a sample rule chooses the samples per scene) and
+gives every other job their means, with the spread that leaves. Measured on a paper-size
 LLR of Ball and Cook (`balanced`, 2 workers, the machine shared with 2 other processes
 throughout): counting every step once estimated 16.0 min; the motion plans, 7.5 min; the motion
 plans and each scene's speed, 9.4 min; the three runs took 9.6, 9.5 and 9.6 min.
@@ -23,11 +24,14 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Sequence
+
+import numpy as np
 
 from spikesim.keyframes import keyframe_count
 
@@ -42,6 +46,11 @@ ESTIMATE_MIN_RENDERS = 2000
 SENSOR_CALIBRATION_STEPS = 64
 #: Distinct scenes (both lights of a scene share their motion) whose motion plans an estimate reads.
 MOTION_SAMPLE_SCENES = 6
+#: Where a quality's sample rule chooses each scene's samples, the estimate reads every scene (its
+#: probes, a load and one render: 1-2 s a scene) unless told otherwise: the samples set a scene's
+#: render cost over a 16x range, so a mean over a few scenes misleads. The paper RLLR at `fast`
+#: read 6 scenes estimated 127 min, 40 read 173 min; docs/performance.md section 4 has the run.
+READ_EVERY_SCENE_WITH_A_SAMPLE_RULE = True
 
 
 @dataclass(frozen=True)
@@ -75,6 +84,8 @@ class PlannedWork:
     steps: int
     render_scale: float = 1.0
     """This job's render time over the calibrated scene's at the same samples (1 where not read)."""
+    read: bool = False
+    """Whether its scene was read (its motion, speed and samples), not given the read ones' means."""
 
     def seconds(self, cal: Calibration) -> float:
         return (cal.startup_s + self.render_scale * (self.frame_renders * cal.render_s(self.spp, self.pixels)
@@ -150,15 +161,13 @@ def with_motion_plans(jobs: Sequence["SceneJob"], works: list[PlannedWork], devi
                       load: Any = None, sample_scenes: int | None = None) -> tuple[list[PlannedWork], int]:
     """`works` with each job's frame renders read from its scene's motion (`frame_render_count`) and
     its render speed relative to the first job's (one render at the job's samples after a warm-up,
-    where the renderer renders): up to MOTION_SAMPLE_SCENES distinct scenes exactly, the other jobs
-    at the sampled scenes' means. A quality with a sample rule takes each read job's samples from
+    where the renderer renders): up to MOTION_SAMPLE_SCENES distinct scenes exactly (every scene
+    where a quality's sample rule chooses the samples), the other jobs at the read scenes' means. A quality with a sample rule takes each read job's samples from
     its probe renders as run_job does, and gives the others the mean samples of the read jobs of
     the same light name (else of all read ones). `load(job)` gives a job's renderer
     (default: the job's own scene, loaded in a temporary folder). Returns the works and how many
     scenes were read. `sample_scenes` replaces MOTION_SAMPLE_SCENES (`generate --estimate-scenes`)."""
     import dataclasses
-
-    import numpy as np
 
     from spikesim.generation.job import sample_rule_choice
     rendered = [i for i, j in enumerate(jobs) if works[i].frame_renders and j.source.get("type") != "pattern"]
@@ -189,9 +198,13 @@ def with_motion_plans(jobs: Sequence["SceneJob"], works: list[PlannedWork], devi
 
     ratios: dict[str, float] = {}
     speeds: dict[str, float] = {}
+    limit = sample_scenes
+    if limit is None:
+        ruled = READ_EVERY_SCENE_WITH_A_SAMPLE_RULE and any(sample_rule(jobs[i]) is not None for i in rendered)
+        limit = len(rendered) if ruled else MOTION_SAMPLE_SCENES
     for i in rendered:
         key = _motion_key(jobs[i])
-        if key in ratios or len(ratios) >= (MOTION_SAMPLE_SCENES if sample_scenes is None else sample_scenes):
+        if key in ratios or len(ratios) >= limit:
             continue
         got = read(jobs[i], works[i].spp)
         if got is None:
@@ -218,14 +231,12 @@ def with_motion_plans(jobs: Sequence["SceneJob"], works: list[PlannedWork], devi
             spp, gt_spp = knobs.get(key) or tuple(np.mean(by_light.get(jobs[i].source.get("light"), every), axis=0))
             extra = {"spp": spp, "gt_spp": gt_spp}
         out[i] = dataclasses.replace(works[i], frame_renders=max(1, round(ratios.get(key, mean) * works[i].frame_renders)),
-                                     render_scale=scales.get(key, mean_scale), **extra)
+                                     render_scale=scales.get(key, mean_scale), read=key in ratios, **extra)
     return out, len(ratios)
 
 
 def calibrate(job: "SceneJob", device: str = "auto") -> Calibration:
     """Time one job's renders and sensor (a few seconds); see the module docstring."""
-    import numpy as np
-
     from spikesim.camera import SpikeCamera
     from spikesim.generation.job import _FrameSource
     from spikesim.simulate import Simulator
@@ -285,6 +296,11 @@ class Estimate:
     """Scenes whose motion set the jobs' frame renders (0: every planned keyframe counted once)."""
     samples: tuple[tuple[int, int], ...] = ()
     """(samples per step, jobs) over the plan where a quality's sample rule chose them per scene."""
+    spread_s: float = 0.0
+    """One standard deviation of `seconds` from the jobs not read, which take the read ones' mean:
+    the read jobs' spread, for the unread jobs' own times and for that mean (0 where every job
+    was read, or fewer than 2)."""
+    unread: int = 0
 
     def summary(self) -> str:
         what = f"{self.renders:,} frame renders and {self.gt_renders:,} ground-truth renders"
@@ -295,12 +311,14 @@ class Estimate:
         if self.calibration is None:
             return f"plan: {what}; no time estimate for a plan this small (--estimate for one)"
         c = self.calibration
-        return (f"plan: {what}; estimate {self.seconds / 60:.1f} min on {self.workers} worker(s) "
+        spread = (f" +- {self.spread_s / 60:.1f} min ({self.unread} job(s) not read take the read ones' mean; "
+                  "--estimate-scenes reads more)") if self.spread_s > 0 else ""
+        return (f"plan: {what}; estimate {self.seconds / 60:.1f} min{spread} on {self.workers} worker(s) "
                 f"(calibrated on {c.scene}: {c.startup_s:.1f} s to load a scene, a render "
                 f"{c.fixed_s * 1e3:.0f} ms + {c.per_sample_pixel_s * 1e9:.1f} ns "
                 f"per sample per pixel, the sensor {c.sensor_per_pixel_step_s * 1e9:.1f} ns per pixel-step"
-                + ("; scenes not read render at the read ones' mean)" if self.motion_scenes
-                   else "; other scenes may render faster or slower)"))
+                + ("; scenes not read render at the read ones' mean)" if self.motion_scenes and self.unread
+                   else ")" if self.motion_scenes else "; other scenes may render faster or slower)"))
 
 
 def estimate(jobs: Sequence["SceneJob"], workers: int, device: str = "auto", calibrate_at: int | None = None,
@@ -322,10 +340,18 @@ def estimate(jobs: Sequence["SceneJob"], workers: int, device: str = "auto", cal
     import os
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     slow = min(workers, cores)
-    seconds = share_out([w.seconds(cal) * slow for w in works], workers)
+    times = [w.seconds(cal) * slow for w in works]
+    seconds = share_out(times, workers)
     ruled = [round(w.spp) for j, w in zip(jobs, works) if sample_rule(j) is not None]
     samples = tuple(sorted((spp, ruled.count(spp)) for spp in set(ruled)))
-    return Estimate(renders, gts, seconds, workers, cal, motion_scenes, samples)
+    read = [t for t, w in zip(times, works) if w.read]
+    unread = sum(1 for w in works if w.frame_renders and not w.read) if motion_scenes else 0
+    spread = 0.0
+    if unread and len(read) >= 2:
+        # the unread jobs' total: u draws of the read jobs' spread, and u times the error of their mean
+        var = float(np.var(read, ddof=1))
+        spread = math.sqrt(unread * var + unread ** 2 * var / len(read)) / max(1, min(workers, len(works)))
+    return Estimate(renders, gts, seconds, workers, cal, motion_scenes, samples, spread, unread)
 
 
 def log_estimate(est: Estimate) -> None:
