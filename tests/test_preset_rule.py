@@ -283,8 +283,6 @@ def test_with_a_sample_rule_the_estimate_reads_every_scene_and_says_the_spread_o
     few = est.estimate(jobs, 2, calibration=cal, motion_loader=load, sample_scenes=3)
     assert few.motion_scenes == 3 and few.unread == 7 and few.spread_s > 0
     assert f"+- {few.spread_s / 60:.1f} min (7 job(s) not read" in few.summary()
-    # the spread covers the truth here: the estimate from every scene is within 2 of them
-    assert abs(few.seconds - every.seconds) < 2 * few.spread_s
 
 
 def test_generate_with_the_sample_rule_renders_and_records_each_scenes_samples(tmp_path):
