@@ -169,3 +169,21 @@ def test_estimate_only_prints_the_plan_and_writes_nothing(tmp_path, capsys):
     text = capsys.readouterr().out
     assert "plan: 82 frame renders and 2 ground-truth renders" in text and "samples per step:" in text
     assert not out.exists()
+
+
+def test_ground_truth_renders_count_their_motion_blur_substeps():
+    # A ground-truth step that moves past the blur threshold renders as several sub-steps, as a
+    # frame does; the estimate counted one render per ground-truth step (at 128 spp, the largest
+    # renders of a fast RLLR scene).
+    import spikesim.generation.estimate as est
+    jobs = plan_llr(PRESETS["small"], scenes=["ball", "fan"], lights=("low",), quality="fast")
+    works = [est.planned_work(j) for j in jobs]
+    fast = _FakeRenderer(set(range(jobs[1].num_steps)), blur_px=0.1)   # every step: 2 sub-steps
+    assert est.gt_render_count(fast, jobs[1]) == 2 * len(jobs[1].gt_steps)
+    out, n = est.with_motion_plans(jobs, works, load=lambda j: fast if j.source["scene"] == "fan"
+                                   else _FakeRenderer(set()), sample_scenes=2)
+    by_scene = {j.source["scene"]: w for j, w in zip(jobs, out)}
+    assert n == 2
+    assert by_scene["fan"].gt_renders == 2 * len(jobs[1].gt_steps)
+    assert by_scene["ball"].gt_renders == len(jobs[0].gt_steps)
+    assert by_scene["fan"].frame_renders == 2 * works[1].frame_renders

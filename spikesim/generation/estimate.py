@@ -139,6 +139,14 @@ def frame_render_count(renderer: Any, job: "SceneJob") -> int:
     return sum(int(substeps(s)) if substeps is not None else 1 for s in steps)
 
 
+def gt_render_count(renderer: Any, job: "SceneJob") -> int:
+    """The renders a job's ground truth will take: each ground-truth step times its motion-blur
+    sub-steps, as for the frames (the paper RLLR's fast scenes need several; counting one render
+    per ground-truth step, at 128 spp, left them out of the estimate)."""
+    substeps = getattr(renderer, "substeps_for", None)
+    return sum(int(substeps(s)) if substeps is not None else 1 for s in job.gt_steps)
+
+
 def sample_rule(job: "SceneJob") -> Any:
     """The job's quality when it chooses its samples per scene (`sample_rule`), else None."""
     if job.quality is None or job.source.get("type") == "pattern":
@@ -173,7 +181,7 @@ def with_motion_plans(jobs: Sequence["SceneJob"], works: list[PlannedWork], devi
     rendered = [i for i, j in enumerate(jobs) if works[i].frame_renders and j.source.get("type") != "pattern"]
     knobs: dict[str, tuple[int, int]] = {}  # sample-rule jobs read: (spp, gt_spp) by motion key
 
-    def read(job: "SceneJob", spp: int) -> tuple[int, float | None] | None:
+    def read(job: "SceneJob", spp: int) -> tuple[int, float | None, int] | None:
         with tempfile.TemporaryDirectory(prefix="spikesim-motion-") as tmp:  # a random scene's files
             if load is not None:
                 renderer = load(job)
@@ -194,9 +202,10 @@ def with_motion_plans(jobs: Sequence["SceneJob"], works: list[PlannedWork], devi
                 t0 = time.perf_counter()
                 renderer.render_step(1, spp=max(spp, 1))
                 seconds = time.perf_counter() - t0
-            return frame_render_count(renderer, job), seconds
+            return frame_render_count(renderer, job), seconds, gt_render_count(renderer, job)
 
     ratios: dict[str, float] = {}
+    gt_ratios: dict[str, float] = {}
     speeds: dict[str, float] = {}
     limit = sample_scenes
     if limit is None:
@@ -210,11 +219,14 @@ def with_motion_plans(jobs: Sequence["SceneJob"], works: list[PlannedWork], devi
         if got is None:
             continue
         ratios[key] = got[0] / works[i].frame_renders
+        if works[i].gt_renders:
+            gt_ratios[key] = got[2] / works[i].gt_renders
         if got[1] is not None:
             speeds[key] = got[1]
     if not ratios:
         return works, 0
     mean = sum(ratios.values()) / len(ratios)
+    gt_mean = sum(gt_ratios.values()) / len(gt_ratios) if gt_ratios else 1.0
     first = speeds.get(_motion_key(jobs[rendered[0]])) if rendered else None
     scales = {k: v / first for k, v in speeds.items()} if first else {}
     mean_scale = sum(scales.values()) / len(scales) if scales else 1.0
@@ -231,6 +243,7 @@ def with_motion_plans(jobs: Sequence["SceneJob"], works: list[PlannedWork], devi
             spp, gt_spp = knobs.get(key) or tuple(np.mean(by_light.get(jobs[i].source.get("light"), every), axis=0))
             extra = {"spp": spp, "gt_spp": gt_spp}
         out[i] = dataclasses.replace(works[i], frame_renders=max(1, round(ratios.get(key, mean) * works[i].frame_renders)),
+                                     gt_renders=round(gt_ratios.get(key, gt_mean) * works[i].gt_renders),
                                      render_scale=scales.get(key, mean_scale), read=key in ratios, **extra)
     return out, len(ratios)
 
@@ -334,7 +347,7 @@ def estimate(jobs: Sequence["SceneJob"], workers: int, device: str = "auto", cal
         return Estimate(renders, gts, 0.0, workers, None)
     cal = calibration or calibrate(jobs[0], device)
     works, motion_scenes = with_motion_plans(jobs, works, device, load=motion_loader, sample_scenes=sample_scenes)
-    renders = sum(w.frame_renders for w in works)
+    renders, gts = sum(w.frame_renders for w in works), sum(w.gt_renders for w in works)
     # the calibration rendered with every core; W workers share them, so each job takes about
     # min(W, cores) times its calibrated time (Dr.Jit's renders scale with cores, measured 1.6-1.9x on 2)
     import os
@@ -359,4 +372,4 @@ def log_estimate(est: Estimate) -> None:
 
 
 __all__ = ["Calibration", "PlannedWork", "Estimate", "ESTIMATE_MIN_RENDERS", "MOTION_SAMPLE_SCENES", "planned_work",
-           "adaptive_policy", "frame_render_count", "with_motion_plans", "calibrate", "share_out", "estimate"]
+           "adaptive_policy", "frame_render_count", "gt_render_count", "with_motion_plans", "calibrate", "share_out", "estimate"]
