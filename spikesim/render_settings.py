@@ -53,7 +53,9 @@ class RenderSettings:
     spp: int = 4
     """Samples per pixel of each render of a frame (a step with s sub-steps renders s times)."""
     gt_spp: int = 64
-    """Samples per pixel of each render of a ground-truth image."""
+    """Samples per pixel of a ground-truth image, spread over its motion-blur sub-step renders
+    (ceil(gt_spp / s) each, spikesim.render.renderer.samples_per_substep); `spp` is each frame
+    render's own, since the sample rule measures a frame's noise as rendered."""
     keyframe_every: int = 1
     """Steps between rendered frames; the sensor interpolates in between (spikesim.keyframes)."""
     seed: int = 0

@@ -187,3 +187,10 @@ def test_ground_truth_renders_count_their_motion_blur_substeps():
     assert by_scene["fan"].gt_renders == 2 * len(jobs[1].gt_steps)
     assert by_scene["ball"].gt_renders == len(jobs[0].gt_steps)
     assert by_scene["fan"].frame_renders == 2 * works[1].frame_renders
+    # A ground-truth image's samples are spread over its sub-steps: its second render adds the
+    # fixed cost of a render, not another gt_spp samples.
+    cal = est.Calibration("x", 100, startup_s=0.0, fixed_s=0.01, per_sample_pixel_s=1e-6, sensor_per_pixel_step_s=0.0)
+    gt_only = dataclasses.replace(by_scene["fan"], frame_renders=0, spp=0)
+    images = len(jobs[1].gt_steps)
+    want = 2 * images * cal.fixed_s + images * cal.per_sample_pixel_s * gt_only.gt_spp * gt_only.pixels
+    assert gt_only.seconds(cal) == pytest.approx(want * gt_only.render_scale, rel=1e-12)

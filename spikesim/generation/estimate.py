@@ -86,10 +86,15 @@ class PlannedWork:
     """This job's render time over the calibrated scene's at the same samples (1 where not read)."""
     read: bool = False
     """Whether its scene was read (its motion, speed and samples), not given the read ones' means."""
+    gt_images: int | None = None
+    """Ground-truth images (None: one per ground-truth render). Each spends gt_spp samples per pixel
+    in all over its motion-blur renders (spikesim.render.renderer.samples_per_substep), so its
+    renders add their fixed cost only; ceil's rounding, under substeps / gt_spp, is left out."""
 
     def seconds(self, cal: Calibration) -> float:
-        return (cal.startup_s + self.render_scale * (self.frame_renders * cal.render_s(self.spp, self.pixels)
-                                                     + self.gt_renders * cal.render_s(self.gt_spp, self.pixels))
+        images = self.gt_renders if self.gt_images is None else self.gt_images
+        gt = self.gt_renders * cal.fixed_s + images * cal.per_sample_pixel_s * self.gt_spp * self.pixels
+        return (cal.startup_s + self.render_scale * (self.frame_renders * cal.render_s(self.spp, self.pixels) + gt)
                 + self.steps * self.pixels * cal.sensor_per_pixel_step_s)
 
 
@@ -110,7 +115,7 @@ def planned_work(job: "SceneJob") -> PlannedWork:
         return PlannedWork(job.name, 0, 0, 0, 0, pixels, job.num_steps)
     spp, gt_spp = _render_spp(job)
     return PlannedWork(job.name, keyframe_count(job.num_steps, job.keyframe_every), len(job.gt_steps), spp, gt_spp,
-                       pixels, job.num_steps)
+                       pixels, job.num_steps, gt_images=len(job.gt_steps))
 
 
 def adaptive_policy(job: "SceneJob") -> Any:
@@ -141,8 +146,8 @@ def frame_render_count(renderer: Any, job: "SceneJob") -> int:
 
 def gt_render_count(renderer: Any, job: "SceneJob") -> int:
     """The renders a job's ground truth will take: each ground-truth step times its motion-blur
-    sub-steps, as for the frames (the paper RLLR's fast scenes need several; counting one render
-    per ground-truth step, at 128 spp, left them out of the estimate)."""
+    sub-steps, as for the frames (the paper RLLR's fast scenes need several: each adds a render's
+    fixed cost, its samples being the image's share)."""
     substeps = getattr(renderer, "substeps_for", None)
     return sum(int(substeps(s)) if substeps is not None else 1 for s in job.gt_steps)
 

@@ -32,11 +32,14 @@ from typing import Any, Iterable
 
 from spikesim.dataset import LAYOUT_VERSION, sha256_file
 
-DATA_VERSION = 2
+DATA_VERSION = 3
 """The version of the code that turns a job into bytes (renderer, sensor, seeds, layout of a
 scene folder). Raise it when a change makes the same job write other bytes: every scene is then
 rebuilt once by the next rerun, and says why. 2: the per-step shot and comparator normals are
-drawn from Philox counted by (pixel, step) (spikesim/philox.py), bit-identical on every backend."""
+drawn from Philox counted by (pixel, step) (spikesim/philox.py), bit-identical on every backend.
+3: a ground-truth image's gt_spp are its samples in all, spread over its motion-blur sub-step
+renders (spikesim.render.renderer.samples_per_substep), not each render's; only ground truth at
+steps that move past the blur threshold changes."""
 
 CODE_INPUT = "spikesim"
 """The name of the code's entry among a job's inputs."""

@@ -8,7 +8,8 @@ Time sampling. Step n integrates light over [n T, (n + 1) T) (docs/design.md sec
 for step n is the mean over that interval: a render at its midpoint, or, when objects move more
 than `blur_threshold_px` pixels within the step, the mean of s renders at sub-step midpoints
 (Mitsuba 3.9 has no motion blur of its own, docs/design.md section 4). Ground truth at step n is the
-same quantity rendered with many more samples.
+same quantity rendered with many more samples: gt_spp per pixel of the image, spread over its
+sub-step renders (`samples_per_substep`), where a frame's spp are each render's.
 """
 from __future__ import annotations
 
@@ -34,6 +35,16 @@ from .scene_checks import check_camera, check_frame
 #: Seed streams, so frames and ground truth at the same step use independent samples.
 _FRAMES, _GROUND_TRUTH, _PREVIEW = 0, 1, 2
 _PROBES = 3  # probe i renders as stream _PROBES + i: seeds of their own, apart from the frames
+
+
+def samples_per_substep(spp: int, substeps: int) -> int:
+    """Samples per pixel of each of an image's `substeps` motion-blur renders when the image has
+    `spp` in all: ceil(spp / substeps), as a renderer with motion blur of its own spreads a pixel's
+    samples over the shutter. A ground-truth image that moves spends the samples of a still one
+    (up to rounding), not `substeps` times them; its Monte Carlo error per pixel is then a still
+    image's, where the renders' own `spp` each would make it sqrt(substeps) lower at substeps times
+    the cost (docs/tradeoff.md section 7, "Ground truth samples per image")."""
+    return -(-int(spp) // int(substeps))
 
 
 def _seed(*parts: int) -> int:
@@ -170,16 +181,18 @@ class SceneRenderer:
         return int(min(s.max_substeps, max(1, math.ceil(self.motion_px(step) / s.blur_threshold_px - 1e-9))))
 
     # ---- rendering ----------------------------------------------------------------------------
-    def _film_tensor(self, step: int, spp: int, stream: int) -> Any:
+    def _film_tensor(self, step: int, spp: int, stream: int, per_image: bool = False) -> Any:
         """Mean film value over step `step` (electron-weighted radiance; RGB for previews), as a
-        Mitsuba tensor (H, W, C) on the render device."""
+        Mitsuba tensor (H, W, C) on the render device. `spp` is each sub-step render's samples, or
+        with `per_image` the image's, spread over its renders (`samples_per_substep`)."""
         use_variant(self._variant)
         n = self.substeps_for(step)
+        each = samples_per_substep(spp, n) if per_image else spp
         acc = None
         for sub in range(n):
             self.animator.apply(self.time_of(step, (sub + 0.5) / n))
             t0 = time.perf_counter()
-            img = mi.render(self.scene, spp=spp, seed=self.render_seed(stream, step, sub))
+            img = mi.render(self.scene, spp=each, seed=self.render_seed(stream, step, sub))
             self.stats["render_seconds"] += time.perf_counter() - t0
             self.stats["renders"] += 1
             acc = img if acc is None else acc + img
@@ -190,9 +203,9 @@ class SceneRenderer:
         the step when settings.step_seeds is "fixed" (the same noise pattern at every step)."""
         return _seed(self.settings.seed, stream, step if self.settings.step_seeds == "fresh" else 0, sub)
 
-    def _film(self, step: int, spp: int, stream: int) -> np.ndarray:
+    def _film(self, step: int, spp: int, stream: int, per_image: bool = False) -> np.ndarray:
         """The film of `_film_tensor`, copied to the host."""
-        return np.array(self._film_tensor(step, spp, stream), dtype=np.float32)
+        return np.array(self._film_tensor(step, spp, stream, per_image), dtype=np.float32)
 
     def render_step(self, step: int, spp: int | None = None) -> np.ndarray:
         """y at step `step` (float32 (H, W)), with `spp` samples per render (default: settings.spp)."""
@@ -224,8 +237,10 @@ class SceneRenderer:
         return np.stack([self._to_y(step, self._film(step, spp, _PROBES + i)) for i in range(count)])
 
     def ground_truth(self, step: int, spp: int | None = None) -> np.ndarray:
-        """Ground-truth y at step `step`: the same mean over the readout period, with gt_spp."""
-        return self._to_y(step, self._film(self._check_step(step), spp or self.settings.gt_spp, _GROUND_TRUTH))
+        """Ground-truth y at step `step`: the same mean over the readout period, with `spp`
+        (default gt_spp) samples per pixel in all, spread over its motion-blur renders."""
+        return self._to_y(step, self._film(self._check_step(step), spp or self.settings.gt_spp, _GROUND_TRUTH,
+                                           per_image=True))
 
     def frames(self, start_step: int = 0, num_steps: int = 1, keyframe_every: int | None = None,
                device: bool = False) -> Iterator[Any]:
@@ -253,7 +268,8 @@ class SceneRenderer:
         """Linear RGB (H, W, 3) scaled like y (luminance ~ y), for pictures; needs variant="rgb"."""
         if self.variant != "rgb":
             raise ValueError("preview_rgb needs variant='rgb' (RGB renders are for previews only)")
-        return self._film(self._check_step(step), spp or self.settings.gt_spp, _PREVIEW) * self._gain[..., None]
+        return self._film(self._check_step(step), spp or self.settings.gt_spp, _PREVIEW,
+                          per_image=True) * self._gain[..., None]
 
     def _to_y(self, step: int, film: np.ndarray) -> np.ndarray:
         if self.variant == "rgb":
@@ -292,4 +308,4 @@ class SceneRenderer:
         }
 
 
-__all__ = ["SceneRenderer", "RenderSettings"]
+__all__ = ["SceneRenderer", "RenderSettings", "samples_per_substep"]

@@ -196,3 +196,29 @@ def test_rgb_is_for_previews_only(moving_scene):
     assert r.preview_rgb(0, spp=2).shape == (25, 40, 3)
     with pytest.raises(ValueError, match="preview"):
         r.render_step(0)
+
+
+def test_ground_truth_spreads_its_samples_over_its_substeps(make_scene, monkeypatch):
+    """gt_spp are a ground-truth image's samples in all, ceil(gt_spp / s) in each of its s motion-blur
+    renders (a renderer with motion blur of its own spreads them over the shutter); a frame's spp
+    are each render's, which the sample rule's probes measure."""
+    from spikesim.render import SceneRenderer
+    from spikesim.render import renderer as module
+    from spikesim.render.renderer import samples_per_substep
+
+    assert [samples_per_substep(128, s) for s in (1, 2, 3, 16)] == [128, 64, 43, 8]
+    assert samples_per_substep(1, 3) == 1  # never below one sample a render
+    fast = {"objects": [{"targets": ["ball"], "motions": [{"type": "translation", "velocity_mps": [200.0, 0, 0]}]}]}
+    xml = make_scene(BALL, motion=fast)
+    r = SceneRenderer(xml, spp=2, gt_spp=9, substeps=3)
+    asked: list[int] = []
+    render = module.mi.render
+    monkeypatch.setattr(module.mi, "render", lambda scene, spp, seed: asked.append(spp) or render(scene, spp=spp, seed=seed))
+    r.ground_truth(0)
+    assert asked == [3, 3, 3]
+    asked.clear()
+    r.render_step(0)
+    assert asked == [2, 2, 2]
+    asked.clear()
+    r.ground_truth(0, spp=4)
+    assert asked == [2, 2, 2]
