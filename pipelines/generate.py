@@ -230,7 +230,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="ground truth every this many steps of an RLLR scene (paper 1) or of a user scene given "
                         "--steps, on the centres of 41-step windows (stride 41: steps 20, 61, 102, ...; default: "
                         "the preset's RLLR stride)")
-    p.add_argument("--gt-spp", type=positive_int, help="samples per pixel of ground-truth renders")
+    p.add_argument("--gt-spp", type=positive_int, help="samples per pixel of a ground-truth image, spread over its motion-blur sub-step renders")
     p.add_argument("--camera", type=camera_spec,
                    help="realistic, measured (with the terms measured on a real recording), noiseless or a JSON/TOML camera file (default: realistic); a file's height and "
                         "width are used above the preset and a scene's film, below --render-settings and the flags")

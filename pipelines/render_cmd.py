@@ -105,7 +105,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--spp", type=positive_int, default=None,
                    help="samples per pixel per frame render (default: the scene's sampler, else 4)")
     p.add_argument("--gt-spp", type=positive_int, default=None,
-                   help="samples per pixel per ground-truth render (default 64)")
+                   help="samples per pixel of a ground-truth image, spread over its motion-blur sub-step renders (default 64)")
     p.add_argument("--seed", type=seed_int, default=None, help="render seed (default 0)")
     add_device_argument(p, sensor="none")
     p.add_argument("--height", type=positive_int, help="film rows, pixels (default: the scene's film; with --width)")
