@@ -99,20 +99,48 @@ def test_parallel_workers_give_the_same_bytes(tmp_path):
         assert (tmp_path / "a" / name / "spikes.dat").read_bytes() == (tmp_path / "b" / name / "spikes.dat").read_bytes()
 
 
+# Ray runs in a child process: ray.shutdown() leaves Ray's native threads (its GCS client and gRPC
+# threads, 7 counted) in the process that called ray.init, and one of them aborting later kills
+# whatever runs there, as the whole test session did once on CI (SIGABRT 15 s after this test).
+RAY_CHILD = """
+import json, sys
+from pathlib import Path
+import ray
+from spikesim.generation import PRESETS, generate, plan_rllr
+root, repo = Path(sys.argv[1]), sys.argv[2]
+preset = PRESETS["small"].replace(height=12, width=32, rllr_steps=82, rllr_gt_stride=41)
+jobs = plan_rllr(preset, seed=1, count=2, source="pattern")
+ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, configure_logging=False,
+         runtime_env={"env_vars": {"PYTHONPATH": repo}})
+try:
+    first = generate(jobs, root, ray_address="local", show_progress=False)
+    again = generate(jobs, root, ray_address="local", show_progress=False)
+finally:
+    ray.shutdown()
+print(json.dumps({"generated": first["generated"], "again_generated": again["generated"],
+                  "again_skipped": again["skipped"]}))
+"""
+
+
 def test_ray_generation_matches_local(tmp_path):
-    # One Ray task per scene on a local Ray instance started here; same bytes and manifest
-    # behaviour as the process pool. (Point --ray at a cluster address to scale out.)
-    ray = pytest.importorskip("ray", reason="Ray is an optional extra: pip install 'spikesim[cluster]'")
+    # One Ray task per scene on a local Ray instance started in a child process; same bytes and
+    # manifest behaviour as the process pool. (Point --ray at a cluster address to scale out.)
+    import importlib.util
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+    if importlib.util.find_spec("ray") is None:
+        pytest.skip("Ray is an optional extra: pip install 'spikesim[cluster]'")
+    repo = str(Path(__file__).resolve().parents[1])
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [repo, os.environ.get("PYTHONPATH")]))}
+    child = subprocess.run([sys.executable, "-c", RAY_CHILD, str(tmp_path / "ray"), repo], cwd=repo, env=env,
+                           capture_output=True, text=True, timeout=300)
+    assert child.returncode == 0, child.stderr[-3000:]
+    report = json.loads(child.stdout.strip().splitlines()[-1])
+    assert len(report["generated"]) == 2
+    assert report["again_skipped"] == 2 and report["again_generated"] == []
     jobs = tiny_jobs(2)
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, configure_logging=False,
-             runtime_env={"env_vars": {"PYTHONPATH": str(__import__("pathlib").Path(__file__).resolve().parents[1])}})
-    try:
-        report = generate(jobs, tmp_path / "ray", ray_address="local", show_progress=False)
-        assert len(report["generated"]) == 2
-        again = generate(jobs, tmp_path / "ray", ray_address="local", show_progress=False)
-        assert again["skipped"] == 2 and again["generated"] == []
-    finally:
-        ray.shutdown()
     generate(jobs, tmp_path / "local", workers=1, show_progress=False)
     assert verify(tmp_path / "ray") == []
     for name in ("rllr_0000", "rllr_0001"):
