@@ -150,6 +150,26 @@ def test_a_scene_that_renders_slower_is_estimated_slower():
                                                 / out[0].frame_renders)
 
 
+def test_a_moving_scene_is_timed_per_render_not_per_step():
+    # render_step renders each motion-blur sub-step of its step, and the plan counts those renders
+    # already: a scene whose renders each cost what a still scene's do is as fast, however many
+    # sub-steps its steps take. Timing whole steps counted them twice (+24 % on the paper RLLR).
+    import time as _time
+    import spikesim.generation.estimate as est
+
+    class Timed(_FakeRenderer):
+        def render_step(self, step, spp=None):
+            _time.sleep(0.05 * self.substeps_for(step))
+
+    jobs = plan_llr(PRESETS["small"], scenes=["ball", "fan"], lights=("low",), quality="balanced")
+    works = [planned_work(j) for j in jobs]
+    fast = Timed(set(range(jobs[1].num_steps)), blur_px=0.1)  # every step: 2 sub-steps
+    out, n = est.with_motion_plans(jobs, works, load=lambda j: fast if j.source["scene"] == "fan" else Timed(set()))
+    scale = {j.source["scene"]: w.render_scale for j, w in zip(jobs, out)}
+    assert n == 2 and scale["ball"] == 1.0 and 0.7 < scale["fan"] < 1.4
+    assert est.one_render_s(fast, 1, 1) == pytest.approx(0.05, rel=0.4)
+
+
 def test_estimate_only_prints_the_plan_and_writes_nothing(tmp_path, capsys):
     # `generate --estimate-only`: the renders and the time `generate` would print, with a quality's
     # per-scene samples read from every scene asked for, and no output folder made.

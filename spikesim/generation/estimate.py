@@ -4,8 +4,10 @@ jobs, and a time from a short calibration on one of its own scenes.
 Rendering is 96-99 % of generation at the paper's size (docs/tradeoff.md), and a render's cost is
 a fixed part (scene traversal, launch, readback: about 30 ms at 400 x 250 on the 2-core machine)
 plus a part that grows with samples x pixels. The calibration renders one step of the first job at
-its frame spp and one at its ground-truth spp (after a warm-up render that pays Dr.Jit's kernel
-compilation), solves those two costs, and times the sensor on a few steps of that frame; each job's
+1 spp, its frame spp and its ground-truth spp (after a warm-up render that pays Dr.Jit's kernel
+compilation), each CALIBRATION_REPEATS times keeping the fastest, solves those two costs (per
+render: a step's motion-blur sub-steps are counted as renders), and times the sensor on a few
+steps of that frame; each job's
 time is then its frame renders, ground-truth renders and pixel-steps at those rates, scaled by its
 pixels, and the jobs are shared out over the workers, largest first. It costs a few seconds, so it
 runs only for plans large enough to be worth estimating (ESTIMATE_MIN_RENDERS).
@@ -44,6 +46,11 @@ log = logging.getLogger("spikesim.generate")
 #: would be a large part of their time. The paper's LLR plans 8,820 renders, its RLLR 100,000+.
 ESTIMATE_MIN_RENDERS = 2000
 SENSOR_CALIBRATION_STEPS = 64
+#: Timings of each calibration render and of each read scene's render; the least is kept. One
+#: timing each gave the paper RLLR's per-sample cost as 154-216 ns from one run to the next on an
+#: idle machine (docs/performance.md section 4a).
+CALIBRATION_REPEATS = 3
+SPEED_REPEATS = 2
 #: Distinct scenes (both lights of a scene share their motion) whose motion plans an estimate reads.
 MOTION_SAMPLE_SCENES = 6
 #: Where a quality's sample rule chooses each scene's samples, the estimate reads every scene (its
@@ -170,6 +177,22 @@ def _motion_key(job: "SceneJob") -> str:
                        adaptive_policy(job) is not None, light], sort_keys=True, default=str)
 
 
+def one_render_s(renderer: Any, step: int, spp: int, repeats: int = 1) -> float:
+    """Seconds of one render at `spp`, timed on step `step` (the least of `repeats` timings: a
+    render is slowed by what else the machine does, never sped up). `render_step` renders each of
+    the step's motion-blur sub-steps, and the plan counts those renders already
+    (`frame_render_count`, `gt_render_count`), so the step's time is divided by them: timing the
+    whole step counted a moving scene's sub-steps twice (docs/performance.md section 4a)."""
+    substeps = getattr(renderer, "substeps_for", None)
+    n = max(1, int(substeps(step)) if substeps is not None else 1)
+    best = math.inf
+    for _ in range(max(1, repeats)):
+        t0 = time.perf_counter()
+        renderer.render_step(step, spp=spp)
+        best = min(best, time.perf_counter() - t0)
+    return best / n
+
+
 def with_motion_plans(jobs: Sequence["SceneJob"], works: list[PlannedWork], device: str = "auto",
                       load: Any = None, sample_scenes: int | None = None) -> tuple[list[PlannedWork], int]:
     """`works` with each job's frame renders read from its scene's motion (`frame_render_count`) and
@@ -204,9 +227,7 @@ def with_motion_plans(jobs: Sequence["SceneJob"], works: list[PlannedWork], devi
                     ne = SpikeCamera.from_dict(job.camera).threshold_electrons
                     chosen = sample_rule_choice(q, renderer, job.light_power_factor, ne)
                     knobs[_motion_key(job)] = (chosen["spp"], q.gt_spp)
-                t0 = time.perf_counter()
-                renderer.render_step(1, spp=max(spp, 1))
-                seconds = time.perf_counter() - t0
+                seconds = one_render_s(renderer, 1, max(spp, 1), repeats=SPEED_REPEATS)
             return frame_render_count(renderer, job), seconds, gt_render_count(renderer, job)
 
     ratios: dict[str, float] = {}
@@ -269,11 +290,11 @@ def calibrate(job: "SceneJob", device: str = "auto") -> Calibration:
             renderer.render_step(0, spp=1)  # warm-up: the scene's kernels compile on the first render
         startup = time.perf_counter() - t0
         if renderer is not None:
-            times = {}
-            for spp in sorted({1, max(work.spp, 1), max(work.gt_spp, 1)}):
-                t0 = time.perf_counter()
-                renderer.render_step(1, spp=spp)
-                times[spp] = time.perf_counter() - t0
+            counts = sorted({1, max(work.spp, 1), max(work.gt_spp, 1)})
+            times = {spp: math.inf for spp in counts}
+            for _ in range(CALIBRATION_REPEATS):  # interleaved, so a slow spell slows no one count throughout
+                for spp in counts:
+                    times[spp] = min(times[spp], one_render_s(renderer, 1, spp))
             lo, hi = min(times), max(times)
             if hi > lo:  # two sample counts: the fixed part and the part that grows with samples
                 per = max(0.0, (times[hi] - times[lo]) / ((hi - lo) * work.pixels))
@@ -286,10 +307,12 @@ def calibrate(job: "SceneJob", device: str = "auto") -> Calibration:
         sim = Simulator(SpikeCamera.from_dict(job.camera), seed=job.seed)
         for _ in sim.stream(iter([frame] * 8)):  # warm-up: the sensor kernel compiles
             pass
-        t0 = time.perf_counter()
-        for _ in sim.stream(iter([frame] * SENSOR_CALIBRATION_STEPS)):
-            pass
-        sensor = (time.perf_counter() - t0) / (SENSOR_CALIBRATION_STEPS * work.pixels)
+        sensor = math.inf
+        for _ in range(SPEED_REPEATS):
+            t0 = time.perf_counter()
+            for _ in sim.stream(iter([frame] * SENSOR_CALIBRATION_STEPS)):
+                pass
+            sensor = min(sensor, (time.perf_counter() - t0) / (SENSOR_CALIBRATION_STEPS * work.pixels))
     return Calibration(job.name, work.pixels, startup, fixed, per, sensor)
 
 
@@ -377,4 +400,4 @@ def log_estimate(est: Estimate) -> None:
 
 
 __all__ = ["Calibration", "PlannedWork", "Estimate", "ESTIMATE_MIN_RENDERS", "MOTION_SAMPLE_SCENES", "planned_work",
-           "adaptive_policy", "frame_render_count", "gt_render_count", "with_motion_plans", "calibrate", "share_out", "estimate"]
+           "adaptive_policy", "frame_render_count", "gt_render_count", "one_render_s", "with_motion_plans", "calibrate", "share_out", "estimate"]
