@@ -6,8 +6,11 @@ path is set here, before the first `import drjit`, unless the user set DRJIT_LIB
 """
 from __future__ import annotations
 
+import gc
 import glob
 import os
+from contextlib import contextmanager
+from typing import Iterator
 
 _CANDIDATES = (
     "/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1",
@@ -44,6 +47,24 @@ def configure() -> None:
 
 configure()
 import drjit as dr  # noqa: E402  (must follow configure())
+
+
+@contextmanager
+def collector_held() -> Iterator[None]:
+    """Python's cyclic garbage collector held off while the block runs: wrap calls of `dr.freeze`
+    functions in it. Dr.Jit 1.5 ends the process (std::terminate: "RecordThreadState::
+    enqueue_host_func(): this function cannot be recorded!") when a collection that starts during a
+    frozen function's recording frees an array wrapping NumPy memory without a copy: the release
+    of that memory is a host callback, which a recording refuses, and the refusal is thrown from a
+    destructor. A collection can start at any allocation, so which run it kills depends on what ran
+    before (a CI run of the test suite died of it). The collection runs after the block instead."""
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if enabled:
+            gc.enable()
 
 
 def has_llvm() -> bool:

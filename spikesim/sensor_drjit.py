@@ -34,7 +34,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ._drjit import dr
+from ._drjit import collector_held, dr
 from .camera import Y_MAX, SpikeCamera
 from .errors import InvalidFrames
 from .fixed_pattern import PixelParameters
@@ -293,10 +293,11 @@ class DrJitSensor:
         state = (self._acc, self._comp, self._fired, *self._counts)
         bad = dr.opaque(self.m.Bool, False, self.width_lanes)
         parts = []
-        for s0, n, masked in pieces:
-            state, bad, out = self._run_piece(block, first_key, phase + s0, keyframe_every, n, first_step + s0,
-                                              masked, state, bad)
-            parts.append((out, n))
+        with collector_held():  # the pieces call frozen functions (spikesim._drjit.collector_held)
+            for s0, n, masked in pieces:
+                state, bad, out = self._run_piece(block, first_key, phase + s0, keyframe_every, n, first_step + s0,
+                                                  masked, state, bad)
+                parts.append((out, n))
         if bool(dr.any(bad)[0]):
             raise InvalidFrames("a frame holds NaN, infinite or negative irradiance")
         # The state is committed only now: an invalid frame leaves it as it was.

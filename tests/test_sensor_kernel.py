@@ -259,3 +259,48 @@ def test_absurd_light_saturates_with_finite_state(backend):
     assert np.all(counts[0] == 64) and np.all(counts[1, 1::2] == 64)
     assert 0 < counts[1, ::2].mean() < 64
     assert np.all(np.isfinite(sim.get_state()["accumulator"]))
+
+
+# A collection by Python's garbage collector while a frozen kernel records used to end the process
+# (Dr.Jit: "RecordThreadState::enqueue_host_func(): this function cannot be recorded!", thrown from
+# the destructor of an array that wraps NumPy memory). It killed a CI run of the suite at a test
+# that simulated after others had left such arrays in reference cycles. The child forces it: inside
+# the recording, it makes that garbage and allocates until the collector would run.
+GC_DURING_RECORDING = """
+import gc
+import numpy as np
+import drjit as dr
+import drjit.llvm as L
+from spikesim.camera import SpikeCamera
+from spikesim.simulate import Simulator
+
+class Holder:
+    pass
+
+loop = dr.while_loop
+def while_loop(*args, **kwargs):
+    h = Holder(); h.me = h; h.arr = L.Float32(np.ones(4096, np.float32)); dr.eval(h.arr)
+    del h
+    threshold = gc.get_threshold()
+    gc.set_threshold(1)
+    junk = [[] for _ in range(100)]
+    gc.set_threshold(*threshold)
+    return loop(*args, **kwargs)
+dr.while_loop = while_loop
+sim = Simulator(SpikeCamera(height=8, width=8), backend="llvm", seed=1)
+print(sum(1 for _ in sim.stream(iter(np.full((300, 8, 8), 0.2, np.float32)))))
+"""
+
+
+def test_a_garbage_collection_while_a_frozen_kernel_records_does_not_end_the_process():
+    import subprocess
+    import sys
+    from pathlib import Path
+    from sensor_testing import HAS_LLVM
+    if not HAS_LLVM:
+        pytest.skip("Dr.Jit LLVM backend unavailable")
+    repo = Path(__file__).resolve().parents[1]
+    child = subprocess.run([sys.executable, "-c", GC_DURING_RECORDING], cwd=repo, capture_output=True, text=True,
+                           timeout=300)
+    assert child.returncode == 0, child.stderr[-2000:]
+    assert int(child.stdout.split()[-1]) >= 1
