@@ -342,6 +342,9 @@ class Estimate:
     the read jobs' spread, for the unread jobs' own times and for that mean (0 where every job
     was read, or fewer than 2)."""
     unread: int = 0
+    job_seconds: tuple[tuple[str, float], ...] = ()
+    """(job name, seconds on one of `workers` workers sharing the cores) for each job; empty
+    without a calibration."""
 
     def summary(self) -> str:
         what = f"{self.renders:,} frame renders and {self.gt_renders:,} ground-truth renders"
@@ -392,7 +395,8 @@ def estimate(jobs: Sequence["SceneJob"], workers: int, device: str = "auto", cal
         # the unread jobs' total: u draws of the read jobs' spread, and u times the error of their mean
         var = float(np.var(read, ddof=1))
         spread = math.sqrt(unread * var + unread ** 2 * var / len(read)) / max(1, min(workers, len(works)))
-    return Estimate(renders, gts, seconds, workers, cal, motion_scenes, samples, spread, unread)
+    return Estimate(renders, gts, seconds, workers, cal, motion_scenes, samples, spread, unread,
+                    tuple((j.name, t) for j, t in zip(jobs, times)))
 
 
 def log_estimate(est: Estimate) -> None:

@@ -15,7 +15,7 @@ import threading
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Callable, Optional
 
 from spikesim.generation.job import run_job
 from spikesim.errors import UnavailableError
@@ -28,6 +28,9 @@ log = logging.getLogger("spikesim.generate")
 
 PR_SET_PDEATHSIG = 1  # linux/prctl.h
 PARENT_POLL_S = 1.0
+
+OnDone = Optional[Callable[[dict[str, Any]], None]]
+"""Called with each job's result (run_job's report) as it finishes, in the calling process."""
 
 _progress: Any = None
 """The worker's queue for (scene, steps done, steps total), set by `_worker_init`."""
@@ -71,10 +74,11 @@ def _run_in_worker(job: SceneJob, root: str, threads: int, device: str) -> dict[
 
 # ---- local ------------------------------------------------------------------------------------------
 def generate_local(todo: list[SceneJob], root: Path, workers: int, show_progress: bool,
-                   device: str = "auto") -> list[dict[str, Any]]:
-    """Run the jobs here: in this process with `workers` <= 1, else in a spawned process pool."""
+                   device: str = "auto", on_done: OnDone = None) -> list[dict[str, Any]]:
+    """Run the jobs here: in this process with `workers` <= 1, else in a spawned process pool;
+    `on_done(result)` as each job finishes."""
     if workers <= 1:
-        return _generate_in_process(todo, root, show_progress, device)
+        return _generate_in_process(todo, root, show_progress, device, on_done)
     import multiprocessing as mp
     ctx = mp.get_context("spawn")  # Dr.Jit / Mitsuba state must not be forked
     threads = max(1, (os.cpu_count() or 1) // workers)
@@ -98,6 +102,8 @@ def generate_local(todo: list[SceneJob], root: Path, workers: int, show_progress
                 for fut in done:
                     job = pending.pop(fut)
                     results.append(fut.result())  # re-raises a worker's error
+                    if on_done is not None:
+                        on_done(results[-1])
                     if job.name in bars:
                         bars.pop(job.name).close()
                     overall.update(1)
@@ -122,7 +128,8 @@ def _stop_workers(pool: ProcessPoolExecutor) -> None:
             pass
 
 
-def _generate_in_process(todo: list[SceneJob], root: Path, show_progress: bool, device: str) -> list[dict[str, Any]]:
+def _generate_in_process(todo: list[SceneJob], root: Path, show_progress: bool, device: str,
+                         on_done: OnDone = None) -> list[dict[str, Any]]:
     results = []
     overall = progress_bar(total=len(todo), desc="scenes", unit="scene", quiet=not show_progress)
     for job in todo:
@@ -133,6 +140,8 @@ def _generate_in_process(todo: list[SceneJob], root: Path, show_progress: bool, 
             bar.refresh()
         results.append(run_job(job, root, progress=progress, device=device))
         bar.close()
+        if on_done is not None:
+            on_done(results[-1])
         overall.update(1)
     overall.close()
     return results
@@ -169,7 +178,7 @@ def connect_ray(address: str) -> Any:
 
 
 def generate_ray(todo: list[SceneJob], root: Path, address: str, show_progress: bool,
-                 device: str = "auto") -> list[dict[str, Any]]:
+                 device: str = "auto", on_done: OnDone = None) -> list[dict[str, Any]]:
     """One Ray task per scene; `root` must be a path every node can write (a shared filesystem)."""
     ray = connect_ray(address)
     remote = ray.remote(num_cpus=1)(run_job)
@@ -182,6 +191,8 @@ def generate_ray(todo: list[SceneJob], root: Path, address: str, show_progress: 
                 refs.pop(r)
                 results.append(ray.get(r))
                 bar.update(1)
+                if on_done is not None:
+                    on_done(results[-1])
     return results
 
 

@@ -21,7 +21,7 @@ import threading
 import time
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Iterator, Sequence
+from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
 
@@ -32,6 +32,7 @@ from spikesim.dataset import (MANIFEST, META, SATURATION_WARN_FRACTION, SATURATI
                               read_manifest, remove_inside, scene_folders, scene_saturation, write_manifest)
 from spikesim.generation.inputs import changes, job_inputs, legacy_changes
 from spikesim.generation.lock import output_lock
+from spikesim.generation.pace import Pace
 from spikesim.generation.plan import SceneJob, power_label
 
 log = logging.getLogger("spikesim.generate")
@@ -333,13 +334,17 @@ def generate(jobs: list[SceneJob], root: str | Path, workers: int | None = None,
             todo, rebuilt = _jobs_to_run(jobs, root, overwrite_stale, check, listed)
             log.info("%d scene(s) planned, %d already complete, %d to generate in %s",
                      len(jobs), len(jobs) - len(todo), len(todo), root)
+            estimated: dict[str, float] = {}
             if todo and estimate_time is not False and ray_address is None:
                 from spikesim.generation.estimate import estimate
                 est = estimate(todo, local_workers(todo, workers, device), device,
                                calibrate_at=0 if estimate_time else None, sample_scenes=estimate_scenes)
                 log.info("%s", est.summary())
+                estimated = dict(est.job_seconds)
+            pace = Pace(len(todo), 1 if ray_address is not None else local_workers(todo, workers, device), estimated)
             t0 = time.perf_counter()
-            results = _run_jobs(todo, root, workers, ray_address, show_progress, device)
+            results = _run_jobs(todo, root, workers, ray_address, show_progress, device,
+                                on_done=lambda result: log.info("%s", pace.finished(result)))
             fresh = {j.name for j in todo}
             kept = {name: entries for name, entries in listed.items() if name not in fresh}
             listing = _passing_scenes(root, names, check, kept)
@@ -369,17 +374,17 @@ def local_workers(todo: Sequence[SceneJob], workers: int | None, device: str) ->
 
 
 def _run_jobs(todo: list[SceneJob], root: Path, workers: int | None, ray_address: str | None, show_progress: bool,
-              device: str) -> list[dict[str, Any]]:
-    """Run `todo` locally or on Ray; on any failure, once the local workers have ended, what the
-    unfinished jobs left behind is removed."""
+              device: str, on_done: Callable[[dict[str, Any]], None] | None = None) -> list[dict[str, Any]]:
+    """Run `todo` locally or on Ray, calling `on_done(result)` as each job finishes; on any failure,
+    once the local workers have ended, what the unfinished jobs left behind is removed."""
     if not todo:
         return []
     from spikesim.generation.pool import generate_local, generate_ray
     if ray_address is not None:  # tasks on other machines cannot be stopped from here: each cleans up itself
-        return generate_ray(todo, root, ray_address, show_progress, device)
+        return generate_ray(todo, root, ray_address, show_progress, device, on_done=on_done)
     workers = local_workers(todo, workers, device)
     try:
-        return generate_local(todo, root, workers, show_progress, device)
+        return generate_local(todo, root, workers, show_progress, device, on_done=on_done)
     except BaseException:
         _remove_debris(root, [j for j in todo if not (root / j.name).exists()])
         raise
