@@ -18,7 +18,8 @@ def test_the_time_left_is_the_estimates_remaining_work_at_the_measured_pace():
     # 1.5x the estimate so far: (50 + 200 + 100) x 1.5 over 2 workers
     assert pace.left_s() == pytest.approx(350 * 1.5 / 2)
     assert "about 4.4 min left on 2 worker(s)" in line and "x 1.50" in line
-    pace.finished({"name": "b", "seconds": 25.0})  # (150 + 25) / (100 + 50)
+    line = pace.finished({"name": "b", "seconds": 25.0})  # (150 + 25) / (100 + 50)
+    assert "about 2.9 min left" in line  # (200 + 100) x 175 / 150 over 2 workers: 175 s
     pace.finished({"name": "c", "seconds": 200.0})
     # one scene left: it runs on one worker, whatever the count
     assert pace.left_s() == pytest.approx(100 * (375 / 350))
@@ -30,6 +31,8 @@ def test_without_an_estimate_a_scene_says_its_time_and_the_count():
     pace = Pace(total=2)
     assert pace.finished({"name": "x", "seconds": 3.25}) == "x done in 3.2 s; 1 of 2 scene(s) done"
     assert pace.left_s() is None
+    short = Pace(total=2, estimated_s={"a": 10.0, "b": 20.0})
+    assert "about 20 s left" in short.finished({"name": "a", "seconds": 10.0})  # under a minute: seconds
     with pytest.raises(ValueError, match="workers 0"):
         Pace(total=1, workers=0)
 
@@ -43,4 +46,4 @@ def test_generate_logs_each_finished_scene_with_the_estimates_figure(tmp_path, c
     done = [r.getMessage() for r in caplog.records if " done in " in r.getMessage()]
     assert sorted(m.split()[0] for m in done) == ["rllr_0000", "rllr_0001"]
     assert all("(estimated " in m for m in done)
-    assert done[-1].endswith("2 of 2 scene(s) done") and "min left" in done[0]
+    assert done[-1].endswith("2 of 2 scene(s) done") and " left on " in done[0]

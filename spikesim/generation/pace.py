@@ -45,7 +45,8 @@ class Pace:
         line += f"; {self.done} of {self.total} scene(s) done"
         left = self.left_s()
         if left is not None and self.done < self.total:
-            line += (f"; about {left / 60:.1f} min left on {self.workers} worker(s) at the pace so far "
+            when = f"{left / 60:.1f} min" if left >= 60 else f"{left:.0f} s"
+            line += (f"; about {when} left on {self.workers} worker(s) at the pace so far "
                      f"(the estimate's remaining work x {self.measured_s / self.predicted_s:.2f})")
         return line
 
