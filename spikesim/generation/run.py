@@ -335,13 +335,14 @@ def generate(jobs: list[SceneJob], root: str | Path, workers: int | None = None,
             log.info("%d scene(s) planned, %d already complete, %d to generate in %s",
                      len(jobs), len(jobs) - len(todo), len(todo), root)
             estimated: dict[str, float] = {}
+            processes = 1 if ray_address is not None else local_workers(todo, workers, device)
             if todo and estimate_time is not False and ray_address is None:
                 from spikesim.generation.estimate import estimate
-                est = estimate(todo, local_workers(todo, workers, device), device,
+                est = estimate(todo, processes, device,
                                calibrate_at=0 if estimate_time else None, sample_scenes=estimate_scenes)
                 log.info("%s", est.summary())
                 estimated = dict(est.job_seconds)
-            pace = Pace(len(todo), 1 if ray_address is not None else local_workers(todo, workers, device), estimated)
+            pace = Pace(len(todo), processes, estimated)
             t0 = time.perf_counter()
             results = _run_jobs(todo, root, workers, ray_address, show_progress, device,
                                 on_done=lambda result: log.info("%s", pace.finished(result)))
