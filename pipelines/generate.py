@@ -203,11 +203,16 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--count", type=positive_int, help="RLLR scenes (default: the preset's)")
     p.add_argument("--darkening", choices=DARKENINGS,
                    help="how each RLLR scene's light power factor is drawn: uniform in (0, 1) (the paper's, the "
-                        f"default) or log-uniform in [{LOG_DARKENING_MIN}, 1) (as many scenes per decade of light)")
+                        f"default), log-uniform in [{LOG_DARKENING_MIN}, 1) (as many scenes per decade of light) or none "
+                        "(factor 1: test pairs)")
     p.add_argument("--content", choices=CONTENTS,
                    help="what RLLR's random scenes are made of: procedural (value noise, stripes, checkers, discs; "
                         "30-250 lx lamps; the default, the first shipped model's data) or natural (dead-leaves "
-                        "textures, package photographs, image-textured cards, camera pans and shake; 20-1000 lx lamps)")
+                        "textures, package photographs, image-textured cards, camera pans and shake; 20-1000 lx lamps), photo (a "
+                        "photograph filling the frame, the camera panning across it, objects crossing in front, as in "
+                        "a video; computed, not rendered: exact ground truth, seconds per scene) or reds-like (test "
+                        "pairs as Spk2ImgNet's simulator makes REDS data, pictures no training scene uses; with "
+                        "--darkening none --camera noiseless)")
     p.add_argument("--scales", type=_pixel_scale, nargs="+", metavar="S",
                    help="RLLR pixel scales: each scene is rendered at one of them, drawn at random, times the preset's "
                         "height and width with the same field of view (e.g. 1 0.5 0.25; default 1)")

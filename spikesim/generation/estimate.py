@@ -35,6 +35,7 @@ from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
+from spikesim.generation.plan import UNRENDERED_SOURCES
 from spikesim.keyframes import keyframe_count
 
 if TYPE_CHECKING:
@@ -118,7 +119,7 @@ def planned_work(job: "SceneJob") -> PlannedWork:
     """The renders a job will make (frames at its keyframe spacing, ground truth), as run_job
     counts them; a built-in pattern renders nothing."""
     pixels = int(job.camera["height"]) * int(job.camera["width"])
-    if job.source.get("type") == "pattern":
+    if job.source.get("type") in UNRENDERED_SOURCES:
         return PlannedWork(job.name, 0, 0, 0, 0, pixels, job.num_steps)
     spp, gt_spp = _render_spp(job)
     return PlannedWork(job.name, keyframe_count(job.num_steps, job.keyframe_every), len(job.gt_steps), spp, gt_spp,
@@ -127,7 +128,7 @@ def planned_work(job: "SceneJob") -> PlannedWork:
 
 def adaptive_policy(job: "SceneJob") -> Any:
     """The job's adaptive keyframe policy, or None where it renders at a fixed spacing."""
-    if job.quality is None or job.source.get("type") == "pattern":
+    if job.quality is None or job.source.get("type") in UNRENDERED_SOURCES:
         return None
     from spikesim.quality import QualitySettings
     q = QualitySettings.from_name(job.quality)
@@ -161,7 +162,7 @@ def gt_render_count(renderer: Any, job: "SceneJob") -> int:
 
 def sample_rule(job: "SceneJob") -> Any:
     """The job's quality when it chooses its samples per scene (`sample_rule`), else None."""
-    if job.quality is None or job.source.get("type") == "pattern":
+    if job.quality is None or job.source.get("type") in UNRENDERED_SOURCES:
         return None
     from spikesim.quality import QualitySettings
     q = QualitySettings.from_name(job.quality)
@@ -206,7 +207,7 @@ def with_motion_plans(jobs: Sequence["SceneJob"], works: list[PlannedWork], devi
     import dataclasses
 
     from spikesim.generation.job import sample_rule_choice
-    rendered = [i for i, j in enumerate(jobs) if works[i].frame_renders and j.source.get("type") != "pattern"]
+    rendered = [i for i, j in enumerate(jobs) if works[i].frame_renders and j.source.get("type") not in UNRENDERED_SOURCES]
     knobs: dict[str, tuple[int, int]] = {}  # sample-rule jobs read: (spp, gt_spp) by motion key
 
     def read(job: "SceneJob", spp: int) -> tuple[int, float | None, int] | None:

@@ -112,10 +112,15 @@ def job_inputs(source: dict[str, Any], quality: str | None = None) -> list[JobIn
     elif kind == "random":
         from scenes.random_scene import GENERATOR_VERSION
         out = [JobInput("scenes/random_scene.py", "generator", f"version {GENERATOR_VERSION}")]
+    elif kind == "photo":
+        from scenes.natural_textures import photo_version
+        from scenes.photo_pan import PHOTO_PAN_VERSION
+        out = [JobInput("scenes/photo_pan.py", "generator",
+                        f"version {PHOTO_PAN_VERSION}, scikit-image {photo_version()}")]
     elif kind == "pattern":
         out = []
     else:
-        raise ValueError(f"job source type {kind!r}; expected 'scene', 'random' or 'pattern'")
+        raise ValueError(f"job source type {kind!r}; expected 'scene', 'random', 'photo' or 'pattern'")
     return [*out, *([quality_input(quality)] if quality is not None else []), code_input()]
 
 

@@ -54,6 +54,12 @@ class _FrameSource:
                                           seed=int(src.get("pattern_seed", job.seed)),
                                           readout_period_s=job.camera["readout_period_s"])
             self._renderer = None
+        elif src["type"] == "photo":
+            from scenes.photo_pan import PhotoPan
+            self._pattern = PhotoPan(height=h, width=w, num_steps=int(job.num_steps), seed=int(src["scene_seed"]),
+                                     peak_y=float(src["peak_y"]), photo_set=str(src.get("photo_set", "train")),
+                                     encoding=str(src.get("encoding", "linear")))
+            self._renderer = None
         else:
             from spikesim.camera import SpikeCamera
             from spikesim.render import SceneRenderer
@@ -129,7 +135,8 @@ class _FrameSource:
         """The source's record, its light as the job renders it: photometric amounts (lux, lumens,
         candela, power) scaled by the light power factor, like the frames."""
         if self._renderer is None:
-            return {"pattern": dataclasses.asdict(self._pattern)}
+            describe = getattr(self._pattern, "describe", None)
+            return describe() if describe is not None else {"pattern": dataclasses.asdict(self._pattern)}
         out = self._renderer.describe()
         if getattr(self, "_content", None) is not None:  # a natural scene: its textures' sources and licences
             import json

@@ -20,6 +20,9 @@ from spikesim.dataset import check_scene_name
 from spikesim.render_settings import HoldsRenderSettings, RenderSettings, check_samples
 
 WINDOW = 41  # the reconstruction window (paper, section "Implementation Details")
+#: Job sources whose frames are computed, not rendered: the built-in pattern and the photo scenes
+#: (scenes/photo_pan.py). They have no samples per pixel, no render time and no quality rule.
+UNRENDERED_SOURCES = ("pattern", "photo")
 
 
 # ---- presets --------------------------------------------------------------------------------------
@@ -84,6 +87,8 @@ class SceneJob:
     source: dict[str, Any]
     """{"type": "scene", "scene": name-or-xml, "motion": path|None, "lights": path|None, "light": str}
     or {"type": "pattern", "peak_y": float} (the built-in pattern, no renderer)
+    or {"type": "photo", "index": int, "scene_seed": int, "peak_y": float, "photo_set": str,
+    "encoding": str} (a video-like photo scene, scenes/photo_pan.py, no renderer)
     or {"type": "random", "index": int, "scene_seed": int, "lamps_lux": [lo, hi]} (an RLLR random
     scene, built from the seed; lamps_lux absent: the range before the saturation study)."""
     camera: dict[str, Any]
@@ -121,7 +126,7 @@ class SceneJob:
             QualitySettings.from_name(self.quality)  # validates the name
         try:  # the checks every render setting gets, before any folder is locked or worker started
             settings = RenderSettings.from_dict({**self.render, "keyframe_every": self.keyframe_every})
-            if self.source.get("type") != "pattern":
+            if self.source.get("type") not in UNRENDERED_SOURCES:
                 for what in ("spp", "gt_spp"):
                     check_samples(getattr(settings, what), self.camera["height"], self.camera["width"], what)
         except (TypeError, ValueError) as exc:
@@ -224,8 +229,9 @@ def plan_llr(preset: Preset, seed: int = 0, camera: Any | None = None, scenes: l
 #: How RLLR draws each scene's darkening factor: "uniform" in (0, 1) (the paper's), or
 #: "log-uniform" in [LOG_DARKENING_MIN, 1), which puts as many scenes in each decade of light as in
 #: the brightest: with the 30-250 lx lamps, 0.15-250 lx at the subject instead of a 10 % chance of
-#: going below 25 lx (what a budgeted model needs to see of the low light it is judged on).
-DARKENINGS = ("uniform", "log-uniform")
+#: going below 25 lx (what a budgeted model needs to see of the low light it is judged on); or
+#: "none" (factor 1: test pairs made as another simulator makes them, content "reds-like").
+DARKENINGS = ("uniform", "log-uniform", "none")
 LOG_DARKENING_MIN = 0.005
 
 
@@ -233,6 +239,8 @@ def darkening_factor(rng: np.random.Generator, darkening: str = "uniform") -> fl
     """One RLLR scene's light power factor (DARKENINGS)."""
     if darkening == "log-uniform":
         return float(10.0 ** rng.uniform(np.log10(LOG_DARKENING_MIN), 0.0))
+    if darkening == "none":
+        return 1.0
     if darkening != "uniform":
         raise ValueError(f"darkening={darkening!r}; expected one of {DARKENINGS}")
     factor = float(rng.uniform(0.0, 1.0))
@@ -251,8 +259,15 @@ def rllr_gt_steps(num_steps: int, stride: int) -> tuple[int, ...]:
 
 #: What RLLR's random scenes are made of: "procedural" (scenes/random_scene.py, value noise,
 #: stripes, checkers and discs at 30-250 lx; the content of the first shipped model) or "natural"
-#: (scenes/natural_scene.py: dead leaves and package photographs, camera motion, 20-1000 lx).
-CONTENTS = ("procedural", "natural")
+#: (scenes/natural_scene.py: dead leaves and package photographs, camera motion, 20-1000 lx) or
+#: "photo" (scenes/photo_pan.py: a photograph filling the frame, the camera panning across it and
+#: objects crossing in front, as a video frame is; computed, not rendered, so exact ground truth).
+CONTENTS = ("procedural", "natural", "photo", "reds-like")
+#: "reds-like": test pairs made the way Spk2ImgNet's simulator makes its REDS data (the shared
+#: sample's conventions, docs/model.md): photo scenes of pictures no training scene uses
+#: (scenes/photo_pan.HELD_OUT_PHOTOS), the picture's 8-bit grey value as intensity, y = 0.6 x
+#: intensity (REDS_LIKE_PEAK_Y); give it `--darkening none --camera noiseless`.
+REDS_LIKE_PEAK_Y = 0.6
 #: The smallest side of a scene at a reduced pixel scale: the training crop (32) must fit.
 MIN_SCALED_SIDE = 32
 
@@ -312,13 +327,20 @@ def plan_rllr(preset: Preset, seed: int = 0, camera: Any | None = None, count: i
         s = scene_seed(seed, name, source)
         if source != "random":
             src = {"type": "pattern", "peak_y": 0.3, "pattern_seed": s}
+        elif content == "photo":
+            from scenes.photo_pan import PHOTO_PEAK_Y
+            src = {"type": "photo", "index": i, "scene_seed": s, "peak_y": PHOTO_PEAK_Y, "photo_set": "train",
+                   "encoding": "linear"}
+        elif content == "reds-like":
+            src = {"type": "photo", "index": i, "scene_seed": s, "peak_y": REDS_LIKE_PEAK_Y, "photo_set": "heldout",
+                   "encoding": "srgb"}
         elif content == "natural":
             from scenes.natural_scene import NATURAL_LAMPS_LUX
             src = {"type": "random", "index": i, "scene_seed": s, "lamps_lux": list(NATURAL_LAMPS_LUX),
                    "content": "natural"}
         else:
             src = {"type": "random", "index": i, "scene_seed": s, "lamps_lux": list(LAMPS_LUX)}
-        if lamps_lux is not None:
+        if lamps_lux is not None and src["type"] != "photo":
             src["lamps_lux"] = [float(v) for v in lamps_lux]
         scale = scales[0] if len(scales) == 1 else float(scale_rng.choice(scales))
         h, w = scaled_size(preset.height, preset.width, scale)
@@ -329,7 +351,7 @@ def plan_rllr(preset: Preset, seed: int = 0, camera: Any | None = None, count: i
         jobs.append(SceneJob(name=name, source=src, camera=cam,
                              render=render, num_steps=preset.rllr_steps, gt_steps=gt,
                              light_power_factor=factor, seed=s, keyframe_every=preset.keyframe_every,
-                             quality=quality if source == "random" else None))
+                             quality=quality if src["type"] not in UNRENDERED_SOURCES else None))
     return jobs
 
 
