@@ -20,7 +20,7 @@ from .lrrep import build_representation
 from .pcd import PCDAlign
 from .published_reps import PUBLISHED_REPS, published_input_map
 from .registry import ARCH_REGISTRY
-from .representations import (LastSpike, NextSpike, gisi, lisi_windows, tfi_windows, tfp_windows,
+from .representations import (LastSpike, NextSpike, gisi, lisi_windows, tfi, tfi_windows, tfp_windows,
                               transform_interval)
 
 
@@ -40,7 +40,9 @@ class ReconNet(nn.Module):
         self.align = PCDAlign(c, cfg.deform_groups, cfg.deform_backend) if cfg.aif else None
         self.fuse_forward = nn.Sequential(conv_lrelu(2 * c, c), residual_stack(c, nb))
         self.fuse_backward = nn.Sequential(conv_lrelu(2 * c, c), residual_stack(c, nb))
-        self.head = nn.Sequential(double_conv(2 * c, c, mid_ch=2 * c), conv3x3(c, 1))
+        self.head = nn.Sequential(double_conv(2 * c, c, mid_ch=2 * c), conv3x3(c, head_channels(cfg)))
+        if cfg.output == "refine":
+            init_refine_gates(self.head[-1])
 
     # ---- inputs ---------------------------------------------------------------------------
     def input_maps(self, spikes: torch.Tensor, first_step: int = 0, last: LastSpike | None = None,
@@ -88,9 +90,15 @@ class ReconNet(nn.Module):
         x = feat + self.align(state, feat) if self.align is not None else feat
         return fuse(torch.cat([x, state], 1))
 
-    def decode(self, fwd: torch.Tensor, bwd: torch.Tensor) -> torch.Tensor:
-        """Y = c([Ff, Fb]) -> (N, H, W)."""
-        return self.head(torch.cat([fwd, bwd], 1)).squeeze(1)
+    def decode(self, fwd: torch.Tensor, bwd: torch.Tensor, window: torch.Tensor | None = None) -> torch.Tensor:
+        """Y = c([Ff, Fb]) -> (N, H, W); with output "refine", the head's gates blend its frame with
+        the classic estimates of `window` (N, T, H, W), the window's own (padded) spikes."""
+        out = self.head(torch.cat([fwd, bwd], 1))
+        if self.cfg.output == "direct":
+            return out.squeeze(1)
+        if window is None:
+            raise ValueError("model.output 'refine' decodes a window with its spikes: pass window=")
+        return refine(out, window)
 
     # ---- whole sequence ---------------------------------------------------------------------
     def forward(self, spikes: torch.Tensor, maps: torch.Tensor | None = None) -> torch.Tensor:
@@ -122,8 +130,66 @@ class ReconNet(nn.Module):
         state = None
         for i in range(k - 1, -1, -1):
             state = self.step(feats[:, i], state, backward=True)
-            out[i] = self.decode(fwd[i], state)
+            out[i] = self.decode(fwd[i], state, x[:, i] if self.cfg.output == "refine" else None)
         return torch.stack(out, 1)[..., :h, :w]
+
+
+# ---- the refining output ------------------------------------------------------------------------
+#: The refining head's gate towards the classic estimate starts at sigmoid(-6) = 0.25 %: a network
+#: widened from "direct" weights (widen_direct_state) starts as that network, within 0.25 % of it.
+REFINE_GATE_BIAS = -6.0
+
+
+def head_channels(cfg: ModelConfig) -> int:
+    """The head's output channels: the frame, and for "refine" the two gates (classic vs network,
+    TFP vs TFI)."""
+    return 1 if cfg.output == "direct" else 3
+
+
+def init_refine_gates(last: nn.Conv2d) -> None:
+    """Gates start closed towards the classic estimate (REFINE_GATE_BIAS) and even between TFP and
+    TFI, with zero weights: the frame channel alone decides the first output."""
+    with torch.no_grad():
+        last.weight[1:].zero_()
+        last.bias[1] = REFINE_GATE_BIAS
+        last.bias[2] = 0.0
+
+
+def classic_estimates(window: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(TFP, TFI) of each window, (N, H, W), from its spikes (N, T, H, W) 0/1."""
+    return window.mean(dim=1), tfi(window != 0)
+
+
+def refine(head_out: torch.Tensor, window: torch.Tensor) -> torch.Tensor:
+    """Y = g * (m * TFP + (1 - m) * TFI) + (1 - g) * N, with (N, g, m) the head's three channels
+    (gates through a sigmoid). Why: a small network that must rebuild a window average from its
+    features loses to that average wherever it is already right (bright light, slow motion); with
+    the average as an input to its output, matching it costs one gate, and the network's capacity
+    goes to what the average gets wrong."""
+    net, gate, mix = head_out[:, 0], torch.sigmoid(head_out[:, 1].float()), torch.sigmoid(head_out[:, 2].float())
+    tfp_map, tfi_map = classic_estimates(window)
+    classic = mix * tfp_map + (1 - mix) * tfi_map
+    return gate * classic + (1 - gate) * net.float()
+
+
+def widen_direct_state(state: dict[str, torch.Tensor], cfg: ModelConfig) -> dict[str, torch.Tensor]:
+    """The weights of a "direct" network as a "refine" one of the same config: the head's last conv
+    gains the two gate channels (init_refine_gates), everything else is kept. Fine-tuning from the
+    shipped weights so starts within REFINE_GATE_BIAS's 0.25 % of that network."""
+    if cfg.output != "refine":
+        raise ValueError(f"widen_direct_state makes a 'refine' network's weights; the config's output is {cfg.output!r}")
+    keys = [k for k in state if k.startswith("head.") and k.endswith(".weight")]
+    last = max(keys, key=lambda k: int(k.split(".")[1]))
+    prefix = last[: -len("weight")]
+    w, b = state[prefix + "weight"], state[prefix + "bias"]
+    if w.shape[0] != 1:
+        raise ValueError(f"the weights' head gives {w.shape[0]} channels; a 'direct' network's gives 1")
+    conv = nn.Conv2d(w.shape[1], 3, 3, padding=1)
+    with torch.no_grad():
+        conv.weight[:1] = w
+        conv.bias[:1] = b
+    init_refine_gates(conv)
+    return {**state, prefix + "weight": conv.weight.detach().clone(), prefix + "bias": conv.bias.detach().clone()}
 
 
 @ARCH_REGISTRY.register("lrrep_bidirectional")

@@ -21,6 +21,7 @@ CONFIG_DIR = resources.files(__package__) / "configs"  # the named configs, ship
 REPRESENTATIONS = ("lr_rep", "spike", "tfp", "tfi", "ast", "amim", "sali", "wgse1d")
 INTERVALS = ("gisi", "lisi")
 LR_SCHEDULES = ("multistep", "cosine")
+OUTPUTS = ("direct", "refine")
 DEFORM_BACKENDS = ("auto", "torch", "torchvision")
 
 
@@ -69,6 +70,10 @@ class ModelConfig:
     adf: adjacent deep temporal features, i.e. the recurrent state carried between windows; off,
       each window is fused with a zero state (same weights, no propagation).
     aif: PCD alignment of the carried state (needs adf).
+    output: "direct" (the paper's: the head's one channel is the frame) or "refine" (the head also
+      gives two per-pixel gates, and the frame is g * classic + (1 - g) * network, classic = m * TFP
+      + (1 - m) * TFI of the window itself: a plain window average costs the network nothing to
+      reproduce where it is right; model/arch.py, RefineHead).
     """
 
     arch: str = "lrrep_bidirectional"
@@ -83,8 +88,10 @@ class ModelConfig:
     deform_groups: int = 8
     deform_backend: str = "auto"
     pad_multiple: int = 4
+    output: str = "direct"
 
     def __post_init__(self) -> None:
+        _require(self.output in OUTPUTS, f"model.output must be one of {OUTPUTS}, got {self.output!r}")
         _require(_int_in(self.window, 1, MAX_WINDOW) and self.window % 2 == 1,
                  f"model.window must be an odd integer in 1..{MAX_WINDOW} (2*dt+1), got {self.window!r}")
         _require(_int_in(self.num_features, 1, MAX_FEATURES),

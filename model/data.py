@@ -35,8 +35,23 @@ class Scene(Protocol):
     def ground_truth(self, step: int) -> np.ndarray: ...
 
 
-def open_scenes(root: str | Path) -> list[Scene]:
-    """All scenes of a dataset root, through the lead's spikesim.dataset.open_dataset."""
+def open_scenes(root: str | Path | Sequence[str | Path]) -> list[Scene]:
+    """All scenes of a dataset root, through spikesim.dataset.open_dataset; of several roots (a list,
+    or one text `ROOT+ROOT...` where no such path exists: what `--data` and `--test-data` take), all
+    of theirs, each named `<root folder>:<scene>` so that two datasets' `rllr_0000` stay apart."""
+    if isinstance(root, (str, Path)) and "+" in str(root) and not Path(root).exists():
+        root = [part for part in str(root).split("+") if part]
+    if not isinstance(root, (str, Path)):
+        roots = [Path(r) for r in root]
+        if len(roots) == 1:
+            return open_scenes(roots[0])
+        if not roots:
+            raise ValueError("no dataset root given")
+        folders = [r.resolve().name for r in roots]
+        if len(set(folders)) != len(folders) or len(set(r.resolve() for r in roots)) != len(roots):
+            raise ValueError(f"dataset roots {[str(r) for r in roots]}: each must be given once, and their folders "
+                             "must have different names (they prefix the scenes' names)")
+        return [RenamedScene(sc, f"{folder}:{sc.name}") for r, folder in zip(roots, folders) for sc in open_scenes(r)]
     try:
         from spikesim.dataset import open_dataset
     except ImportError as e:
@@ -45,6 +60,18 @@ def open_scenes(root: str | Path) -> list[Scene]:
     if not scenes:
         raise ValueError(f"dataset {root} has no scenes")
     return scenes
+
+
+class RenamedScene:
+    """A scene under another name (open_scenes of several roots); everything else is the scene's."""
+
+    def __init__(self, scene: Scene, name: str) -> None:
+        self._scene, self.name = scene, name
+
+    def __getattr__(self, attr: str) -> Any:
+        if attr == "_scene":  # not yet set (unpickling): no recursion
+            raise AttributeError(attr)
+        return getattr(self._scene, attr)
 
 
 def sequence_starts(scene: Scene, window: int, num_windows: int, stride: int = 1) -> list[int]:

@@ -183,7 +183,8 @@ def stream_reconstruct(model: ReconNet | PublishedNet, source: WindowSource, chu
                 bwd[i] = sb
             for i in range(n):
                 state_f = model.step(feats[i], state_f, backward=False)
-                y = model.decode(state_f, bwd[i])[0, :h, :w]
+                window = model.pad(spk[:, i].to(torch.float32)) if model.cfg.output == "refine" else None
+                y = model.decode(state_f, bwd[i], window)[0, :h, :w]
                 yield starts[c] + i, y.float().cpu()
             del feats, bwd
 

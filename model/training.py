@@ -350,12 +350,18 @@ def initial_weights(spec: str, experiment: ExperimentConfig) -> tuple[dict[str, 
     path = pretrained_path(spec) if spec in PRETRAINED else Path(spec)
     state = load_checkpoint(path)
     source = ExperimentConfig.from_dict(state["experiment"], where=f"{path} experiment").model
+    weights = state["model_state"]
+    if source.output == "direct" and experiment.model.output == "refine" \
+            and dataclasses.replace(source, output="refine") == experiment.model:
+        from .arch import widen_direct_state  # the same network with the refining head: start as it was
+        weights = widen_direct_state(weights, experiment.model)
+        source = experiment.model
     if source != experiment.model:
         differ = [f"{k} {getattr(source, k)!r} -> {getattr(experiment.model, k)!r}"
                   for k in source.to_dict() if getattr(source, k) != getattr(experiment.model, k)]
         raise ValueError(f"--init {spec}: its network is not the config's ({', '.join(differ)}); fine-tuning needs "
                          "the same model section")
-    return state["model_state"], {"spec": spec, "path": str(path), "weights_sha256": state_fingerprint(state["model_state"])}
+    return weights, {"spec": spec, "path": str(path), "weights_sha256": state_fingerprint(state["model_state"])}
 
 
 def _build_run(experiment: ExperimentConfig, dev: torch.device, dist: _Distributed,

@@ -65,8 +65,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                               description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--config", default="full",
                    help=f"named config ({', '.join(available_configs())}) or a JSON file (default: full)")
-    p.add_argument("--data", required=True, help="dataset root (project layout: manifest.json, <scene>/...)")
-    p.add_argument("--val-data", help="separate validation dataset root (default: split --data by scene)")
+    p.add_argument("--data", required=True, nargs="+", metavar="ROOT",
+                   help="dataset root (project layout: manifest.json, <scene>/...); several roots train on all their "
+                        "scenes, named <root folder>:<scene>")
+    p.add_argument("--val-data", nargs="+", metavar="ROOT",
+                   help="separate validation dataset root(s) (default: split --data by scene)")
     p.add_argument("-o", "--out", help="run folder (default: runs/<config name>)")
     resume = p.add_mutually_exclusive_group()
     resume.add_argument("--resume", action="store_true", help="continue from <out>/last.pt")
