@@ -16,7 +16,14 @@ Per scene (then the median and range over a dataset's scenes):
 - spectrum slope: the log-log slope of the radially averaged power spectrum of the luminance
   (scenes.natural_textures.power_spectrum_slope; photographs about -2);
 - edge density: the fraction of pixels on a Canny edge (skimage.feature.canny, sigma 1.5) of the
-  image normalised by its 99th percentile, so it does not depend on the light level.
+  image normalised by its 99th percentile, so it does not depend on the light level;
+- lit and textured: the fraction of 16 x 16 blocks whose mean is at least LIT_FRACTION_OF_P99 of
+  the image's 99th percentile and whose contrast (std / mean) is at least TEXTURED_CONTRAST: how
+  much of the frame carries structure, where a video frame is textured over its whole area and a
+  room with small objects is mostly dark or flat.
+
+A recording without ground truth (`--real DAT --height H --width W`) is measured on TFP over all
+its steps (brightness and lit-textured share include its dark current and noise: an upper bound).
 """
 from __future__ import annotations
 
@@ -38,6 +45,11 @@ FLOW_PIXELS = 0.1
 FLOW_SMOOTHING_PX = 1.5
 #: The quantile of the normal flow reported over those pixels (module docstring).
 FLOW_QUANTILE = 0.9
+#: lit_textured_fraction's block side (pixels), its "lit" level (share of the image's 99th
+#: percentile) and its "textured" contrast (std / mean inside the block).
+TEXTURE_BLOCK_PX = 16
+LIT_FRACTION_OF_P99 = 0.05
+TEXTURED_CONTRAST = 0.1
 
 
 def edge_density(y: np.ndarray, sigma: float = 1.5) -> float:
@@ -63,11 +75,24 @@ def normal_flow_px(a: np.ndarray, b: np.ndarray, steps: int) -> float:
     return float(np.quantile(np.abs(b - a)[sel] / g[sel], FLOW_QUANTILE) / steps)
 
 
+def lit_textured_fraction(y: np.ndarray, block: int = TEXTURE_BLOCK_PX) -> float:
+    """Share of whole block x block tiles that are lit and textured (module docstring)."""
+    y = np.asarray(y, np.float64)
+    h, w = (y.shape[0] // block) * block, (y.shape[1] // block) * block
+    p = float(np.percentile(y, 99))
+    if h == 0 or w == 0 or p <= 0:
+        return 0.0
+    tiles = y[:h, :w].reshape(h // block, block, w // block, block).swapaxes(1, 2).reshape(-1, block * block)
+    mean, std = tiles.mean(axis=1), tiles.std(axis=1)
+    good = (mean >= LIT_FRACTION_OF_P99 * p) & (std >= TEXTURED_CONTRAST * np.maximum(mean, 1e-12))
+    return float(good.mean())
+
+
 def image_statistics(y: np.ndarray) -> dict[str, float]:
     y = np.clip(np.asarray(y, np.float64), 0, SATURATION_Y)
     return {"mean_y": float(y.mean()), "p99_y": float(np.percentile(y, 99)),
             "spectrum_slope": power_spectrum_slope(y) if y.std() > 0 else float("nan"),
-            "edge_density": edge_density(y)}
+            "edge_density": edge_density(y), "lit_textured": lit_textured_fraction(y)}
 
 
 def scene_statistics(scene: Any, frames: int = 3) -> dict[str, Any]:
@@ -104,8 +129,28 @@ def pair_statistics(dat: Path, gt: np.ndarray, center: int, height: int | None =
     return out
 
 
+def recording_statistics(dat: Path, height: int | None = None, width: int | None = None) -> dict[str, Any]:
+    """A recording without ground truth: image statistics of TFP over all its steps, motion from
+    TFP of its first and last 41-step windows."""
+    from spikesim.stream import DatReader, stream_geometry
+
+    height, width, flip = stream_geometry(dat, height, width, None)
+    reader = DatReader(dat, height, width, flip=flip)
+    n = reader.num_steps
+    tfp_all = reader.read(0, n).unpack().mean(0).astype(np.float64)
+    out: dict[str, Any] = {**image_statistics(tfp_all), "scene": dat.stem, "size": f"{height} x {width}"}
+    if n >= 2 * WINDOW:
+        a = reader.read(0, WINDOW).unpack().mean(0).astype(np.float64)
+        b = reader.read(n - WINDOW, n).unpack().mean(0).astype(np.float64)
+        out["motion_px_per_step"] = normal_flow_px(a, b, n - WINDOW)
+        out["motion_from"] = "TFP-41 of the first and last windows"
+    else:
+        out["motion_px_per_step"], out["motion_from"] = float("nan"), "none"
+    return out
+
+
 def dataset_summary(rows: Sequence[dict[str, Any]]) -> dict[str, Any]:
-    keys = ("mean_y", "p99_y", "motion_px_per_step", "spectrum_slope", "edge_density")
+    keys = ("mean_y", "p99_y", "motion_px_per_step", "spectrum_slope", "edge_density", "lit_textured")
     out: dict[str, Any] = {"scenes": len(rows)}
     for k in keys:
         v = np.array([r[k] for r in rows], dtype=np.float64)
@@ -116,7 +161,8 @@ def dataset_summary(rows: Sequence[dict[str, Any]]) -> dict[str, Any]:
 
 def markdown(summaries: dict[str, dict[str, Any]]) -> str:
     cols = (("mean_y", "mean y", "{:.3f}"), ("p99_y", "p99 y", "{:.3f}"), ("motion_px_per_step", "motion (px/step)", "{:.3f}"),
-            ("spectrum_slope", "spectrum slope", "{:.2f}"), ("edge_density", "edge density", "{:.3f}"))
+            ("spectrum_slope", "spectrum slope", "{:.2f}"), ("edge_density", "edge density", "{:.3f}"),
+            ("lit_textured", "lit and textured", "{:.2f}"))
     lines = ["| data | scenes | " + " | ".join(c[1] for c in cols) + " |", "|---|---|" + "---|" * len(cols)]
     for name, s in summaries.items():
         cells = []
@@ -139,6 +185,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--gt", type=Path, help="its ground truth (image; with --gt-scale to y)")
     p.add_argument("--gt-scale", type=float, default=1.0, help="y per unit of the ground-truth image")
     p.add_argument("--center", type=int, help="the step of the ground truth")
+    p.add_argument("--real", type=Path, help="a recording without ground truth (measured on TFP over all its steps)")
+    p.add_argument("--height", type=int, help="the --real recording's height (default: its sidecar or 250)")
+    p.add_argument("--width", type=int, help="the --real recording's width (default: its sidecar or 400)")
     p.add_argument("--max-scenes", type=int, default=0, help="at most this many scenes per dataset (0: all)")
     p.add_argument("--json", action="store_true", help="every row and summary as JSON")
     args = p.parse_args(argv)
@@ -159,6 +208,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         row = pair_statistics(args.dat, gt, args.center)
         rows_all[str(args.dat)] = [row]
         summaries[args.dat.stem] = dataset_summary([row])
+    if args.real is not None:
+        row = recording_statistics(args.real, args.height, args.width)
+        rows_all[str(args.real)] = [row]
+        summaries[args.real.stem + " (real, TFP)"] = dataset_summary([row])
     if args.json:
         print(json.dumps({"summaries": summaries, "rows": rows_all}, indent=1))
     else:

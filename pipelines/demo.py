@@ -89,7 +89,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--out", type=output_dir, default=Path("out/demo"), help="output folder (dataset, tables, images)")
     p.add_argument("--scenes", nargs="+", type=bundled_scene, default=["fan"],
                    help="bundled scenes (ball, car, cook, fan, rotate)")
-    p.add_argument("--windows", type=positive_int, default=3, help="41-step windows per scene")
+    p.add_argument("--windows", type=positive_int, default=5,
+                   help="41-step windows per scene (default 5: the shipped network's span, so it and TFP over that "
+                        "span see every window they were made for)")
     p.add_argument("--checkpoint", type=existing_file,
                    help="also reconstruct with a trained model (a train run's best.pt)")
     p.add_argument("--no-model", action="store_true",

@@ -37,3 +37,15 @@ def test_image_statistics_and_summary():
     assert 0.7 < s["mean_y"] < 0.8
     summary = dataset_summary([{**s, "motion_px_per_step": 0.1}, {**s, "motion_px_per_step": float("nan")}])
     assert summary["motion_px_per_step"] == {"median": 0.1, "min": 0.1, "max": 0.1}
+
+
+def test_lit_textured_fraction_counts_the_textured_lit_share_of_the_frame_whatever_its_light():
+    from pipelines.content_stats import lit_textured_fraction
+    rng = np.random.default_rng(0)
+    img = np.zeros((64, 64))
+    img[:, :32] = 0.5 * (1 + 0.5 * rng.standard_normal((64, 32)))  # lit, textured: half the blocks
+    assert lit_textured_fraction(img) == pytest.approx(0.5)
+    assert lit_textured_fraction(img * 1e-3) == pytest.approx(0.5)  # no dependence on the light level
+    flat = np.full((64, 64), 0.3)
+    assert lit_textured_fraction(flat) == 0.0  # lit but flat
+    assert lit_textured_fraction(np.zeros((64, 64))) == 0.0
