@@ -641,6 +641,8 @@ def _train(experiment: ExperimentConfig, train_scenes: Sequence[Scene], val_scen
                 "budget_minutes": tc.budget_minutes, "planned_steps": None if budget is None else budget.planned_steps,
                 "out": str(out), "nothing_to_do": True}
 
+    if resume and dist.is_main:
+        print(f"[train] resuming {out / 'last.pt'} at step {step} of {last_step()}", file=sys.stderr)
     bar = progress_bar(total=_total_steps(tc, batches_per_epoch), initial=step, desc=f"train {experiment.name}",
                        unit="step", quiet=not (progress and dist.is_main))
     timer, last_loss, stopped = _Timer(), math.nan, False
@@ -707,6 +709,9 @@ def _train(experiment: ExperimentConfig, train_scenes: Sequence[Scene], val_scen
         stop.__exit__()  # the usual signal handling is back, whatever ended the loop
     bar.close()
     logs.close()
+    if stop.signal is not None and dist.is_main:
+        print(f"[train] stopped by {stop.signal} at step {step} of {last_step()}; {out / 'last.pt'} is written: "
+              f"continue with `spikesim train --resume -o {out}` and the same --data (and --val-data)", file=sys.stderr)
     fingerprint = state_fingerprint(run.model.state_dict())
     if dist.world > 1:
         import torch.distributed as tdist

@@ -39,10 +39,37 @@ def _apply_overrides(exp: ExperimentConfig, args: argparse.Namespace) -> Experim
     return dataclasses.replace(exp, train=dataclasses.replace(exp.train, **changes)) if changes else exp
 
 
+def resumed_experiment(out: Path, config: str | None) -> ExperimentConfig:
+    """The config a run in `out` was started with (its last.pt), so that `--resume` alone continues
+    the same plan: its length (max_steps, epochs, budget) included. Flags given with --resume
+    still override the fields a resumed run may change (a longer --max-steps extends it)."""
+    from model.checkpoint import load_checkpoint
+    last = out / "last.pt"
+    if not last.is_file():
+        raise FileNotFoundError(f"--resume: no checkpoint at {last} (a run folder holds last.pt from its first "
+                                "checkpoint on; start the run without --resume)")
+    state = load_checkpoint(last, "cpu")
+    try:
+        saved = ExperimentConfig.from_dict(state["experiment"], where=f"{last} experiment")
+    except (KeyError, TypeError) as exc:
+        raise ValueError(f"--resume: {last} holds no valid config ({exc})") from None
+    if config is not None and config != saved.name:
+        given = load_config(config)
+        if (given.model, given.name) != (saved.model, saved.name):
+            raise ValueError(f"--resume: {last} is a run of config {saved.name!r}, not {config!r}; drop --config "
+                             "(a resumed run takes its own) or start a new run in another --out")
+    return saved
+
+
 def cmd_train(args: argparse.Namespace) -> int:
     dev = resolve_device(args.device)  # before any work: a missing GPU is one line, not a late traceback
     set_cpu_threads(args.threads)  # before any torch work; the run log says how many and why
-    exp = _apply_overrides(load_config(args.config), args)
+    if args.resume:
+        out = Path(args.out) if args.out else Path("runs") / (args.config or "full")
+        exp = _apply_overrides(resumed_experiment(out, args.config), args)
+    else:
+        exp = _apply_overrides(load_config(args.config or "full"), args)
+        out = Path(args.out) if args.out else Path("runs") / exp.name
     resolve_precision(exp.train.precision, dev)  # bf16 on a GPU without it: one line, before any work
     scenes = open_scenes(args.data)
     if args.val_data:
@@ -50,7 +77,6 @@ def cmd_train(args: argparse.Namespace) -> int:
     else:
         train_scenes, val_scenes = split_scenes(scenes, exp.train.val_fraction, exp.train.val_scenes, exp.train.seed,
                                                 window=exp.model.window, num_windows=exp.train.num_windows)
-    out = Path(args.out) if args.out else Path("runs") / exp.name
     summary = run_training(exp, train_scenes, val_scenes, out, args.device, args.resume, progress=not args.quiet,
                            overwrite=args.overwrite, init=args.init)
     if summary.get("rank", 0) == 0:  # under torchrun one summary, rank 0's (the others hold no validation)
@@ -63,8 +89,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     """Register `train` on the CLI's subparsers."""
     p = subparsers.add_parser("train", help="train the reconstruction network",
                               description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--config", default="full",
-                   help=f"named config ({', '.join(available_configs())}) or a JSON file (default: full)")
+    p.add_argument("--config", default=None,
+                   help=f"named config ({', '.join(available_configs())}) or a JSON file (default: full; with "
+                        "--resume, the run's own, from its last.pt)")
     p.add_argument("--data", required=True, nargs="+", metavar="ROOT",
                    help="dataset root (project layout: manifest.json, <scene>/...); several roots train on all their "
                         "scenes, named <root folder>:<scene>")
@@ -72,7 +99,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                    help="separate validation dataset root(s) (default: split --data by scene)")
     p.add_argument("-o", "--out", help="run folder (default: runs/<config name>)")
     resume = p.add_mutually_exclusive_group()
-    resume.add_argument("--resume", action="store_true", help="continue from <out>/last.pt")
+    resume.add_argument("--resume", action="store_true",
+                        help="continue from <out>/last.pt with the run's own config and plan (its length, budget and "
+                             "schedule), bit for bit; the data flags must name the same data")
     resume.add_argument("--overwrite", action="store_true",
                         help="replace the run in --out (its checkpoints, logs and config); without it a folder "
                              "holding a run is refused")
