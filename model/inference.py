@@ -22,6 +22,38 @@ from .streaming import TensorWindows
 from .threads import set_cpu_threads
 
 
+def check_spike_array(spikes: Any) -> torch.Tensor:
+    """A spike stream as a bool tensor (steps, H, W): a spike array is bool or holds only 0 and 1.
+    Anything else (NaN, 0.3, 255, -1, complex numbers, an empty frame) is a ValueError that says
+    what it holds, never a plausible-looking reconstruction of it."""
+    if isinstance(spikes, torch.Tensor):
+        s = spikes.detach().cpu()
+    else:
+        try:
+            arr = np.asarray(spikes)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"spikes: not an array ({exc})") from None
+        if arr.dtype == object or arr.dtype.kind in "USV":
+            raise ValueError(f"spikes: expected a 0/1 or bool array, got dtype {arr.dtype}")
+        s = torch.as_tensor(arr.view(np.uint8) if arr.dtype == np.bool_ else arr)
+        if arr.dtype == np.bool_:
+            s = s.bool()
+    if s.dim() != 3:
+        raise ValueError(f"spikes: expected (steps, H, W), got shape {tuple(s.shape)}")
+    if min(s.shape) == 0:
+        raise ValueError(f"spikes: every side must hold at least one step or pixel, got shape {tuple(s.shape)}")
+    if s.dtype == torch.bool:
+        return s
+    if s.is_complex():
+        raise ValueError(f"spikes: expected a 0/1 or bool array, got complex values ({s.dtype})")
+    bad = ~((s == 0) | (s == 1))
+    if bool(bad.any()):
+        first = s[bad][0].item()
+        raise ValueError(f"spikes: a spike array holds only 0 and 1 (or is bool); this one holds {first!r} "
+                         f"({int(bad.sum())} value(s) that are neither, dtype {s.dtype})")
+    return s != 0
+
+
 def reconstruct(spikes: Any, method: str = "lrrep", window: int = 41, threads: int = 0, chunk: int = 8,
                 device: str = "cpu", height: int | None = None, width: int | None = None) -> np.ndarray:
     """Frames (M, H, W), float32 on the y scale (expected spikes per step), one per whole `window`-step
@@ -32,9 +64,9 @@ def reconstruct(spikes: Any, method: str = "lrrep", window: int = 41, threads: i
         from spikesim.stream import DatReader, stream_geometry
         h, w, flip = stream_geometry(spikes, height, width, None)
         spikes = DatReader(spikes, h, w, flip=flip).read().unpack()
-    s = torch.as_tensor(np.asarray(spikes) if not isinstance(spikes, torch.Tensor) else spikes)
-    if s.dim() != 3:
-        raise ValueError(f"spikes: expected (steps, H, W), got shape {tuple(s.shape)}")
+    s = check_spike_array(spikes)
+    if not (isinstance(window, int) and not isinstance(window, bool) and window >= 1 and window % 2 == 1):
+        raise ValueError(f"window: expected an odd number of steps >= 1 (41 for the shipped networks), got {window!r}")
     m = s.shape[0] // window
     if m < 1:
         raise ValueError(f"spikes: {s.shape[0]} steps hold no whole {window}-step window")
@@ -45,4 +77,4 @@ def reconstruct(spikes: Any, method: str = "lrrep", window: int = 41, threads: i
     return torch.stack([torch.as_tensor(f) for f in frames]).float().numpy()
 
 
-__all__ = ["reconstruct"]
+__all__ = ["reconstruct", "check_spike_array"]

@@ -73,6 +73,14 @@ def display_frame(y: np.ndarray, enhance: str, gamma: float, scale: float, perce
 AUTO_STRETCH_BELOW_Y = DARK_PREVIEW_Y
 
 
+def even_sides(img: np.ndarray) -> np.ndarray:
+    """The image with its last row and column repeated where a side is odd: H.264 in the yuv420p
+    pixel format every player reads takes even sides only (a 200 x 125 frame made a 0-byte MP4)."""
+    h, w = img.shape[:2]
+    pad = [(0, h % 2), (0, w % 2)] + [(0, 0)] * (img.ndim - 2)
+    return np.pad(img, pad, mode="edge") if (h % 2 or w % 2) else img
+
+
 class _Video:
     """GIF and/or MP4 written frame by frame (nothing accumulates in memory)."""
 
@@ -99,7 +107,7 @@ class _Video:
     def add(self, img: np.ndarray) -> None:
         for w, name in zip(self.writers, self.names):
             with writing(self.shown / name):
-                w.append_data(img)
+                w.append_data(even_sides(img) if name.endswith(".mp4") else img)
 
     def close(self) -> None:
         for w, name in zip(self.writers, self.names):

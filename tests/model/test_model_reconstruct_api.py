@@ -68,3 +68,38 @@ def test_span_tfp_is_the_mean_over_the_windows_in_reach_in_linear_time():
             expect = s[lo:hi + 1].float().sum(dim=(0, 1)) / ((hi - lo + 1) * 41)
             torch.testing.assert_close(frames[i], expect)
         assert Counting.reads <= (9 if 2 * (n_windows // 2) + 1 <= kept else 2 * 9)
+
+
+@pytest.mark.parametrize("bad, says", [
+    (np.full((41, 12, 12), np.nan), "nan"), (np.full((41, 12, 12), 0.3), "0.3"), (np.full((41, 12, 12), 255), "255"),
+    (-np.ones((41, 12, 12)), "-1"), (np.zeros((41, 12, 12), complex), "complex"), (np.zeros((41, 0, 12)), "side"),
+    (np.array([["a"]]), "dtype")])
+def test_only_a_spike_array_is_reconstructed(bad, says):
+    """NaN, 0.3, 255, -1 and complex inputs gave plausible frames (the code tested s != 0)."""
+    from model.inference import reconstruct
+    with pytest.raises(ValueError, match=says):
+        reconstruct(bad, method="tfp")
+
+
+def test_bool_and_01_arrays_agree_and_a_bad_window_is_named():
+    from model.inference import reconstruct
+    rng = np.random.default_rng(0)
+    spikes = rng.random((82, 12, 12)) < 0.2
+    np.testing.assert_array_equal(reconstruct(spikes, method="tfp"), reconstruct(spikes.astype(np.float32), method="tfp"))
+    for window in (0, 40, -1):
+        with pytest.raises(ValueError, match="window"):
+            reconstruct(spikes, method="tfp", window=window)
+
+
+def test_a_video_of_odd_sides_is_written_with_even_ones(tmp_path):
+    pytest.importorskip("imageio_ffmpeg")
+    import imageio.v3 as iio
+
+    from pipelines.reconstruct import _Video, even_sides
+    assert even_sides(np.zeros((125, 201), np.uint8)).shape == (126, 202)
+    v = _Video(tmp_path, 10, gif=False, mp4=True)
+    for _ in range(3):
+        v.add(np.zeros((125, 201), np.uint8))
+    v.close()
+    assert (tmp_path / "frames.mp4").stat().st_size > 0
+    assert iio.imread(tmp_path / "frames.mp4", index=0).shape[:2] == (126, 202)
