@@ -546,7 +546,12 @@ def run_training(experiment: ExperimentConfig, train_scenes: Sequence[Scene], va
     if init is not None and resume:
         raise ValueError("--init starts a run from other weights; --resume continues one from its own last.pt")
     with output_folder(out_dir):
-        return _train(experiment, train_scenes, val_scenes, out_dir, device, resume, progress, overwrite, init)
+        if int(os.environ.get("RANK", "0")) != 0:  # under torchrun rank 0 holds the folder for every rank
+            return _train(experiment, train_scenes, val_scenes, out_dir, device, resume, progress, overwrite, init)
+        from spikesim.generation.lock import output_lock
+        # two runs in one folder logged steps twice and left whichever last.pt was written last
+        with output_lock(out_dir, f"train {experiment.name} (pid {os.getpid()})", what="train run"):
+            return _train(experiment, train_scenes, val_scenes, out_dir, device, resume, progress, overwrite, init)
 
 
 def _train(experiment: ExperimentConfig, train_scenes: Sequence[Scene], val_scenes: Sequence[Scene],

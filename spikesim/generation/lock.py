@@ -1,4 +1,4 @@
-"""One `generate` run per output folder.
+"""One run per output folder: `generate`, and `train` in its run folder.
 
 Two runs writing the same folder would rebuild the same scenes and rename over each other's work.
 The first run holds an exclusive `flock` on a file inside the output root and records its pid and
@@ -32,12 +32,12 @@ def _holder(fd: int) -> str:
 
 
 @contextmanager
-def output_lock(root: str | Path, command: str) -> Iterator[Path]:
+def output_lock(root: str | Path, command: str, what: str = "generate run") -> Iterator[Path]:
     """Hold the output root's lock for the duration of the block, or raise `OutputLockedError`
     (one line: the folder and the holder's pid and command) if another process holds it."""
     root = Path(root)
     path = inside_root(root, LOCK_FILE, follow=False)
-    fd = _lock(root, path)
+    fd = _lock(root, path, what)
     try:
         os.ftruncate(fd, 0)
         os.pwrite(fd, f"pid {os.getpid()}: {' '.join(command.split())}\n".encode(), 0)
@@ -49,7 +49,7 @@ def output_lock(root: str | Path, command: str) -> Iterator[Path]:
         os.close(fd)  # closing the descriptor releases the flock
 
 
-def _lock(root: Path, path: Path) -> int:
+def _lock(root: Path, path: Path, what: str = "generate run") -> int:
     """A descriptor of the lock file at `path`, flocked, that is still the file at `path`."""
     while True:
         # no symlink and no second name (a hard link planted at the lock's name would be truncated
@@ -60,7 +60,7 @@ def _lock(root: Path, path: Path) -> int:
         except BlockingIOError:
             holder = _holder(fd)
             os.close(fd)
-            raise OutputLockedError(f"{root}: another generate run is writing here ({holder}); "
+            raise OutputLockedError(f"{root}: another {what} is writing here ({holder}); "
                                     "wait for it to finish or stop it") from None
         try:
             same = os.stat(path, follow_symlinks=False).st_ino == os.fstat(fd).st_ino

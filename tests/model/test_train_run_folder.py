@@ -1,5 +1,5 @@
-"""`spikesim train --resume` continues a run's own plan, across a process restart: a run cut by a
-signal and resumed with no flags ends at the step it planned, with the weights of a run never cut."""
+"""A run owns its folder: one run at a time (a lock), and `spikesim train --resume` continues a
+run's own plan across a process restart: a run cut by a signal and resumed with no flags ends at the step it planned, with the weights of a run never cut."""
 from __future__ import annotations
 
 import json
@@ -71,3 +71,18 @@ def test_resume_refuses_a_config_that_is_not_the_runs(dataset, tmp_path):
     assert _train(["--config", cfg, "--data", dataset, "--max-steps", 2, "-o", tmp_path / "r"]).returncode == 0
     other = _train(["--resume", "--config", "tiny", "--data", dataset, "-o", tmp_path / "r"])
     assert other.returncode != 0 and "resumecli" in other.stderr and "Traceback" not in other.stderr
+
+
+def test_a_second_run_into_a_folder_being_trained_is_refused_naming_the_holder(dataset, tmp_path):
+    """Two `train --resume -o R` at once both finished, logging steps twice."""
+    from model.config import ExperimentConfig
+    from model.data import open_scenes
+    from model.training import run_training
+    from spikesim.generation.lock import OutputLockedError, output_lock
+    exp = ExperimentConfig.from_dict({**CONFIG, "train": {**CONFIG["train"], "max_steps": 1}})
+    (tmp_path / "r").mkdir()
+    with output_lock(tmp_path / "r", "train resumecli (pid 12345)", what="train run"):
+        with pytest.raises(OutputLockedError, match="another train run .*pid 12345"):
+            run_training(exp, open_scenes(dataset), [], tmp_path / "r", device="cpu", progress=False)
+    assert run_training(exp, open_scenes(dataset), [], tmp_path / "r", device="cpu", progress=False)["steps"] == 1
+    assert not any(p.name.endswith(".lock") for p in (tmp_path / "r").iterdir())  # removed when the run ends
