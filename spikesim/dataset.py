@@ -165,9 +165,17 @@ class SceneRecord:
         return self.reader.read(start, stop).unpack()
 
     def ground_truth(self, step: int) -> np.ndarray:
+        """y at `step` (expected spikes per step); an image holding a negative or non-finite value is
+        a ValueError naming its file (light is never negative: a damaged or edited image)."""
         if int(step) not in set(self.gt_steps):
             raise KeyError(f"scene {self.name} has no ground truth at step {step}")
-        return read_exr(self.path / GT_DIR / gt_name(step))
+        path = self.path / GT_DIR / gt_name(step)
+        img = read_exr(path)
+        if not np.isfinite(img).all() or (img.size and float(img.min()) < 0):
+            bad = int((~np.isfinite(img)).sum()) + int((np.nan_to_num(img, nan=0.0) < 0).sum())
+            raise ValueError(f"{path}: {bad} ground-truth value(s) are negative or not finite (NaN or infinite); "
+                             "light is neither: the image is damaged (spikesim verify checks a dataset)")
+        return img
 
 
 class _SaturationCount:
@@ -517,19 +525,46 @@ def verify(root: str | Path, checksums: bool = True) -> list[str]:
     return check_dataset(root, checksums).problems
 
 
-def open_dataset(root: str | Path) -> list[SceneRecord]:
-    """All complete scenes under `root` (a manifest is not required to read)."""
+class DatasetDamagedError(ValueError):
+    """A dataset whose files are not the ones its manifest records (spikesim verify names each)."""
+
+
+def open_dataset(root: str | Path, checksums: bool = True) -> list[SceneRecord]:
+    """The scenes of the dataset at `root`, as its record lists them.
+
+    With a manifest (every dataset `generate` writes), only the scenes it lists are read, after
+    every listed file is checked against it: its size, and with `checksums` (the default; reading
+    a dataset once costs about what this check does) its sha256, so that a swapped stream, a swapped
+    or rewritten ground-truth image or a truncated file is refused naming the damage instead of
+    being scored or trained on. Scene folders the manifest does not list (a copy under a new name,
+    another run's scene) are not read, and a warning names them. Without a manifest (scenes written
+    by `write_scene` alone) every complete scene folder is read."""
     root = Path(root)
     if not root.is_dir():
         raise FileNotFoundError(f"dataset folder {root} does not exist")
-    scenes = [SceneRecord.open(d) for d in sorted(root.iterdir())
-              if d.is_dir() and not d.name.startswith(".") and (d / META).exists()]
+    if (root / MANIFEST).exists():
+        check = check_dataset(root, checksums)
+        if check.problems:
+            shown = "; ".join(check.problems[:4]) + (f"; and {len(check.problems) - 4} more" if len(check.problems) > 4 else "")
+            raise DatasetDamagedError(f"{root}: the dataset differs from its {MANIFEST}: {shown} (spikesim verify {root} "
+                                      "lists every problem; regenerate the damaged scenes with the same generate command)")
+        listed = sorted(read_manifest(root)["scenes"])
+        unlisted = sorted(d.name for d in root.iterdir() if d.is_dir() and not d.name.startswith(".")
+                          and d.name not in listed and (d / META).exists())
+        if unlisted:
+            import warnings
+            warnings.warn(f"{root}: scene folder(s) {', '.join(unlisted[:6])}{' ...' if len(unlisted) > 6 else ''} "
+                          f"are not in its {MANIFEST} and are not read", stacklevel=2)
+        scenes = [SceneRecord.open(root / name) for name in listed]
+    else:
+        scenes = [SceneRecord.open(d) for d in sorted(root.iterdir())
+                  if d.is_dir() and not d.name.startswith(".") and (d / META).exists()]
     if not scenes:
         raise FileNotFoundError(f"{root} holds no scene folders (each needs {META})")
     return scenes
 
 
-__all__ = ["SceneRecord", "DatasetCheck", "write_scene", "write_manifest", "read_manifest", "read_scene_checksums",
+__all__ = ["SceneRecord", "DatasetCheck", "DatasetDamagedError", "write_scene", "write_manifest", "read_manifest", "read_scene_checksums",
            "check_scene", "check_dataset", "verify", "open_dataset", "inside_root", "check_scene_name",
            "holds_only_scene_files", "scene_folders", "remove_inside", "gt_name", "MANIFEST", "SPIKES", "META", "GT_DIR",
            "CHECKSUMS", "LOCK_FILE", "SATURATION_Y", "SATURATION_WARN_FRACTION", "saturated_fraction",

@@ -329,6 +329,11 @@ def generate(jobs: list[SceneJob], root: str | Path, workers: int | None = None,
             if (root / MANIFEST).exists() or (root / MANIFEST).is_symlink():
                 previous = read_manifest(root)
                 listed = previous["scenes"]
+                was, now = previous.get("kind"), (info or {}).get("kind")
+                if listed and was is not None and now is not None and was != now:
+                    # an LLR scene added to an RLLR dataset relabelled it, and training then took test scenes
+                    raise ValueError(f"{root} is a {was} dataset ({len(listed)} scene(s)); generate {now} would add "
+                                     f"{now} scenes to it: write them to another -o")
                 if isinstance(previous.get("jobs"), dict):
                     recorded_jobs = previous["jobs"]
             todo, rebuilt = _jobs_to_run(jobs, root, overwrite_stale, check, listed)

@@ -1,0 +1,81 @@
+"""spikesim.dataset.open_dataset reads a dataset only as its manifest records it: every reader
+(evaluate, train, the demo) goes through it, so a swapped, rewritten or copied file is refused or
+left unread instead of scored or trained on."""
+from __future__ import annotations
+
+import shutil
+import warnings
+
+import numpy as np
+import pytest
+
+pytest.importorskip("OpenEXR")
+
+from spikesim.dataset import DatasetDamagedError, open_dataset, write_scene
+from spikesim.generation.plan import PRESETS, plan_llr, plan_rllr
+from spikesim.generation.run import generate
+from spikesim.stream import SpikeStream
+
+
+@pytest.fixture(scope="module")
+def pattern_dataset(tmp_path_factory):
+    root = tmp_path_factory.mktemp("ds") / "rllr"
+    generate(plan_rllr(PRESETS["small"], count=2, source="pattern"), root, workers=1, show_progress=False,
+             info={"kind": "rllr"})
+    return root
+
+
+def _copy(src, tmp_path):
+    dst = tmp_path / "copy"
+    shutil.copytree(src, dst)
+    return dst
+
+
+def test_an_intact_dataset_reads_every_listed_scene(pattern_dataset):
+    assert [s.name for s in open_dataset(pattern_dataset)] == ["rllr_0000", "rllr_0001"]
+
+
+def test_swapped_streams_are_refused_naming_the_files(pattern_dataset, tmp_path):
+    root = _copy(pattern_dataset, tmp_path)
+    a, b = root / "rllr_0000" / "spikes.dat", root / "rllr_0001" / "spikes.dat"
+    tmp = a.read_bytes()
+    a.write_bytes(b.read_bytes())
+    b.write_bytes(tmp)  # same sizes: only the sha256 tells them apart
+    with pytest.raises(DatasetDamagedError, match="rllr_0000/spikes.dat.*verify"):
+        open_dataset(root)
+    assert [s.name for s in open_dataset(root, checksums=False)] == ["rllr_0000", "rllr_0001"]  # sizes alone pass
+
+
+def test_a_truncated_file_is_refused_even_without_checksums(pattern_dataset, tmp_path):
+    root = _copy(pattern_dataset, tmp_path)
+    f = root / "rllr_0001" / "spikes.dat"
+    f.write_bytes(f.read_bytes()[:-10])
+    with pytest.raises(DatasetDamagedError, match="rllr_0001/spikes.dat"):
+        open_dataset(root, checksums=False)
+
+
+def test_a_scene_copied_under_a_new_name_is_not_read(pattern_dataset, tmp_path):
+    root = _copy(pattern_dataset, tmp_path)
+    shutil.copytree(root / "rllr_0000", root / "rllr_0000_again")
+    with pytest.warns(UserWarning, match="rllr_0000_again.*not in its manifest"):
+        scenes = open_dataset(root)
+    assert [s.name for s in scenes] == ["rllr_0000", "rllr_0001"]
+
+
+def test_negative_or_nan_ground_truth_is_refused_naming_the_image(tmp_path):
+    spikes = SpikeStream.from_bool(np.zeros((41, 8, 8), bool))
+    for value in (-0.5, np.nan):
+        root = tmp_path / f"v{value}"
+        write_scene(root, "s", spikes, {20: np.full((8, 8), value, np.float32)}, meta={})
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            (scene,) = open_dataset(root)
+        with pytest.raises(ValueError, match=r"gt/.*negative or not finite"):
+            scene.ground_truth(20)
+
+
+def test_generate_refuses_to_add_one_kind_of_dataset_to_another(pattern_dataset, tmp_path):
+    root = _copy(pattern_dataset, tmp_path)
+    jobs = plan_llr(PRESETS["small"], scenes=["fan"])
+    with pytest.raises(ValueError, match="is a rllr dataset.*another -o"):
+        generate(jobs, root, workers=1, show_progress=False, info={"kind": "llr"})
