@@ -29,6 +29,17 @@ def positive_int(text: str) -> int:
     return v
 
 
+def bounded_count(limit: int, what: str):
+    """argparse type: an integer in 1..limit (a count whose plan is held in memory at once)."""
+    def parse(text: str) -> int:
+        v = positive_int(text)
+        if v > limit:
+            raise argparse.ArgumentTypeError(f"at most {limit:,} {what}, got {text}")
+        return v
+    parse.__name__ = "count"
+    return parse
+
+
 def nonnegative_int(text: str) -> int:
     """An integer >= 0 (an index, a start step, a seed)."""
     v = _number(text, int)

@@ -10,7 +10,7 @@ import shlex
 import sys
 from pathlib import Path
 
-from pipelines.argtypes import (seed_int, add_device_argument, add_light_power_factor_argument, camera_spec, existing_file,
+from pipelines.argtypes import (seed_int, add_device_argument, bounded_count, add_light_power_factor_argument, camera_spec, existing_file,
                                 load_camera, positive_float, positive_int)
 from spikesim._drjit import resolve_device
 from spikesim.dataset import check_scene_name
@@ -190,6 +190,11 @@ def run_verify(args: argparse.Namespace) -> int:
     return status
 
 
+#: The most RLLR scenes one command plans: a thousand times the paper's 100; a plan of 10^8 scenes
+#: grew to 3.3 GB before any work.
+MAX_RLLR_SCENES = 100_000
+
+
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("generate", help="generate LLR, RLLR or a user dataset (resumable, parallel)")
     p.add_argument("kind", choices=["llr", "rllr", "scene"],
@@ -200,7 +205,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=seed_int, default=0,
                    help="dataset seed; each scene's seed derives from it, the scene's name and its light")
     p.add_argument("--scenes", nargs="+", type=_llr_scene, help="LLR scenes by name (default: the preset's)")
-    p.add_argument("--count", type=positive_int, help="RLLR scenes (default: the preset's)")
+    p.add_argument("--count", type=bounded_count(MAX_RLLR_SCENES, "scenes"),
+                   help=f"RLLR scenes (default: the preset's; at most {MAX_RLLR_SCENES:,}: every job is planned at once)")
     p.add_argument("--darkening", choices=DARKENINGS,
                    help="how each RLLR scene's light power factor is drawn: uniform in (0, 1) (the paper's, the "
                         f"default), log-uniform in [{LOG_DARKENING_MIN}, 1) (as many scenes per decade of light) or none "

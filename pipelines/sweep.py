@@ -85,12 +85,24 @@ class LevelScene:
         return self.gt[step]
 
 
+#: The light levels a sweep takes, lx at the subject: a moonless night's 1e-4 lx to 1e6 lx, ten
+#: times direct sunlight. Beyond them a scene's y scale underflows float32 to all-zero frames
+#: (--lux-min 1e-42 scored "inf" dB) or overflows it, and every frame is black or saturated anyway.
+SWEEP_LUX_RANGE = (1e-4, 1e6)
+#: Levels per sweep: each is a whole simulation and scoring of every scene.
+MAX_LEVELS = 200
+
+
 def light_levels(lux_min: float, lux_max: float, levels: int) -> np.ndarray:
     """`levels` log-spaced illuminances (lx) from lux_min to lux_max."""
+    lo, hi = SWEEP_LUX_RANGE
     if not (0 < lux_min < lux_max and math.isfinite(lux_max)):
         raise ValueError(f"light levels: expected 0 < --lux-min < --lux-max, got {lux_min} and {lux_max}")
-    if levels < 2:
-        raise ValueError(f"--levels {levels}: a sweep needs at least 2 light levels")
+    if not (lo <= lux_min and lux_max <= hi):
+        raise ValueError(f"light levels: --lux-min {lux_min:g} and --lux-max {lux_max:g} must lie in {lo:g}-{hi:g} lx "
+                         "(beyond, frames underflow or overflow float32 and every frame is black or saturated)")
+    if not 2 <= levels <= MAX_LEVELS:
+        raise ValueError(f"--levels {levels}: a sweep takes 2 to {MAX_LEVELS} light levels")
     return np.geomspace(lux_min, lux_max, levels)
 
 
@@ -282,7 +294,8 @@ def run(args: argparse.Namespace) -> int:
             plot(rows, names, saturation, writable(out, "sweep.png"),
                  f"{', '.join(r.name for r in rendered)} at {args.height} x {args.width}, {args.windows} windows")
     if args.json:
-        print(json.dumps({**record, "rows": rows}, indent=1))
+        from spikesim.config_io import standard_json
+        print(standard_json({**record, "rows": rows}, indent=1))  # no Infinity: strict JSON readers refuse it
     else:
         print(md)
         print(f"[sweep] wrote {out}/sweep.csv, sweep.md, sweep.json" + ("" if args.no_plot else ", sweep.png"),

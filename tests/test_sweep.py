@@ -101,3 +101,11 @@ def test_sweep_command_refuses_bad_input(tmp_path):
     r = subprocess.run([sys.executable, "-m", "pipelines.cli", "sweep", "--scenes", "fan", "--methods", "tfp", "tfp",
                         "-o", str(tmp_path / "x")], capture_output=True, text=True, timeout=120)
     assert r.returncode == 2 and "unique" in r.stderr
+
+
+@pytest.mark.parametrize("lo, hi, n", [(1e-300, 1.0, 3), (1e-42, 1.0, 3), (0.1, 1e300, 3), (0.1, 10.0, 1_000_000_000)])
+def test_light_levels_outside_what_float32_frames_hold_are_refused(lo, hi, n):
+    """--lux-min 1e-42 gave all-zero frames scored 'inf' dB; --levels 1e9 tried to allocate 7.45 GiB."""
+    from pipelines.sweep import light_levels
+    with pytest.raises(ValueError, match="lux|levels"):
+        light_levels(lo, hi, n)
