@@ -82,6 +82,8 @@ def _steps_done(last: Path) -> tuple[int | None, int | None]:
 #: Each run's record of what it cost: process CPU seconds and wall seconds, summed over the sessions
 #: that trained it (a resumed run adds to it), and the steps it reached.
 COMPUTE_FILE = "compute.json"
+#: The metric fields of a kept score row (model.evaluation.Score).
+SCORE_METRICS = ("psnr", "ssim", "psnr_8bit", "ssim_8bit", "psnr_norm", "ssim_norm", "psnr_aligned")
 
 
 def _process_cpu_seconds() -> float:
@@ -92,13 +94,37 @@ def _process_cpu_seconds() -> float:
     return r.ru_utime + r.ru_stime
 
 
+def _damaged(path: Path, what: str) -> None:
+    """One warning naming a kept record that is malformed: it is set aside (re-made), never trusted."""
+    import warnings
+    warnings.warn(f"{path}: {what}; it is treated as damaged and made again", stacklevel=3)
+
+
+def _finite_nonnegative(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v >= 0
+
+
 def read_compute(folder: Path) -> dict[str, Any]:
-    """A run's compute record ({} when it has none: trained before the record existed)."""
-    try:
-        data = json.loads(read_small_file(folder / COMPUTE_FILE, "a run's compute record"))
-    except (OSError, ValueError):  # none, damaged, or not a regular file (a FIFO is not read)
+    """A run's compute record ({} when it has none: trained before the record existed; {} with one
+    warning when it is malformed: "cpu_seconds": "abc" ended a comparison with a TypeError after all
+    its scoring)."""
+    path = folder / COMPUTE_FILE
+    if not path.exists():
         return {}
-    return data if isinstance(data, dict) else {}
+    try:
+        data = json.loads(read_small_file(path, "a run's compute record"))
+    except (OSError, ValueError):  # damaged, or not a regular file (a FIFO is not read)
+        _damaged(path, "not a readable JSON compute record")
+        return {}
+    ok = (isinstance(data, dict) and all(_finite_nonnegative(data.get(k, 0.0)) for k in ("cpu_seconds", "wall_seconds"))
+          and all(isinstance(data.get(k, 0), int) and not isinstance(data.get(k, 0), bool) and data.get(k, 0) >= 0
+                  for k in ("sessions", "steps"))
+          and isinstance(data.get("threads", []), list)
+          and all(isinstance(t, int) and not isinstance(t, bool) and t > 0 for t in data.get("threads", [])))
+    if not ok:
+        _damaged(path, "its fields are not the numbers a compute record holds")
+        return {}
+    return data
 
 
 def _record_compute(folder: Path, cpu_s: float, wall_s: float, steps: int, threads: int) -> None:
@@ -345,15 +371,29 @@ def _checkpoint_stamp(path: Path) -> list[Any]:
     return [st.st_size, st.st_mtime_ns]
 
 
-def _read_scores(path: Path, stamp: list[Any]) -> list[Any] | None:
+def _read_scores(path: Path, stamp: list[Any], scenes: Sequence[str] | None = None) -> list[Any] | None:
     """Cached rows of one method on one test set, None unless written for this very checkpoint."""
     from model.evaluation import Score
     try:  # a damaged cache, or one that is not a regular file (a FIFO is not read), is scored again
+        if not path.exists():
+            return None
         data = json.loads(read_small_file(path, "a score cache", limit=64 << 20))
         if data.get("checkpoint") != stamp:
             return None
-        return [Score(**{k: (math.nan if v is None else v) for k, v in row.items()}) for row in data["rows"]]
-    except (OSError, ValueError, TypeError, KeyError, AttributeError):
+        rows = [Score(**{k: (math.nan if v is None else v) for k, v in row.items()}) for row in data["rows"]]
+        for r in rows:  # every value of its type and range: an edited cache ("frames": -5, a string) is not used
+            if not (isinstance(r.scene, str) and isinstance(r.method, str) and isinstance(r.frames, int)
+                    and not isinstance(r.frames, bool) and r.frames >= 1
+                    and all(isinstance(getattr(r, m), (int, float)) and not isinstance(getattr(r, m), bool)
+                            for m in SCORE_METRICS)):
+                raise ValueError(f"row {dataclasses.asdict(r)} is not a score")
+        if not rows:
+            raise ValueError("no rows")
+        if scenes is not None and {r.scene for r in rows if not r.scene.startswith("ALL")} != set(scenes):
+            raise ValueError("its scenes are not the test set's")
+        return rows
+    except (OSError, ValueError, TypeError, KeyError, AttributeError) as exc:
+        _damaged(path, f"a malformed score cache ({str(exc)[:120]})")
         return None
 
 
@@ -412,6 +452,7 @@ def evaluate_runs(checkpoints: dict[tuple[str, int], Path], test_scenes: Sequenc
     if jobs > 1 and test_root is None:
         raise ValueError("evaluate_runs: jobs > 1 needs test_root (each worker process opens the test data)")
     test_id = data_identity(test_scenes, [])
+    scene_names = [s.name for s in test_scenes]
     data: Any = test_root if jobs > 1 else test_scenes
     cached: dict[str, list[Any]] = {}
     tasks: list[EvalTask] = []
@@ -420,7 +461,7 @@ def evaluate_runs(checkpoints: dict[tuple[str, int], Path], test_scenes: Sequenc
         name = baseline_label(b, window)
         names.append(name)
         cache = writable(out, _scores_file(f"{test_id}-{name}")) if out is not None else None
-        rows = _read_scores(cache, ["baseline", b]) if cache is not None else None
+        rows = _read_scores(cache, ["baseline", b], scene_names) if cache is not None else None
         if rows is not None:
             cached[name] = rows
         else:
@@ -429,7 +470,7 @@ def evaluate_runs(checkpoints: dict[tuple[str, int], Path], test_scenes: Sequenc
         name = run_name(label, seed)
         names.append(name)
         cache = writable(path.parent, _scores_file(test_id)) if out is not None else None
-        rows = _read_scores(cache, _checkpoint_stamp(path)) if cache is not None else None
+        rows = _read_scores(cache, _checkpoint_stamp(path), scene_names) if cache is not None else None
         if rows is not None:
             cached[name] = [dataclasses.replace(r, method=name) for r in rows]
         else:
