@@ -103,7 +103,7 @@ def config_file(text: str) -> Path:
 
 
 def camera_spec(text: str) -> str | Path:
-    """--camera: a built-in camera (realistic, measured, noiseless) or a JSON/TOML camera config file."""
+    """--camera: a built-in camera (realistic, measured, noiseless, scsim) or a JSON/TOML camera config file."""
     return text if text in CAMERA_PRESETS else config_file(text)
 
 

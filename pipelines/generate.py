@@ -243,7 +243,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "the preset's RLLR stride)")
     p.add_argument("--gt-spp", type=positive_int, help="samples per pixel of a ground-truth image, spread over its motion-blur sub-step renders")
     p.add_argument("--camera", type=camera_spec,
-                   help="realistic, measured (with the terms measured on a real recording), noiseless or a JSON/TOML camera file (default: realistic); a file's height and "
+                   help="realistic, measured (with the terms measured on a real recording), noiseless, scsim (SCSim's constants) or a JSON/TOML camera file (default: realistic); a file's height and "
                         "width are used above the preset and a scene's film, below --render-settings and the flags")
     p.add_argument("--render-settings", type=existing_file, metavar="FILE",
                    help="JSON/TOML file of render settings (spp, gt_spp, variant, keyframe_every, resolution); "

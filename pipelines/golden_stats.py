@@ -155,7 +155,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("golden", help="check a camera's spike statistics against a stored reference",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--camera", type=camera_spec, default="realistic",
-                   help="realistic, measured, noiseless or a JSON/TOML camera file (spikesim.camera.SpikeCamera fields)")
+                   help="realistic, measured, noiseless, scsim or a JSON/TOML camera file (spikesim.camera.SpikeCamera fields)")
     p.add_argument("--reference", type=existing_file,
                    help=f"reference to compare with (default: the project's, {golden.PACKAGED_REFERENCE.name})")
     p.add_argument("--backend", default="numpy", choices=["numpy", "llvm", "cuda", "auto"],

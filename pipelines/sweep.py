@@ -323,7 +323,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--spp", type=positive_int, default=2, help="samples per pixel of each step's render (2)")
     p.add_argument("--gt-spp", type=positive_int, default=32, help="samples per pixel of the ground truth (32)")
     p.add_argument("--camera", type=camera_spec, default="realistic",
-                   help="realistic, measured, noiseless or a camera file (default: realistic)")
+                   help="realistic, measured, noiseless, scsim or a camera file (default: realistic)")
     p.add_argument("--backend", choices=BACKENDS, default="auto", help="sensor implementation (default: auto)")
     p.add_argument("--seed", type=seed_int, default=0, help="seed of the renders and the sensor")
     p.add_argument("-o", "--out", type=Path, required=True, help="folder for sweep.csv, sweep.md, sweep.json, sweep.png")

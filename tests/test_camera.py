@@ -65,3 +65,21 @@ def test_file_round_trip_and_errors(tmp_path):
         SpikeCamera.from_file(tmp_path / "broken.json")
     (tmp_path / "cam.toml").write_text('preset = "noiseless"\nheight = 8\n')
     assert SpikeCamera.from_file(tmp_path / "cam.toml").height == 8
+
+
+def test_the_scsim_preset_is_scsims_constants_and_fires_at_its_dark_rate():
+    """SCSim's camera as a preset (docs/sensor.md "Other simulators' cameras"): a 20 kHz readout
+    and its dark current, 93.5 thresholds per second, so 93.5 x 50 us spikes per step in the dark."""
+    import numpy as np
+
+    from spikesim.camera import SCSIM_TERMS
+    from spikesim.patterns import constant_frames
+    from spikesim.simulate import Simulator
+    cam = SpikeCamera.preset("scsim").replace(height=48, width=48)
+    assert all(getattr(cam, k) == v for k, v in SCSIM_TERMS.items())
+    steps = 20000
+    stream = Simulator(cam, backend="numpy", seed=3).run(constant_frames(0.0, steps, 48, 48))
+    rate = stream.counts().mean() / steps
+    # the pixels' lognormal dark currents (spread 0.39) over 2,304 pixels: about 1 % standard error
+    assert rate == pytest.approx(93.5 * 50e-6, rel=0.05)
+    assert SpikeCamera.from_dict({"preset": "scsim", "height": 8, "width": 8}).readout_period_s == 50e-6
