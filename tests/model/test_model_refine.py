@@ -7,7 +7,7 @@ import dataclasses
 import pytest
 import torch
 
-from model.arch import REFINE_GATE_BIAS, build_model, classic_estimates, widen_direct_state
+from model.arch import REFINE_GATE_LOGIT, build_model, classic_estimates, widen_direct_state
 from model.config import ModelConfig, load_config
 from model.representations import tfi_windows, tfp_windows
 from model.streaming import reconstruct_windows
@@ -52,7 +52,7 @@ def test_a_widened_direct_network_starts_as_that_network():
         a, b = widened(spk), direct(spk)
         tfp_map, tfi_map = classic_estimates(spk.reshape(-1, 41, 20, 24).float())
         classic = (0.5 * tfp_map + 0.5 * tfi_map).reshape(a.shape)
-    gate = torch.sigmoid(torch.tensor(REFINE_GATE_BIAS))
+    gate = torch.sigmoid(torch.tensor(REFINE_GATE_LOGIT))
     torch.testing.assert_close(a, (1 - gate) * b + gate * classic, rtol=1e-5, atol=1e-6)
     with pytest.raises(ValueError, match="refine"):
         widen_direct_state(direct.state_dict(), SMALL)
