@@ -55,15 +55,19 @@ def check_spike_array(spikes: Any) -> torch.Tensor:
 
 
 def reconstruct(spikes: Any, method: str = "lrrep", window: int = 41, threads: int = 0, chunk: int = 8,
-                device: str = "cpu", height: int | None = None, width: int | None = None) -> np.ndarray:
+                device: str = "cpu", height: int | None = None, width: int | None = None,
+                header_columns: int | str | None = "auto", flip: bool | None = None,
+                drop_partial: bool = False) -> np.ndarray:
     """Frames (M, H, W), float32 on the y scale (expected spikes per step), one per whole `window`-step
     window of `spikes`: a (steps, H, W) 0/1 array (NumPy or torch, row 0 at the top) or the path
-    of a `.dat` stream (geometry from `height`/`width` or recorded beside it). `method` is any spec
+    of a `.dat` stream, read as `spikesim reconstruct` reads one: `height`/`width`/`flip` as recorded
+    beside it unless given (else 250 x 400, rows bottom-up), `header_columns` detected unless given,
+    `drop_partial` for a file cut off mid-frame. `method` is any spec
     `evaluate` takes (lrrep, tfp, tfi, tfp:N, a checkpoint path, label=spec)."""
     if isinstance(spikes, (str, Path)):
-        from spikesim.stream import DatReader, stream_geometry
-        h, w, flip = stream_geometry(spikes, height, width, None)
-        spikes = DatReader(spikes, h, w, flip=flip).read().unpack()
+        from spikesim.stream import open_stream  # what `reconstruct FILE.dat` takes, with the same defaults
+        reader, _ = open_stream(Path(spikes), height, width, flip, header_columns, drop_partial)
+        spikes = reader.read().unpack()
     s = check_spike_array(spikes)
     if not (isinstance(window, int) and not isinstance(window, bool) and window >= 1 and window % 2 == 1):
         raise ValueError(f"window: expected an odd number of steps >= 1 (41 for the shipped networks), got {window!r}")

@@ -15,8 +15,8 @@ from typing import Any
 import numpy as np
 
 from pipelines.argtypes import nonnegative_int, positive_float, positive_int
-from spikesim.stream import (DatReader, check_recorded_layout, detect_header_columns, read_sidecar, recorded_geometry,
-                             stream_geometry)
+from spikesim.stream import (DatReader, check_recorded_layout, detect_header_columns, open_stream, read_sidecar,
+                             recorded_geometry, stream_geometry)
 
 CHUNK_PIXEL_STEPS = 1 << 20  # pixels x steps unpacked at a time (1 MB of bits)
 
@@ -158,30 +158,6 @@ def _readout_period(args: argparse.Namespace, side: dict[str, Any]) -> float:
     cam = side.get("camera")  # the sidecar's fields are checked as it is read (spikesim.stream.check_stream_record)
     recorded = (cam.get("readout_period_s") if isinstance(cam, dict) else None) or side.get("readout_period_s")
     return args.readout_period_s or recorded or 25e-6
-
-
-def open_stream(path: Path, height: int | None = None, width: int | None = None, flip: bool | None = None,
-                header_columns: int | str | None = "auto", drop_partial: bool = False) -> tuple[DatReader, int]:
-    """(reader, header columns) of a `.dat`, its size and row order from the arguments, else from
-    the record beside it (spikesim.stream.stream_geometry); header_columns "auto" or None: detected.
-
-    A record whose size does not fit the file is named in the error: a stale sidecar or meta.json,
-    not a truncated stream, is then the likely cause, and --height/--width override it."""
-    h, w, flip = stream_geometry(path, height, width, flip)
-    if header_columns in ("auto", None):
-        header = detect_header_columns(path, h, w, drop_partial)
-    else:
-        header = int(header_columns)
-        if not (height and width):  # part of the layout from the record: the rest must agree with it
-            check_recorded_layout(path, h, w, header)
-    try:
-        return DatReader(path, h, w, flip=flip, header_columns=header, drop_partial=drop_partial), header
-    except ValueError as exc:
-        rec = recorded_geometry(path)
-        if rec is None or (height and width):
-            raise
-        raise ValueError(f"{exc} (height {h}, width {w} as recorded in {rec['source']}; "
-                         "--height/--width override it)") from None
 
 
 #: The first bytes of image files that `inspect` might be given instead of a spike stream.

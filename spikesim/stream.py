@@ -470,7 +470,32 @@ def _dispersion(frames: np.ndarray, pixels: int, chunk_bits: int = 1 << 22) -> f
     return float(counts.var() / mean) if mean > 0 else 0.0
 
 
-__all__ = ["SpikeStream", "DatWriter", "DatReader", "write_dat", "read_dat", "pack_frames", "unpack_frames",
+def open_stream(path: str | Path, height: int | None = None, width: int | None = None, flip: bool | None = None,
+                header_columns: int | str | None = "auto", drop_partial: bool = False) -> tuple[DatReader, int]:
+    """(reader, header columns) of a `.dat`, its size and row order from the arguments, else from
+    the record beside it (spikesim.stream.stream_geometry); header_columns "auto" or None: detected.
+
+    A record whose size does not fit the file is named in the error: a stale sidecar or meta.json,
+    not a truncated stream, is then the likely cause, and --height/--width override it."""
+    path = Path(path)
+    h, w, flip = stream_geometry(path, height, width, flip)
+    if header_columns in ("auto", None):
+        header = detect_header_columns(path, h, w, drop_partial)
+    else:
+        header = int(header_columns)
+        if not (height and width):  # part of the layout from the record: the rest must agree with it
+            check_recorded_layout(path, h, w, header)
+    try:
+        return DatReader(path, h, w, flip=flip, header_columns=header, drop_partial=drop_partial), header
+    except ValueError as exc:
+        rec = recorded_geometry(path)
+        if rec is None or (height and width):
+            raise
+        raise ValueError(f"{exc} (height {h}, width {w} as recorded in {rec['source']}; "
+                         "--height/--width override it)") from None
+
+
+__all__ = ["open_stream", "SpikeStream", "DatWriter", "DatReader", "write_dat", "read_dat", "pack_frames", "unpack_frames",
            "frame_bytes", "write_sidecar", "read_sidecar", "sidecar_path", "recorded_geometry",
            "stream_geometry", "detect_header_columns", "header_columns_from_content", "open_temp_beside",
            "HEADER_COLUMNS", "check_stream_record", "MAX_SIDE", "check_recorded_layout"]

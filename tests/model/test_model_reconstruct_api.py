@@ -103,3 +103,21 @@ def test_a_video_of_odd_sides_is_written_with_even_ones(tmp_path):
     v.close()
     assert (tmp_path / "frames.mp4").stat().st_size > 0
     assert iio.imread(tmp_path / "frames.mp4", index=0).shape[:2] == (126, 202)
+
+
+def test_a_dat_path_takes_what_the_command_takes(tmp_path):
+    """model.reconstruct(path) advised header_columns and drop_partial and took neither, nor flip."""
+    from model.inference import reconstruct
+    from spikesim.stream import SpikeStream, write_dat
+    rng = np.random.default_rng(1)
+    spikes = rng.random((82, 12, 16)) < 0.3
+    path = tmp_path / "s.dat"
+    write_dat(path, SpikeStream.from_bool(spikes), flip=False)
+    top_down = reconstruct(path, method="tfp", height=12, width=16, flip=False, header_columns=0)
+    np.testing.assert_allclose(top_down, reconstruct(spikes, method="tfp"))
+    bottom_up = reconstruct(path, method="tfp", height=12, width=16, flip=True, header_columns=0)
+    np.testing.assert_allclose(bottom_up, top_down[:, ::-1])
+    path.write_bytes(path.read_bytes() + b"\0" * 5)  # a file cut off mid-frame
+    with pytest.raises(ValueError, match="drop_partial"):
+        reconstruct(path, method="tfp", height=12, width=16, header_columns=0)
+    assert reconstruct(path, method="tfp", height=12, width=16, header_columns=0, drop_partial=True).shape == (2, 12, 16)
