@@ -141,7 +141,7 @@ class ReconNet(nn.Module):
 #: and gain 1 its gradients were near Adam's epsilon, and 400 fine-tuning steps moved the bias from
 #: -6.0000 to -6.0001 (docs/model.md, "The fourth stage").
 REFINE_GATE_LOGIT = -4.0
-REFINE_GATE_GAIN = 4.0
+REFINE_GATE_GAIN = 16.0
 
 
 def head_channels(cfg: ModelConfig) -> int:

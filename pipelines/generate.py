@@ -55,7 +55,7 @@ def _plain_name(text: str) -> str:
 
 # Options that only some kinds take: given to another kind, they would be silently ignored.
 _ONLY_FOR = {
-    "scenes": ("llr",), "count": ("rllr",), "pattern": ("rllr",), "darkening": ("rllr",), "content": ("rllr",), "scales": ("rllr",), "lamps_lux": ("rllr",), "steps": ("rllr", "scene"), "gt_stride": ("rllr", "scene"),
+    "scenes": ("llr",), "count": ("rllr",), "pattern": ("rllr",), "darkening": ("rllr",), "content": ("rllr",), "scales": ("rllr",), "lamps_lux": ("rllr",), "peak_y": ("rllr",), "steps": ("rllr", "scene"), "gt_stride": ("rllr", "scene"),
     "windows": ("llr", "scene"), "xml": ("scene",), "motion": ("scene",), "lights": ("scene",),
     "light": ("scene",), "light_power_factor": ("scene",), "name": ("scene",),
 }
@@ -117,7 +117,8 @@ def run(args: argparse.Namespace) -> int:
                          source="pattern" if args.pattern else "random", quality=args.quality,
                          darkening=args.darkening or "uniform", content=args.content or "procedural",
                          scales=tuple(args.scales) if args.scales else (1.0,),
-                         lamps_lux=None if args.lamps_lux is None else tuple(args.lamps_lux))
+                         lamps_lux=None if args.lamps_lux is None else tuple(args.lamps_lux),
+                         peak_y=args.peak_y)
     else:
         jobs = plan_user(str(args.xml), args.light or "normal", preset, seed=args.seed,
                          motion=None if args.motion is None else str(args.motion),
@@ -225,6 +226,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--lamps-lux", type=positive_float, nargs=2, metavar=("LOW", "HIGH"),
                    help="RLLR lamps' illuminance at the subject before darkening, lux, drawn log-uniformly (default: "
                         "the content's, 30-250 procedural, 20-1000 natural)")
+    p.add_argument("--peak-y", type=positive_float, metavar="Y",
+                   help="photo content: white's expected spikes per step before darkening (default 0.8; above 1 bright "
+                        "surfaces saturate and scenes reach video brightness)")
     p.add_argument("--pattern", action="store_true", help="RLLR from the built-in pattern instead of random 3D scenes")
     p.add_argument("--xml", type=existing_file, help="scene XML (generate scene)")
     p.add_argument("--motion", type=existing_file, help="motion file (default: motion.json beside the XML)")

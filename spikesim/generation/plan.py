@@ -289,7 +289,7 @@ def scaled_size(height: int, width: int, scale: float) -> tuple[int, int]:
 def plan_rllr(preset: Preset, seed: int = 0, camera: Any | None = None, count: int | None = None,
               source: str = "random", quality: str | None = None, darkening: str = "uniform",
               content: str = "procedural", scales: tuple[float, ...] = (1.0,),
-              lamps_lux: tuple[float, float] | None = None) -> list[SceneJob]:
+              lamps_lux: tuple[float, float] | None = None, peak_y: float | None = None) -> list[SceneJob]:
     """RLLR: random scenes, each darkened by a random factor (paper, "RLLR": uniform in (0, 1);
     DARKENINGS for the other choice). A random scene's job records its lamps' range
     (scenes.random_scene.LAMPS_LUX), so scenes built with another range are not taken for finished
@@ -297,12 +297,19 @@ def plan_rllr(preset: Preset, seed: int = 0, camera: Any | None = None, count: i
     `content` picks the scene builder (CONTENTS); with more than one of `scales` each scene draws
     its pixel scale from them (scaled_size), from a random stream of its own so the darkening
     factors and scenes of a one-scale plan are unchanged. `lamps_lux` replaces the content's lamp
-    range (lux at the subject, before darkening)."""
+    range (lux at the subject, before darkening). `peak_y` replaces a photo scene's white level
+    (expected spikes per step before darkening; scenes.photo_pan.PHOTO_PEAK_Y): above 1, bright
+    surfaces saturate, and the scene's mean reaches video brightness (REDS-like pairs: mean y 0.22)."""
     from scenes.random_scene import LAMPS_LUX
     if darkening not in DARKENINGS:
         raise ValueError(f"darkening={darkening!r}; expected one of {DARKENINGS}")
     if content not in CONTENTS:
         raise ValueError(f"content={content!r}; expected one of {CONTENTS}")
+    if peak_y is not None:
+        if not (isinstance(peak_y, (int, float)) and math.isfinite(peak_y) and 0 < peak_y <= 100):
+            raise ValueError(f"peak_y={peak_y!r}: expected a white level in (0, 100] spikes per step")
+        if content != "photo":
+            raise ValueError("peak_y sets the white level of photo content (--content photo)")
     if source != "random" and content != "procedural":
         raise ValueError("content applies to random scenes, not the built-in pattern")
     if lamps_lux is not None:
@@ -329,7 +336,8 @@ def plan_rllr(preset: Preset, seed: int = 0, camera: Any | None = None, count: i
             src = {"type": "pattern", "peak_y": 0.3, "pattern_seed": s}
         elif content == "photo":
             from scenes.photo_pan import PHOTO_PEAK_Y
-            src = {"type": "photo", "index": i, "scene_seed": s, "peak_y": PHOTO_PEAK_Y, "photo_set": "train",
+            src = {"type": "photo", "index": i, "scene_seed": s, "peak_y": float(peak_y or PHOTO_PEAK_Y),
+                   "photo_set": "train",
                    "encoding": "linear"}
         elif content == "reds-like":
             src = {"type": "photo", "index": i, "scene_seed": s, "peak_y": REDS_LIKE_PEAK_Y, "photo_set": "heldout",
