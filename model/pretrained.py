@@ -42,6 +42,14 @@ PRETRAINED: dict[str, PretrainedWeights] = {
         summary="(E) at 16 features and 2 blocks, K = 5, GISI as 1/interval: lrrep_v1 fine-tuned 35 minutes on two "
                 "CPU cores (config lrrep_finetune) on 48 natural-content RLLR scenes (dead leaves, photographs, camera "
                 "motion, 0.1-1000 lx, pixel scales 1, 1/2, 1/4, the measured camera)"),
+    "lrrep_v2": PretrainedWeights(
+        name="lrrep_v2", file="lrrep_nat.pt",
+        file_sha256="430d80fbe024e2b348d91c8e5df3fb9532ae459cdcae04c23c332eadd95a6aa8",
+        weights_sha256="0950df04a4c3d972144e512d57d476d08e271daf710598ba9e532dcb7c091611",
+        summary="the third stage, kept for comparison: (E) at 16 features and 2 blocks, K = 5, GISI as 1/interval: "
+                "lrrep_v1 fine-tuned 35 minutes on two CPU cores (config lrrep_finetune) on 48 natural-content RLLR "
+                "scenes (dead leaves, photographs, camera motion, 0.1-1000 lx, pixel scales 1, 1/2, 1/4, the measured "
+                "camera)"),
     "lrrep_v1": PretrainedWeights(
         name="lrrep_v1", file="lrrep_cpu.pt",
         file_sha256="64bab0f2cb1f231a443c14b72c5c2e52becf495af46104931378368f5b22e936",

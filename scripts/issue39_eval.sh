@@ -1,12 +1,13 @@
 #!/usr/bin/env bash
 # The held-out scoring of issue 39 (docs/model.md, "The fourth stage"): every test set, every
 # classic method and floor, the shipped networks. Usage: bash scripts/issue39_eval.sh [EXTRA_METHOD ...]
-# (e.g. new=runs/lrrep_v3/best.pt). Data made by the commands in docs/model.md; the external pair and
-# the real recording are read from ../shared/data where present (SHARED=... to point elsewhere).
+# (e.g. new=runs/lrrep_v3/best.pt). Data made by the commands in docs/model.md; the external pair
+# (spk2imgnet-sample/) and the real recording (uhsr-real/) are read from $SPIKESIM_TEST_DATA, as the
+# tests read them (tests/conftest.py), and skipped where absent.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 S=.venv/bin/spikesim
-SHARED="${SHARED:-../shared/data}"
+SHARED="${SPIKESIM_TEST_DATA:-}"
 M="tfp tfi tfp:123 tfp:205 stp snm black mean lrrep lrrep_v2 lrrep_v1 $*"
 mkdir -p out/issue39
 for d in llr_small5 llr_mid5 llr_paper5 reds_like12 test_nat6; do
@@ -14,11 +15,11 @@ for d in llr_small5 llr_mid5 llr_paper5 reds_like12 test_nat6; do
   $S evaluate --data "data/$d" --methods $M -o "out/issue39/$d" --quiet > "out/issue39/$d.md"
   echo "[issue39] scored data/$d"
 done
-if [ -f "$SHARED/spk2imgnet-sample/203_part1_key_id151.dat" ]; then
+if [ -n "$SHARED" ] && [ -f "$SHARED/spk2imgnet-sample/203_part1_key_id151.dat" ]; then
   $S evaluate --dat "$SHARED/spk2imgnet-sample/203_part1_key_id151.dat" --gt "$SHARED/spk2imgnet-sample/203_part1_key_id151.png" \
      --center 151 --gt-scale 0.6 --methods $M --json > out/issue39/spk2imgnet_sample.json
 fi
-if [ -f "$SHARED/uhsr-real/uhsr_helicopter.dat" ]; then
+if [ -n "$SHARED" ] && [ -f "$SHARED/uhsr-real/uhsr_helicopter.dat" ]; then
   $S panel "$SHARED/uhsr-real/uhsr_helicopter.dat" --height 250 --width 250 --methods tfp tfp:205 lrrep lrrep_v2 lrrep_v1 $* \
      -o out/issue39/uhsr_panel.png --json > out/issue39/uhsr_panel.json
 fi

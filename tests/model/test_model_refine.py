@@ -72,13 +72,13 @@ def test_refine_streams_exactly():
 def test_fine_tuning_from_the_shipped_network_widens_its_head_and_refuses_other_changes():
     from model.training import initial_weights
     exp = load_config("lrrep_refine")
-    state, record = initial_weights("lrrep", exp)
+    state, record = initial_weights("lrrep_v2", exp)  # a direct network: its head is widened
     net = build_model(exp.model)
     net.load_state_dict(state)  # strict: every key and shape fits
-    assert record["spec"] == "lrrep"
+    assert record["spec"] == "lrrep_v2"
     other = dataclasses.replace(exp, model=dataclasses.replace(exp.model, num_blocks=3))
     with pytest.raises(ValueError, match="num_blocks"):
-        initial_weights("lrrep", other)
+        initial_weights("lrrep_v2", other)
 
 
 def test_the_output_field_is_validated():
