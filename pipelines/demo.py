@@ -25,7 +25,7 @@ def run(args: argparse.Namespace) -> int:
     from model.methods import FLOORS, PRETRAINED_METHOD, ModelMethod, method_from_spec
     from model.streaming import StepWindows
     from model.evaluation import evaluate, evaluation_run, json_safe, markdown_table, scores_json, write_results
-    from spikesim.generation import PRESETS, generate, plan_llr
+    from spikesim.generation import PRESETS, generate, job_status, plan_llr
     from spikesim.dataset import open_dataset
     from spikesim.imageio import write_png
     from spikesim._drjit import resolve_device
@@ -46,8 +46,13 @@ def run(args: argparse.Namespace) -> int:
     preset = dataclasses.replace(PRESETS["small"], llr_windows=args.windows)
     t0 = time.perf_counter()
     jobs = plan_llr(preset, seed=args.seed, scenes=args.scenes)
-    print(f"[demo] rendering {', '.join(j.name for j in jobs)} at {preset.width}x{preset.height}, "
-          f"{jobs[0].num_steps} steps each, and simulating the realistic sensor on {device} ...", file=sys.stderr)
+    todo = [j.name for j in jobs if job_status(j, out / "llr") != "done"]
+    if todo:
+        print(f"[demo] rendering {', '.join(todo)} at {preset.width}x{preset.height}, {jobs[0].num_steps} steps "
+              f"each, and simulating the realistic sensor on {device} ...", file=sys.stderr)
+    else:
+        print(f"[demo] {', '.join(j.name for j in jobs)}: already rendered and simulated in {out / 'llr'}",
+              file=sys.stderr)
     generate(jobs, out / "llr", workers=args.workers, info={"kind": "demo"}, show_progress=not args.quiet,
              device=device)
     scenes = open_dataset(out / "llr")
