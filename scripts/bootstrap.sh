@@ -46,6 +46,7 @@ if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
   bash "$here/scripts/torch_cpu.sh" "$VENV/bin/python"
   # PYTHONWARNINGS reaches the build backend: setuptools' "Editable installation" warning block
   # (about folders named like the package) says nothing a user of this checkout needs.
+  echo "[bootstrap] installing spikesim and its extras (mitsuba, drjit, OpenEXR, ...; about a minute)"
   PYTHONWARNINGS=ignore "$VENV/bin/python" -m pip install -q -e ".[test,train,plot,video,cluster]" 2>&1 \
     | grep -v '^WARNING: Location' || true
   "$VENV/bin/python" -c "import torch, drjit, mitsuba, spikesim" 
