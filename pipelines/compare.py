@@ -12,7 +12,7 @@ says "within spread": a reordering by another seed would be no surprise.
 Or compare training data: one config, several datasets, each labelled (equal steps of one network
 are equal compute), optionally all fine-tuned from the same weights:
 
-    spikesim compare --data OLD=rllr_procedural NEW=rllr_natural --test-data llr --configs lrrep_cpu \\
+    spikesim compare --data OLD=rllr_procedural NEW=rllr_natural --test-data llr --configs lrrep_refine \\
         --init lrrep --seeds 0 1 2 --max-steps 300 --out runs/data_study
 
 Writes <out>/runs/<label>/seed<k>/ (training runs, resumable: a finished run is kept, an
