@@ -36,12 +36,12 @@ class PretrainedWeights:
 #: The shipped weights by name (docs/model.md, "Model card": how they were made and scored).
 PRETRAINED: dict[str, PretrainedWeights] = {
     "lrrep": PretrainedWeights(
-        name="lrrep", file="lrrep_nat.pt",
-        file_sha256="430d80fbe024e2b348d91c8e5df3fb9532ae459cdcae04c23c332eadd95a6aa8",
-        weights_sha256="0950df04a4c3d972144e512d57d476d08e271daf710598ba9e532dcb7c091611",
-        summary="(E) at 16 features and 2 blocks, K = 5, GISI as 1/interval: lrrep_v1 fine-tuned 35 minutes on two "
-                "CPU cores (config lrrep_finetune) on 48 natural-content RLLR scenes (dead leaves, photographs, camera "
-                "motion, 0.1-1000 lx, pixel scales 1, 1/2, 1/4, the measured camera)"),
+        name="lrrep", file="lrrep_refine.pt",
+        file_sha256="8c3011faec4df249a4c20ce37499d59c1a5707d166d5f17e759cefaa0aaa87fc",
+        weights_sha256="f8e9151278a59bd1c12234127a82262e80a9661a41cea62017e7e07dbcb6cd7e",
+        summary="(E) at 16 features and 2 blocks, K = 5, GISI as 1/interval, with the refining output (per-pixel gates "
+                "to the window's TFP and TFI): lrrep_v2 fine-tuned 47 minutes on two CPU cores (config lrrep_refine) on "
+                "8 rendered natural scenes and 96 video-like photo scenes, half of them at video brightness"),
     "lrrep_v2": PretrainedWeights(
         name="lrrep_v2", file="lrrep_nat.pt",
         file_sha256="430d80fbe024e2b348d91c8e5df3fb9532ae459cdcae04c23c332eadd95a6aa8",
