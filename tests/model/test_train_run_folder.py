@@ -36,7 +36,7 @@ def _weights(run: Path) -> dict:
 def test_a_cut_run_resumed_without_flags_keeps_its_plan_and_ends_as_an_uncut_one(dataset, tmp_path):
     cfg = tmp_path / "resumecli.json"
     cfg.write_text(json.dumps(CONFIG))
-    steps = 40
+    steps = 80
     straight = _train(["--config", cfg, "--data", dataset, "--max-steps", steps, "-o", tmp_path / "a"])
     assert straight.returncode == 0, straight.stderr
     env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": str(REPO)}
