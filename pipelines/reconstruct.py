@@ -18,6 +18,7 @@ folder inside --out and moved into place only when the run succeeds.
 from __future__ import annotations
 
 import argparse
+import os
 import json
 import shutil
 import sys
@@ -136,7 +137,9 @@ def reconstruct_file(path: Path, out: Path, method_spec: str = "tfp", height: in
         raise ValueError(f"{path}: {reader.num_steps} steps leave no full {window}-step window after --start {start}")
     n = available if num_windows is None else min(num_windows, available)
     source = StepWindows(lambda a, b: reader.read(a, b).unpack(), start, window, n)
-    with output_folder(out):  # a failed run leaves no new empty folder
+    from spikesim.generation.lock import output_lock
+    # one run per folder: two runs into one -o left one run's frames under the other's reconstruct.json
+    with output_folder(out), output_lock(out, f"reconstruct {path} (pid {os.getpid()})", what="reconstruct run"):
         check_outputs(out)  # a link where an output goes: refused before any work
         with writing(out):
             stage = Path(tempfile.mkdtemp(prefix=".reconstruct.", suffix=".part", dir=out))

@@ -135,3 +135,21 @@ def test_train_refuses_bad_values(flag, value, tmp_path, capsys):
     code, err = run_cli(["train", "--data", tmp_path, "--config", "tiny", "--out", tmp_path / "o", flag, value],
                         capsys)
     assert code == 2 and f"argument {flag}" in parser_error(err)
+
+
+def test_a_second_reconstruct_into_a_folder_in_use_is_refused(tmp_path):
+    """Two reconstruct runs into one -o left one run's PNGs and GIF under the other's reconstruct.json."""
+    import numpy as np
+
+    from pipelines.reconstruct import reconstruct_file
+    from spikesim.generation.lock import OutputLockedError, output_lock
+    from spikesim.stream import SpikeStream, write_dat
+    dat = tmp_path / "s.dat"
+    write_dat(dat, SpikeStream.from_bool(np.random.default_rng(0).random((82, 12, 16)) < 0.2), flip=False)
+    out = tmp_path / "rec"
+    out.mkdir()
+    with output_lock(out, "reconstruct other (pid 4242)", what="reconstruct run"):
+        with pytest.raises(OutputLockedError, match="another reconstruct run.*4242"):
+            reconstruct_file(dat, out, "tfp", 12, 16, 0, False, gif=False, mp4=False, progress=False)
+    summary = reconstruct_file(dat, out, "tfp", 12, 16, 0, False, gif=False, mp4=False, progress=False)
+    assert summary["frames"] == 2 and not (out / ".spikesim.lock").exists()
