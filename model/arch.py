@@ -151,8 +151,8 @@ def head_channels(cfg: ModelConfig) -> int:
 
 
 def init_refine_gates(last: nn.Conv2d) -> None:
-    """Gates start closed towards the classic estimate (REFINE_GATE_BIAS) and even between TFP and
-    TFI, with zero weights: the frame channel alone decides the first output."""
+    """Gates start nearly closed towards the classic estimate (sigmoid(REFINE_GATE_LOGIT)) and even
+    between TFP and TFI, with zero weights: the frame channel decides the first output."""
     with torch.no_grad():
         last.weight[1:].zero_()
         last.bias[1] = REFINE_GATE_LOGIT / REFINE_GATE_GAIN
@@ -166,10 +166,10 @@ def classic_estimates(window: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]
 
 def refine(head_out: torch.Tensor, window: torch.Tensor) -> torch.Tensor:
     """Y = g * (m * TFP + (1 - m) * TFI) + (1 - g) * N, with (N, g, m) the head's three channels
-    (gates: sigmoid of REFINE_GATE_GAIN times the channel). Why: a small network that must rebuild a window average from its
-    features loses to that average wherever it is already right (bright light, slow motion); with
-    the average as an input to its output, matching it costs one gate, and the network's capacity
-    goes to what the average gets wrong."""
+    (gates: sigmoid of REFINE_GATE_GAIN times the channel). Why: a small network that must rebuild
+    a window average from its features loses to that average wherever it is already right (bright
+    light, slow motion); with the average as an input to its output, matching it costs one gate,
+    and the network's capacity goes to what the average gets wrong."""
     net = head_out[:, 0]
     gate = torch.sigmoid(REFINE_GATE_GAIN * head_out[:, 1].float())
     mix = torch.sigmoid(REFINE_GATE_GAIN * head_out[:, 2].float())

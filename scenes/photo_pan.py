@@ -32,7 +32,8 @@ from typing import Iterator
 
 import numpy as np
 
-from scenes.natural_textures import PHOTOS, Photo, dead_leaves, photo_folder, srgb_to_linear
+from scenes.natural_scene import _log_uniform
+from scenes.natural_textures import PHOTOS, Photo, dead_leaves, linear_to_srgb, photo_folder, srgb_to_linear
 
 PHOTO_PAN_VERSION = 1
 """Raise with any change that builds another scene from the same parameters."""
@@ -89,10 +90,6 @@ def _shift(canvas: np.ndarray, y: float, x: float, h: int, w: int) -> np.ndarray
     return top * (1 - fy) + bottom * fy
 
 
-def _log_uniform(rng: np.random.Generator, lo: float, hi: float) -> float:
-    return float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
-
-
 @dataclass(frozen=True)
 class PhotoPan:
     """A video-like scene in y units (module docstring); frame(step), frames(n, start, every) as
@@ -129,7 +126,7 @@ class PhotoPan:
             side = max(h, w)
             size = min(1024, max(64, side))
             img = dead_leaves(rng, size, colour=bool(rng.random() < 0.7))
-            grey = (img if self.encoding == "linear" else np.clip(img, 0, 1) ** (1 / 2.2)) @ _LUMA
+            grey = (img if self.encoding == "linear" else linear_to_srgb(img)) @ _LUMA
             return _resize(grey, h, w), {"kind": "dead-leaves"}
         name = str(rng.choice(sorted(self._pictures())))
         photo = self._pictures()[name]
