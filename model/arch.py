@@ -90,15 +90,19 @@ class ReconNet(nn.Module):
         x = feat + self.align(state, feat) if self.align is not None else feat
         return fuse(torch.cat([x, state], 1))
 
-    def decode(self, fwd: torch.Tensor, bwd: torch.Tensor, window: torch.Tensor | None = None) -> torch.Tensor:
+    def decode(self, fwd: torch.Tensor, bwd: torch.Tensor, window: torch.Tensor | None = None,
+               span: torch.Tensor | None = None) -> torch.Tensor:
         """Y = c([Ff, Fb]) -> (N, H, W); with output "refine", the head's gates blend its frame with
-        the classic estimates of `window` (N, T, H, W), the window's own (padded) spikes."""
+        the classic estimates of `window` (N, T, H, W), the window's own (padded) spikes, and with
+        refine_span > 1 the mean rate `span` (N, H, W) of the span centred on it (span_rates)."""
         out = self.head(torch.cat([fwd, bwd], 1))
         if self.cfg.output == "direct":
             return out.squeeze(1)
         if window is None:
             raise ValueError("model.output 'refine' decodes a window with its spikes: pass window=")
-        return refine(out, window)
+        if (span is None) != (self.cfg.refine_span == 1):
+            raise ValueError(f"model.refine_span={self.cfg.refine_span}: decode takes span= exactly when it is > 1")
+        return refine(out, window, span)
 
     # ---- whole sequence ---------------------------------------------------------------------
     def forward(self, spikes: torch.Tensor, maps: torch.Tensor | None = None) -> torch.Tensor:
@@ -127,16 +131,18 @@ class ReconNet(nn.Module):
             state = self.step(feats[:, i], state, backward=False)
             fwd.append(state)
         out: list[torch.Tensor] = [torch.empty(0)] * k
+        spans = span_rates(x, self.cfg.refine_span) if self.cfg.refine_span > 1 else None
         state = None
         for i in range(k - 1, -1, -1):
             state = self.step(feats[:, i], state, backward=True)
-            out[i] = self.decode(fwd[i], state, x[:, i] if self.cfg.output == "refine" else None)
+            out[i] = self.decode(fwd[i], state, x[:, i] if self.cfg.output == "refine" else None,
+                                 None if spans is None else spans[:, i])
         return torch.stack(out, 1)[..., :h, :w]
 
 
 # ---- the refining output ------------------------------------------------------------------------
 #: The refining head's gate towards the classic estimate starts at sigmoid(-4) = 1.8 %: a network
-#: widened from "direct" weights (widen_direct_state) starts close to that network. Its logit is
+#: widened from "direct" weights (widen_head_state) starts close to that network. Its logit is
 #: REFINE_GATE_GAIN times the head's channel, so the gate learns at a useful rate: at sigmoid(-6)
 #: and gain 1 its gradients were near Adam's epsilon, and 400 fine-tuning steps moved the bias from
 #: -6.0000 to -6.0001 (docs/model.md, "The fourth stage").
@@ -144,19 +150,32 @@ REFINE_GATE_LOGIT = -4.0
 REFINE_GATE_GAIN = 16.0
 
 
+#: The span gate (refine_span > 1) starts even between the span's rate and the window's TFP: the
+#: classic gate, nearly closed, keeps the start close to the network it was widened from.
+REFINE_SPAN_LOGIT = 0.0
+
+
 def head_channels(cfg: ModelConfig) -> int:
     """The head's output channels: the frame, and for "refine" the two gates (classic vs network,
-    TFP vs TFI)."""
-    return 1 if cfg.output == "direct" else 3
+    TFP vs TFI), and a third (span vs window TFP) with refine_span > 1."""
+    if cfg.output == "direct":
+        return 1
+    return 3 if cfg.refine_span == 1 else 4
 
 
 def init_refine_gates(last: nn.Conv2d) -> None:
     """Gates start nearly closed towards the classic estimate (sigmoid(REFINE_GATE_LOGIT)) and even
     between TFP and TFI, with zero weights: the frame channel decides the first output."""
+    init_gate_channels(last, 1)
+
+
+def init_gate_channels(last: nn.Conv2d, first: int) -> None:
+    """Gate channels `first`.. of the head's last conv at their starting logits, zero weights."""
+    start = (REFINE_GATE_LOGIT, 0.0, REFINE_SPAN_LOGIT)
     with torch.no_grad():
-        last.weight[1:].zero_()
-        last.bias[1] = REFINE_GATE_LOGIT / REFINE_GATE_GAIN
-        last.bias[2] = 0.0
+        for ch in range(max(first, 1), last.out_channels):
+            last.weight[ch].zero_()
+            last.bias[ch] = start[ch - 1] / REFINE_GATE_GAIN
 
 
 def classic_estimates(window: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -164,38 +183,61 @@ def classic_estimates(window: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]
     return window.mean(dim=1), tfi(window != 0)
 
 
-def refine(head_out: torch.Tensor, window: torch.Tensor) -> torch.Tensor:
+def span_rates(windows: torch.Tensor, span: int) -> torch.Tensor:
+    """The mean spike rate over the `span` windows centred on each window, clipped at the
+    sequence's ends: windows (B, K, T, H, W) -> (B, K, H, W). With K*T steps in all, span 5 at
+    T = 41 is TFP over 205 steps, the best classic estimate where the scene is still."""
+    rates = windows.float().mean(dim=2)
+    return torch.stack([window_span_rate(rates, i, span) for i in range(rates.shape[1])], 1)
+
+
+def window_span_rate(rates: torch.Tensor, i: int, span: int) -> torch.Tensor:
+    """Mean of per-window rates (B, K, H, W) over windows [i - span//2, i + span//2] within 0..K-1;
+    every window has T steps, so this is the rate over the steps they cover."""
+    r = span // 2
+    return rates[:, max(0, i - r): i + r + 1].mean(dim=1)
+
+
+def refine(head_out: torch.Tensor, window: torch.Tensor, span: torch.Tensor | None = None) -> torch.Tensor:
     """Y = g * (m * TFP + (1 - m) * TFI) + (1 - g) * N, with (N, g, m) the head's three channels
     (gates: sigmoid of REFINE_GATE_GAIN times the channel). Why: a small network that must rebuild
     a window average from its features loses to that average wherever it is already right (bright
     light, slow motion); with the average as an input to its output, matching it costs one gate,
-    and the network's capacity goes to what the average gets wrong."""
+    and the network's capacity goes to what the average gets wrong. With a fourth channel s and the
+    span's rate S, TFP becomes s * S + (1 - s) * TFP: where the scene is still, the longer average."""
     net = head_out[:, 0]
     gate = torch.sigmoid(REFINE_GATE_GAIN * head_out[:, 1].float())
     mix = torch.sigmoid(REFINE_GATE_GAIN * head_out[:, 2].float())
     tfp_map, tfi_map = classic_estimates(window)
+    if head_out.shape[1] > 3:
+        if span is None:
+            raise ValueError("the head has a span gate: refine needs the span's rate (span=)")
+        still = torch.sigmoid(REFINE_GATE_GAIN * head_out[:, 3].float())
+        tfp_map = still * span.float() + (1 - still) * tfp_map
     classic = mix * tfp_map + (1 - mix) * tfi_map
     return gate * classic + (1 - gate) * net.float()
 
 
-def widen_direct_state(state: dict[str, torch.Tensor], cfg: ModelConfig) -> dict[str, torch.Tensor]:
-    """The weights of a "direct" network as a "refine" one of the same config: the head's last conv
-    gains the two gate channels (init_refine_gates), everything else is kept. Fine-tuning from the
-    shipped weights so starts at that network blended 1.8 % (REFINE_GATE_LOGIT) with the classic
-    estimate."""
+def widen_head_state(state: dict[str, torch.Tensor], cfg: ModelConfig) -> dict[str, torch.Tensor]:
+    """The weights of a network with a narrower head ("direct": 1 channel, "refine": 3) as one of
+    `cfg` (head_channels): the head's last conv gains the missing gate channels at their starting
+    logits (init_gate_channels), everything else is kept. Fine-tuning from shipped weights so starts
+    at that network: a direct one blended 1.8 % (REFINE_GATE_LOGIT) with the classic estimate."""
     if cfg.output != "refine":
-        raise ValueError(f"widen_direct_state makes a 'refine' network's weights; the config's output is {cfg.output!r}")
+        raise ValueError(f"widen_head_state makes a 'refine' network's weights; the config's output is {cfg.output!r}")
     keys = [k for k in state if k.startswith("head.") and k.endswith(".weight")]
     last = max(keys, key=lambda k: int(k.split(".")[1]))
     prefix = last[: -len("weight")]
     w, b = state[prefix + "weight"], state[prefix + "bias"]
-    if w.shape[0] != 1:
-        raise ValueError(f"the weights' head gives {w.shape[0]} channels; a 'direct' network's gives 1")
-    conv = nn.Conv2d(w.shape[1], 3, 3, padding=1)
+    have, want = w.shape[0], head_channels(cfg)
+    if have not in (1, 3) or have >= want:
+        raise ValueError(f"the weights' head gives {have} channels; widening to the config's {want} needs 1 "
+                         "(a 'direct' network) or 3 (a 'refine' one without a span)")
+    conv = nn.Conv2d(w.shape[1], want, 3, padding=1)
     with torch.no_grad():
-        conv.weight[:1] = w
-        conv.bias[:1] = b
-    init_refine_gates(conv)
+        conv.weight[:have] = w
+        conv.bias[:have] = b
+    init_gate_channels(conv, have)
     return {**state, prefix + "weight": conv.weight.detach().clone(), prefix + "bias": conv.bias.detach().clone()}
 
 

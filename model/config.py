@@ -22,6 +22,8 @@ REPRESENTATIONS = ("lr_rep", "spike", "tfp", "tfi", "ast", "amim", "sali", "wgse
 INTERVALS = ("gisi", "lisi")
 LR_SCHEDULES = ("multistep", "cosine")
 OUTPUTS = ("direct", "refine")
+#: The widest span the refining head averages over (windows): beyond it a still scene is rare.
+MAX_REFINE_SPAN = 21
 DEFORM_BACKENDS = ("auto", "torch", "torchvision")
 
 
@@ -73,7 +75,11 @@ class ModelConfig:
     output: "direct" (the paper's: the head's one channel is the frame) or "refine" (the head also
       gives two per-pixel gates, and the frame is g * classic + (1 - g) * network, classic = m * TFP
       + (1 - m) * TFI of the window itself: a plain window average costs the network nothing to
-      reproduce where it is right; model/arch.py, RefineHead).
+      reproduce where it is right; model/arch.py, refine).
+    refine_span: windows (odd) whose mean spike rate, centred on the window, is a third classic
+      estimate for "refine" (a third gate picks between it and the window's own TFP); 1 = off.
+      Why: where the scene is still, the average over several windows (TFP-205 at 5 x 41 steps)
+      beats any one window's estimate (docs/model.md, "The fifth stage").
     """
 
     arch: str = "lrrep_bidirectional"
@@ -89,9 +95,14 @@ class ModelConfig:
     deform_backend: str = "auto"
     pad_multiple: int = 4
     output: str = "direct"
+    refine_span: int = 1
 
     def __post_init__(self) -> None:
         _require(self.output in OUTPUTS, f"model.output must be one of {OUTPUTS}, got {self.output!r}")
+        _require(_int_in(self.refine_span, 1, MAX_REFINE_SPAN) and self.refine_span % 2 == 1,
+                 f"model.refine_span must be an odd integer in 1..{MAX_REFINE_SPAN} (windows), got {self.refine_span!r}")
+        _require(self.refine_span == 1 or self.output == "refine",
+                 f"model.refine_span={self.refine_span} needs model.output 'refine' (it feeds the refining head)")
         _require(_int_in(self.window, 1, MAX_WINDOW) and self.window % 2 == 1,
                  f"model.window must be an odd integer in 1..{MAX_WINDOW} (2*dt+1), got {self.window!r}")
         _require(_int_in(self.num_features, 1, MAX_FEATURES),

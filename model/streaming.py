@@ -170,8 +170,25 @@ def stream_reconstruct(model: ReconNet | PublishedNet, source: WindowSource, chu
         # pass 2: forward, re-running the backward recurrence within each chunk.
         last = LastSpike.never((1, h, w), source.first_step, device) if gisi_carry else None
         state_f: torch.Tensor | None = None
+        span = model.cfg.refine_span
+        rates: dict[int, torch.Tensor] = {}  # padded per-window rates, for the span's mean (refine_span)
+
+        def window_rates(a: int, b: int, spk: torch.Tensor | None = None) -> None:
+            """Rates of windows [a, b) not yet kept; `spk` holds them when already read."""
+            missing = [j for j in range(a, b) if j not in rates]
+            if missing and spk is None:
+                a, spk = missing[0], source.windows(missing[0], b).to(device).unsqueeze(0)
+            for j in missing:
+                rates[j] = model.pad(spk[:, j - a].to(torch.float32)).mean(dim=1)
+
         for c in range(len(starts)):
             spk, first = load(c)
+            if span > 1:  # the span reaches span // 2 windows past the chunk on either side
+                a, b, r = starts[c], starts[c] + spk.shape[1], span // 2
+                window_rates(a, b, spk)
+                window_rates(b, min(b + r, m))
+                for j in [j for j in rates if j < a - r]:
+                    del rates[j]
             next_c = store.get(f"next{c}", device)
             maps, last, _ = model.input_maps(spk, first, last, None if next_c is None else NextSpike(next_c))
             feats = encode(spk, maps)
@@ -184,7 +201,12 @@ def stream_reconstruct(model: ReconNet | PublishedNet, source: WindowSource, chu
             for i in range(n):
                 state_f = model.step(feats[i], state_f, backward=False)
                 window = model.pad(spk[:, i].to(torch.float32)) if model.cfg.output == "refine" else None
-                y = model.decode(state_f, bwd[i], window)[0, :h, :w]
+                span_rate = None
+                if span > 1:
+                    j = starts[c] + i
+                    span_rate = torch.stack([rates[q] for q in range(max(0, j - span // 2), min(m, j + span // 2 + 1))],
+                                            1).mean(dim=1)
+                y = model.decode(state_f, bwd[i], window, span_rate)[0, :h, :w]
                 yield starts[c] + i, y.float().cpu()
             del feats, bwd
 

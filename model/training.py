@@ -351,11 +351,12 @@ def initial_weights(spec: str, experiment: ExperimentConfig) -> tuple[dict[str, 
     state = load_checkpoint(path)
     source = ExperimentConfig.from_dict(state["experiment"], where=f"{path} experiment").model
     weights = state["model_state"]
-    if source.output == "direct" and experiment.model.output == "refine" \
-            and dataclasses.replace(source, output="refine") == experiment.model:
-        from .arch import widen_direct_state  # the same network with the refining head: start as it was
-        weights = widen_direct_state(weights, experiment.model)
-        source = experiment.model
+    target = experiment.model
+    if target.output == "refine" and dataclasses.replace(source, output="refine", refine_span=target.refine_span) == target:
+        from .arch import head_channels, widen_head_state  # the same network, its head widened: start as it was
+        if head_channels(source) < head_channels(target):
+            weights = widen_head_state(weights, target)
+            source = target
     if source != experiment.model:
         differ = [f"{k} {getattr(source, k)!r} -> {getattr(experiment.model, k)!r}"
                   for k in source.to_dict() if getattr(source, k) != getattr(experiment.model, k)]
