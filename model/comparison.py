@@ -83,7 +83,7 @@ def _steps_done(last: Path) -> tuple[int | None, int | None]:
 #: that trained it (a resumed run adds to it), and the steps it reached.
 COMPUTE_FILE = "compute.json"
 #: The metric fields of a kept score row (model.evaluation.Score).
-SCORE_METRICS = ("psnr", "ssim", "psnr_8bit", "ssim_8bit", "psnr_norm", "ssim_norm", "psnr_aligned")
+SCORE_METRICS = ("psnr", "ssim", "psnr_8bit", "ssim_8bit", "psnr_norm", "ssim_norm", "psnr_aligned", "ssim_aligned")
 
 
 def _process_cpu_seconds() -> float:

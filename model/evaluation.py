@@ -72,6 +72,7 @@ class Score:
     psnr_norm: float = math.nan
     ssim_norm: float = math.nan
     psnr_aligned: float = math.nan
+    ssim_aligned: float = math.nan
 
     def value(self, metric: str) -> float:
         return float(getattr(self, metric))
@@ -215,7 +216,7 @@ def _cell(value: float, fmt: str, best: bool) -> str:
 #: The tables' row order: first the metric a black or constant image cannot win (aligned PSNR
 #: scores it at the floor, model/metrics.py), then light-normalised, then the absolute ones, on
 #: which a black image beats every method in low light (its ground truth is nearly black too).
-TABLE_ROWS = ("psnr_aligned", "psnr_norm", "ssim_norm", "psnr", "ssim", "psnr_8bit", "ssim_8bit")
+TABLE_ROWS = ("psnr_aligned", "ssim_aligned", "psnr_norm", "ssim_norm", "psnr", "ssim", "psnr_8bit", "ssim_8bit")
 
 
 def method_label(method: str) -> str:
@@ -250,10 +251,10 @@ def markdown_table(rows: Sequence[Score], methods: Sequence[str]) -> str:
             continue
         title = "All scenes" if cond is None else f"{cond.capitalize()} light"
         lines += [f"**{title}** ({present[0].frames} frames)", ""] + _group_table(rows, methods, group) + [""]
-    # per scene, two narrow tables (aligned PSNR, then SSIM; best in bold): a column per method, not
+    # per scene, two narrow tables (aligned PSNR, then aligned SSIM; best in bold): a column per method, not
     # three (6 methods made 20 columns); metrics.csv has every metric of every scene
     scenes = [r.scene for r in rows if not r.scene.startswith(ALL) and r.method == methods[0]]
-    for key, label, fmt in (("psnr_aligned", "aligned PSNR (dB)", "{:.2f}"), ("ssim", "SSIM", "{:.4f}")):
+    for key, label, fmt in (("psnr_aligned", "aligned PSNR (dB)", "{:.2f}"), ("ssim_aligned", "aligned SSIM", "{:.4f}")):
         lines += [f"**Per scene: {label}** (every metric: metrics.csv)", "",
                   "| Scene | frames | " + " | ".join(method_label(m) for m in methods) + " |",
                   "|---|---|" + "---|" * len(methods)]

@@ -20,6 +20,16 @@ cannot report y > 1: saturation is one spike per step, and peers clamp their out
   exactly the floor 20 log10(level / std(gt)); any image correlated with the ground truth (rho)
   scores 10 log10(1 / (1 - rho^2)) dB above it, so no image without structure can win. It rewards
   structure only: brightness errors are what the other columns measure.
+- Aligned SSIM (`ssim_aligned`): SSIM in the same spirit. The prediction gets the gain (and the
+  offset that matches the means) that maximise its SSIM, as the aligned PSNR gets the pair that
+  minimises its error; SSIM is taken at the ground truth's light level as the data range; then it
+  is rescaled so that an image without structure scores 0 and a perfect one 1: (S - S0) / (1 - S0),
+  S0 the SSIM of the constant image at the ground truth's mean (gain 0). Why: plain SSIM rewards
+  flat regions matched by anything flat, so in low light `black` scores 0.97 where TFP scores 0.87,
+  and light-normalised SSIM does not stop it either. Gain 0 is always a candidate, so no image
+  scores below 0 and black or constant images score exactly 0, at every light level. (With the
+  least-squares gain instead, a noisy image scored below the constant: SSIM penalises noise that
+  MSE's fit keeps.)
 """
 from __future__ import annotations
 
@@ -37,7 +47,9 @@ AUTHORS_CONVENTION = ("8-bit (the authors' metric code, the convention of the pa
 NORMALISED_CONVENTION = ("light-normalised: as ours, with the data range set to the ground truth's 99.5th "
                          "percentile (its light level) instead of 1. Aligned: light-normalised PSNR after the "
                          "least-squares gain and offset from prediction to ground truth (a black or constant "
-                         "image scores the floor, 20 log10(level / std(gt))).")
+                         "image scores the floor, 20 log10(level / std(gt))); aligned SSIM: light-normalised SSIM "
+                         "after the gain (offset matching the means) that maximises it, rescaled so that the constant "
+                         "image at the ground truth's mean scores 0 and a perfect one 1 (no image scores below 0).")
 PEAK_PERCENTILE = 99.5
 PEAK_FLOOR = 1e-4
 """The smallest light level the normalised metrics divide by (y; 0.1 spike per 1000 steps), so an
@@ -118,15 +130,80 @@ def ssim_norm(pred: np.ndarray, target: np.ndarray) -> float:
                                        use_sample_covariance=False))
 
 
+def aligned_prediction(pred: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """a + b pred with a and b the least-squares fit to the target (float64, both already prepared);
+    a constant prediction gets the offset only: the target's mean."""
+    pc, tc = pred - pred.mean(), target - target.mean()
+    var_p = float(np.vdot(pc, pc))
+    gain = float(np.vdot(pc, tc)) / var_p if var_p > 0 else 0.0
+    return target.mean() + gain * pc
+
+
 def psnr_aligned(pred: np.ndarray, target: np.ndarray) -> float:
     """Light-normalised PSNR of a + b pred, with a and b fitted to the ground truth by least squares."""
     p, t = _prepare(pred, target)
-    p, t = p.ravel(), t.ravel()
-    pc, tc = p - p.mean(), t - t.mean()
-    var_p = float(pc @ pc)
-    gain = float(pc @ tc) / var_p if var_p > 0 else 0.0  # a constant prediction: offset only
-    mse = float(np.mean((tc - gain * pc) ** 2))
+    mse = float(np.mean((t - aligned_prediction(p, t)) ** 2))
     return math.inf if mse == 0 else 10.0 * math.log10(light_level(t) ** 2 / mse)
+
+
+#: SSIM's constants (Wang et al. 2004; scikit-image's K1, K2) and its Gaussian window (sigma 1.5
+#: truncated at 3.5 sigma: 11 x 11), as `ssim` uses them.
+SSIM_K1, SSIM_K2, SSIM_SIGMA, SSIM_TRUNCATE = 0.01, 0.03, 1.5, 3.5
+
+
+class AffineSSIM:
+    """SSIM(a + b pred, target) for every gain b, the offset a matching the means, from the local
+    moments computed once: Gaussian filters are linear, so the aligned image's local mean is
+    a + b mu_p, its variance b^2 var_p and its covariance b cov. Equal to scikit-image's
+    structural_similarity(gaussian_weights=True, sigma=1.5, use_sample_covariance=False) on the
+    aligned image (tested), at the cost of one search over b instead of one SSIM per gain."""
+
+    def __init__(self, pred: np.ndarray, target: np.ndarray, data_range: float) -> None:
+        from scipy.ndimage import gaussian_filter
+
+        def blur(x: np.ndarray) -> np.ndarray:
+            return gaussian_filter(x, sigma=SSIM_SIGMA, truncate=SSIM_TRUNCATE, mode="reflect")
+        r = (SSIM_MIN_SIDE - 1) // 2  # scikit-image averages the SSIM map inside its window's reach
+        crop = (slice(r, -r), slice(r, -r))
+        self.mu_p, self.mu_t = blur(pred)[crop], blur(target)[crop]
+        self.var_p = blur(pred * pred)[crop] - self.mu_p ** 2
+        self.var_t = blur(target * target)[crop] - self.mu_t ** 2
+        self.cov = blur(pred * target)[crop] - self.mu_p * self.mu_t
+        self.mean_p, self.mean_t = float(pred.mean()), float(target.mean())
+        self.c1, self.c2 = (SSIM_K1 * data_range) ** 2, (SSIM_K2 * data_range) ** 2
+
+    def __call__(self, gain: float) -> float:
+        mu = self.mean_t + gain * (self.mu_p - self.mean_p)
+        num = (2 * mu * self.mu_t + self.c1) * (2 * gain * self.cov + self.c2)
+        den = (mu ** 2 + self.mu_t ** 2 + self.c1) * (gain ** 2 * self.var_p + self.var_t + self.c2)
+        return float(np.mean(num / den))
+
+
+def ssim_aligned(pred: np.ndarray, target: np.ndarray) -> float:
+    """(S - S0) / (1 - S0): S the light-normalised SSIM of a + b pred at the gain b that maximises
+    it (the offset a matching the means; b searched between 0 and twice the least-squares gain),
+    S0 that of the constant image at the ground truth's mean (b = 0), so that no image scores
+    below an image without structure, and those score exactly 0 (module docstring). 1.0 for a ground
+    truth without structure (S0 = 1: nothing to recover, as the aligned PSNR's infinity)."""
+    from scipy.optimize import minimize_scalar
+
+    p, t = _prepare(pred, target)
+    if min(p.shape) < SSIM_MIN_SIDE:
+        raise ValueError(f"SSIM's 11x11 Gaussian window needs images of at least {SSIM_MIN_SIDE}x{SSIM_MIN_SIDE}, "
+                         f"got {p.shape[0]}x{p.shape[1]}")
+    score = AffineSSIM(p, t, light_level(t))
+    floor = score(0.0)
+    if 1.0 - floor < 1e-12:
+        return 1.0
+    pc = p - p.mean()
+    var_p = float(np.vdot(pc, pc))
+    ls_gain = float(np.vdot(pc, t - t.mean())) / var_p if var_p > 0 else 0.0
+    best = max(floor, score(ls_gain))
+    if ls_gain != 0.0:
+        found = minimize_scalar(lambda g: -score(g), bounds=sorted((0.0, 2.0 * ls_gain)), method="bounded",
+                                options={"xatol": 1e-6 * abs(ls_gain)})
+        best = max(best, -float(found.fun))
+    return (best - floor) / (1.0 - floor)
 
 
 #: Every metric evaluate reports, in table order: name -> (function, label, format).
@@ -138,4 +215,5 @@ METRICS = {
     "psnr_norm": (psnr_norm, "PSNR light-norm.", "{:.3f}"),
     "ssim_norm": (ssim_norm, "SSIM light-norm.", "{:.5f}"),
     "psnr_aligned": (psnr_aligned, "PSNR aligned", "{:.3f}"),
+    "ssim_aligned": (ssim_aligned, "SSIM aligned", "{:.4f}"),
 }

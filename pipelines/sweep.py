@@ -36,7 +36,9 @@ from spikesim.dataset import SATURATION_Y
 
 RESULT_FILES = ("sweep.csv", "sweep.md", "sweep.png", "sweep.json")
 #: The reported metrics, in the order of the tables (model.metrics.METRICS keys).
-HEADLINE = ("psnr_aligned", "ssim")
+HEADLINE = ("psnr_aligned", "ssim_aligned")
+#: Every metric a row keeps: the headline pair first, then the plain, 8-bit and light-normalised ones.
+METRIC_KEYS = HEADLINE + ("ssim", "psnr", "psnr_8bit", "ssim_8bit", "psnr_norm", "ssim_norm")
 WINDOW = 41
 #: Saturation is reached where this percentile of the ground truth reaches y = 1.
 SATURATION_PERCENTILE = 99.0
@@ -162,8 +164,7 @@ def sweep(rendered: Sequence[RenderedScene], levels: Sequence[float], methods: S
             rows.append({"scene": sc.name, "lux": float(lux), "method": score.method, "frames": score.frames,
                          "mean_y": float(np.mean([g.mean() for g in level.gt.values()])),
                          "saturated": bool(lux >= sc.saturation_lux),
-                         **{m: score.value(m) for m in ("psnr_aligned", "ssim", "psnr", "psnr_8bit", "ssim_8bit",
-                                                       "psnr_norm", "ssim_norm")}})
+                         **{m: score.value(m) for m in METRIC_KEYS}})
         if progress:
             best = max(rows[-len(methods):], key=lambda r: r["psnr_aligned"])
             print(f"[sweep] {k + 1}/{total} {sc.name} at {lux:.3g} lx: best {best['method']} "
@@ -194,7 +195,7 @@ def losing_levels(rows: Sequence[dict[str, Any]], method: str, saturation_lux: f
 def markdown(rows: Sequence[dict[str, Any]], methods: Sequence[str], saturation_lux: float) -> str:
     lines = [f"Mean over {len({r['scene'] for r in rows})} scene(s); saturation edge (median over scenes, where "
              f"the {SATURATION_PERCENTILE:g}th percentile of y reaches 1): {saturation_lux:.4g} lx.", ""]
-    for metric, label, fmt in (("psnr_aligned", "aligned PSNR (dB)", "{:.2f}"), ("ssim", "SSIM", "{:.4f}")):
+    for metric, label, fmt in (("psnr_aligned", "aligned PSNR (dB)", "{:.2f}"), ("ssim_aligned", "aligned SSIM", "{:.4f}")):
         table = summary(rows, metric)
         luxes = sorted(next(iter(table.values())))
         lines += [f"**{label}**", "", "| lux | " + " | ".join(methods) + " |",
@@ -211,7 +212,7 @@ def markdown(rows: Sequence[dict[str, Any]], methods: Sequence[str], saturation_
 
 def plot(rows: Sequence[dict[str, Any]], methods: Sequence[str], saturation_lux: float, path: Path,
          title: str) -> Path:
-    """Aligned PSNR and SSIM against lux (log axis), a line per method, the saturation edge marked."""
+    """Aligned PSNR and aligned SSIM against lux (log axis), a line per method, the saturation edge marked."""
     from spikesim._optional import require
     require("matplotlib", "plot", "the sweep plot")
     import matplotlib
@@ -221,7 +222,7 @@ def plot(rows: Sequence[dict[str, Any]], methods: Sequence[str], saturation_lux:
     from spikesim.outputs import atomic_write_with
 
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
-    for ax, (metric, label) in zip(axes, (("psnr_aligned", "aligned PSNR (dB)"), ("ssim", "SSIM"))):
+    for ax, (metric, label) in zip(axes, (("psnr_aligned", "aligned PSNR (dB)"), ("ssim_aligned", "aligned SSIM"))):
         table = summary(rows, metric)
         for m in methods:
             luxes = sorted(table[m])

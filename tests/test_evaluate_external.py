@@ -46,7 +46,8 @@ def test_project_pair_reads_geometry_from_the_sidecar(tmp_path, capsys) -> None:
     for key in ("psnr", "ssim", "psnr_8bit", "ssim_8bit", "psnr_norm", "ssim_norm"):
         assert tfp[key] > mean[key] > black[key], key
     assert tfp["psnr_aligned"] > mean["psnr_aligned"] == pytest.approx(black["psnr_aligned"])
-    assert set(tfp) == {"psnr", "ssim", "psnr_8bit", "ssim_8bit", "psnr_norm", "ssim_norm", "psnr_aligned", "frames"}
+    assert set(tfp) == {"psnr", "ssim", "psnr_8bit", "ssim_8bit", "psnr_norm", "ssim_norm", "psnr_aligned", "ssim_aligned",
+                        "frames"}
 
 
 def test_in_low_light_black_beats_tfp_in_psnr_but_not_aligned_or_ssim_norm(tmp_path, capsys) -> None:

@@ -78,7 +78,8 @@ def test_light_normalised_scores_do_not_depend_on_the_light_level():
 
 
 def test_every_metric_is_listed_for_evaluate():
-    assert list(METRICS) == ["psnr", "ssim", "psnr_8bit", "ssim_8bit", "psnr_norm", "ssim_norm", "psnr_aligned"]
+    assert list(METRICS) == ["psnr", "ssim", "psnr_8bit", "ssim_8bit", "psnr_norm", "ssim_norm", "psnr_aligned",
+                             "ssim_aligned"]
 
 
 def test_evaluate_reports_low_then_normal_then_all(tmp_path):
@@ -104,7 +105,7 @@ def test_evaluate_reports_low_then_normal_then_all(tmp_path):
     csv_path, _ = ev.write_results(rows, ["TFP", "TFI"], tmp_path)
     head = next(csv.reader(csv_path.open()))
     assert head == ["scene", "method", "psnr", "ssim", "psnr_8bit", "ssim_8bit", "psnr_norm", "ssim_norm", "psnr_aligned",
-                    "frames"]
+                    "ssim_aligned", "frames"]
     assert ev.light_condition("rllr_0001") is None and ev.light_condition("car_normal") == "normal"
 
 
@@ -120,3 +121,53 @@ def test_aligned_psnr_floor_is_shared_by_every_image_without_structure():
     noisy = 5.0 * (gt + rng.normal(0, 0.01, gt.shape)) + 0.1
     rho = np.corrcoef(np.clip(noisy, 0, 1).ravel(), gt.ravel())[0, 1]
     assert psnr_aligned(noisy, gt) == pytest.approx(floor + 10 * np.log10(1 / (1 - rho ** 2)), rel=1e-9)
+
+
+@pytest.mark.parametrize("light", [1e-4, 1e-2, 1.0])
+def test_aligned_ssim_gives_every_image_without_structure_zero_at_every_light_level(light):
+    from model.metrics import ssim, ssim_aligned
+    rng = np.random.default_rng(11)
+    yy, xx = np.mgrid[0:40, 0:56]
+    gt = light * (0.2 + 0.6 * (np.sin(xx / 3.0) * np.cos(yy / 5.0) > 0) + 0.1 * rng.random((40, 56)))
+    gt[:, :20] = light * 0.05  # a flat region, where plain SSIM rewards anything flat
+    noisy = np.clip(gt + rng.normal(0, 0.1 * light, gt.shape), 0, 1)
+    black, const = np.zeros_like(gt), np.full_like(gt, 0.37)
+    assert ssim_aligned(black, gt) == pytest.approx(0.0, abs=1e-9)
+    assert ssim_aligned(const, gt) == pytest.approx(0.0, abs=1e-9)
+    assert abs(ssim_aligned(rng.random(gt.shape), gt)) < 0.05  # uncorrelated: the fit maps it near the constant
+    assert ssim_aligned(gt, gt) == pytest.approx(1.0)
+    assert ssim_aligned(gt * 0.3 + 0.1, gt) == pytest.approx(1.0, abs=1e-6)  # gain and offset are not structure
+    assert 0.1 < ssim_aligned(noisy, gt) < 1.0
+    if light <= 1e-4:  # the failure it fixes: in low light plain SSIM gives black nearly full marks
+        assert ssim(black, gt) > 0.95
+
+
+def test_aligned_ssim_of_a_flat_ground_truth_is_one():
+    from model.metrics import ssim_aligned
+    assert ssim_aligned(np.random.default_rng(0).random((16, 16)), np.full((16, 16), 0.2)) == 1.0
+
+
+def test_affine_ssim_equals_scikit_image_on_the_aligned_image():
+    from skimage.metrics import structural_similarity
+    from model.metrics import AffineSSIM, light_level
+    rng = np.random.default_rng(5)
+    gt = rng.random((30, 37)) * 0.2
+    pred = np.clip(gt + rng.normal(0, 0.05, gt.shape), 0, 1)
+    fast = AffineSSIM(pred, gt, light_level(gt))
+    for gain in (0.0, 0.4, 1.3, -0.7):
+        aligned = gt.mean() + gain * (pred - pred.mean())
+        want = structural_similarity(aligned, gt, data_range=light_level(gt), gaussian_weights=True, sigma=1.5,
+                                     use_sample_covariance=False)
+        assert fast(gain) == pytest.approx(want, abs=1e-10)
+
+
+def test_aligned_ssim_never_scores_a_noisy_image_below_the_floor():
+    from model.metrics import ssim_aligned
+    rng = np.random.default_rng(8)
+    gt = 1e-3 * (0.5 + 0.5 * np.sin(np.mgrid[0:48, 0:64][1] / 4.0))
+    for noise in (1e-4, 1e-3, 1e-2):  # from faithful to no structure left
+        pred = np.clip(gt + rng.normal(0, noise, gt.shape), 0, 1)
+        assert ssim_aligned(pred, gt) >= 0.0
+    faithful = ssim_aligned(np.clip(gt + rng.normal(0, 1e-4, gt.shape), 0, 1), gt)
+    drowned = ssim_aligned(np.clip(gt + rng.normal(0, 1e-2, gt.shape), 0, 1), gt)
+    assert faithful > 0.5 > drowned
