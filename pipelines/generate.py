@@ -127,7 +127,7 @@ def run(args: argparse.Namespace) -> int:
                          name=args.name, quality=args.quality, length="steps" if resolved.kind == "scene-steps" else "windows")
     if not args.json:
         print(resolved.summary())
-    jobs = [dataclasses.replace(job, settings=resolved.table()) for job in jobs]
+    jobs = [dataclasses.replace(job, settings=resolved.table(), twin=args.twin) for job in jobs]
     if args.estimate_only:
         return _estimate_only(args, jobs, device, resolved)
     try:
@@ -264,6 +264,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="render/sensor knobs from spikesim.quality (measured presets; docs/tradeoff.md; "
                         "fast: samples chosen by the scene's light, the paper LLR in under 10 minutes on 2 "
                         "cores); overrides --spp/--keyframe-every and the variant")
+    p.add_argument("--twin", action="store_true",
+                   help="also write each scene's noise-free twin stream (spikes_twin.dat: the same frames and "
+                        "initial state, every noise term off; one more sensor pass, no more renders), for "
+                        "self-supervised denoisers and noise studies")
     p.add_argument("--workers", type=positive_int, help="local processes (default: one per core; one with a GPU)")
     add_device_argument(p)
     p.add_argument("--ray", metavar="ADDRESS", help="run on a Ray cluster ('auto', an address, or 'local')")

@@ -160,25 +160,31 @@ def frames_steps(steps: int | None, num_frames: int, keyframe_every: int, source
 
 
 def check_outputs(args: argparse.Namespace) -> None:
-    """-o and its JSON sidecar can be written and overwrite no file this run reads, nor one that
-    is not a stream this command wrote (unless --overwrite); neither is a symlink (refused, not
-    followed nor replaced: spikesim.outputs). Checked before the simulation, which may take long."""
+    """-o (and with --twin its twin) and their JSON sidecars can be written and overwrite no file
+    this run reads, nor one that is not a stream this command wrote (unless --overwrite); none is a
+    symlink (refused, not followed nor replaced: spikesim.outputs). Checked before the simulation,
+    which may take long."""
+    for out in (Path(args.out),) + ((twin_path(Path(args.out)),) if getattr(args, "twin", False) else ()):
+        _check_output(args, out)
+
+
+def _check_output(args: argparse.Namespace, out: Path) -> None:
     from spikesim.outputs import check_not_link
     from spikesim.stream import sidecar_path
 
-    side = sidecar_path(args.out)
-    check_not_link(args.out)
+    side = sidecar_path(out)
+    check_not_link(out)
     check_not_link(side)
     if side.is_dir():
-        raise ValueError(f"--out {args.out}: its sidecar {side} is a directory")
+        raise ValueError(f"--out {out}: its sidecar {side} is a directory")
     camera_file = args.camera if isinstance(args.camera, Path) else None
     inputs = {"--frames": args.frames, "--camera": camera_file, "--motion": args.motion, "--lights": args.lights}
-    for written in (Path(args.out), side):
+    for written in (out, side):
         for flag, path in inputs.items():
             if path is not None and written.exists() and Path(path).exists() and written.samefile(path):
-                raise ValueError(f"--out {args.out} would overwrite the {flag} input {path}")
-    if Path(args.out).exists() and not getattr(args, "overwrite", False) and not simulated_stream(Path(args.out)):
-        raise ValueError(f"--out {args.out} exists and is not a spike stream simulate wrote (no sidecar beside it "
+                raise ValueError(f"--out {out} would overwrite the {flag} input {path}")
+    if out.exists() and not getattr(args, "overwrite", False) and not simulated_stream(out):
+        raise ValueError(f"--out {out} exists and is not a spike stream simulate wrote (no sidecar beside it "
                          "that matches its size); pass --overwrite to replace it, or choose another -o")
 
 
@@ -223,8 +229,15 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     try:
         with outputs.output_file(args.out):  # a failed run leaves no new empty folder
-            out = sim.run_to_dat(_progress(frames, args, steps), args.out, keyframe_every=args.keyframe_every,
-                                 flip=not args.no_flip, extra={"irradiance": source}, max_steps=steps)
+            if args.twin:
+                from spikesim.simulate import TwinSimulator
+                out, twin_out = TwinSimulator(sim, None).run_to_dat(
+                    _progress(frames, args, steps), args.out, twin_path(args.out), keyframe_every=args.keyframe_every,
+                    flip=not args.no_flip, extra={"irradiance": source}, max_steps=steps)
+                log.info("wrote the noise-free twin %s", twin_out)
+            else:
+                out = sim.run_to_dat(_progress(frames, args, steps), args.out, keyframe_every=args.keyframe_every,
+                                     flip=not args.no_flip, extra={"irradiance": source}, max_steps=steps)
     except ValueError as exc:  # a bad frame of an .npy: name the file (EXR frames name theirs)
         if args.scene is not None and str(exc).startswith("frame "):  # a device frame the sensor refused
             from spikesim.render.scene_checks import brightest_emitters
@@ -249,6 +262,11 @@ def run(args: argparse.Namespace) -> int:
           f"mean rate {s['mean_rate_per_step']:.4f} spikes/step ({s['mean_rate_hz']:.0f} Hz), "
           f"dark pixels {s['dark_pixel_fraction']:.1%}")
     return 0
+
+
+def twin_path(out: Path) -> Path:
+    """Where `simulate --twin` writes the noise-free twin of stream `out`: NAME_twin.dat beside it."""
+    return out.with_name(f"{out.stem}_twin{out.suffix or '.dat'}")
 
 
 def _progress(frames: Iterator[np.ndarray], args: argparse.Namespace, steps: int) -> Iterator[np.ndarray]:
@@ -283,6 +301,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=seed_int, default=0, help="seed of the sensor's noise and fixed patterns")
     p.add_argument("--no-flip", action="store_true",
                    help="write rows top-down (SPCS/SCSim convention; default: rows stored bottom-up (flip), as real cameras)")
+    p.add_argument("--twin", action="store_true",
+                   help="also write the noise-free twin stream (every noise term off, the same frames and initial "
+                        "state) as NAME_twin.dat beside -o, with its own sidecar")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--json", action="store_true", help="print the stream's summary as JSON")
     p.add_argument("-o", "--out", type=output_file, default=Path("out/stream.dat"),

@@ -41,6 +41,8 @@ from .stream import META_LIMIT, DatReader, SpikeStream, check_stream_record, wri
 
 MANIFEST = "manifest.json"
 SPIKES = "spikes.dat"
+#: The noise-free twin's stream (generate --twin: spikesim.simulate.twin_camera on the same frames).
+TWIN_SPIKES = "spikes_twin.dat"
 META = "meta.json"
 GT_DIR = "gt"
 CHECKSUMS = "checksums.json"
@@ -160,6 +162,19 @@ class SceneRecord:
     def stream(self, start: int = 0, stop: int | None = None) -> SpikeStream:
         return self.reader.read(start, stop)
 
+    @property
+    def has_twin(self) -> bool:
+        return isinstance(self.meta.get("twin"), dict)
+
+    def twin_spikes(self, start: int = 0, stop: int | None = None) -> np.ndarray:
+        """The noise-free twin's frames [start, stop) as bool (n, H, W) (generate --twin)."""
+        if not self.has_twin:
+            raise ValueError(f"scene {self.name} has no twin stream (made without generate --twin)")
+        reader = DatReader(self.path / TWIN_SPIKES, self.height, self.width, flip=bool(self.meta["flip"]))
+        if reader.num_steps != self.num_steps:
+            raise ValueError(f"{self.path / TWIN_SPIKES}: {reader.num_steps} frames, meta.json says {self.num_steps}")
+        return reader.read(start, stop).unpack()
+
     def spikes(self, start: int = 0, stop: int | None = None) -> np.ndarray:
         """Frames [start, stop) as bool (n, H, W)."""
         return self.reader.read(start, stop).unpack()
@@ -209,11 +224,13 @@ def scene_saturation(root: str | Path, name: str) -> float | None:
 
 
 def write_scene(root: str | Path, name: str, stream: SpikeStream | Path, ground_truth: dict[int, np.ndarray] | Iterable[tuple[int, np.ndarray]],
-                meta: dict[str, Any], flip: bool = True) -> SceneRecord:
+                meta: dict[str, Any], flip: bool = True, twin: Path | None = None) -> SceneRecord:
     """Write a complete scene folder atomically (built as `.<name>.part`, then renamed), with the
     checksums of its files recorded last.
 
-    `stream` is either a SpikeStream or the path of an already written `.dat` (moved in).
+    `stream` is either a SpikeStream or the path of an already written `.dat` (moved in); `twin`,
+    the path of the noise-free twin's `.dat` of as many steps (moved in as TWIN_SPIKES; meta.json's
+    "twin" says which camera made it).
     """
     root = Path(root)
     check_scene_name(name)
@@ -233,6 +250,12 @@ def write_scene(root: str | Path, name: str, stream: SpikeStream | Path, ground_
                 raise ValueError(f"scene {name}: meta needs 'height' and 'width' when the stream is a file")
             h, w = int(meta["height"]), int(meta["width"])
             n = DatReader(tmp / SPIKES, h, w, flip=flip).num_steps
+        if twin is not None:
+            os.replace(twin, tmp / TWIN_SPIKES)
+            if (got := DatReader(tmp / TWIN_SPIKES, h, w, flip=flip).num_steps) != n:
+                raise ValueError(f"scene {name}: the twin stream has {got} steps, the stream {n}")
+            if not isinstance(meta.get("twin"), dict):
+                raise ValueError(f"scene {name}: meta needs 'twin' (the camera that made {TWIN_SPIKES})")
         items = ground_truth.items() if isinstance(ground_truth, dict) else ground_truth
         steps = []
         saturation = _SaturationCount()
@@ -352,13 +375,16 @@ def check_scene(root: str | Path, name: str, checksums: bool = False) -> list[st
     except (OSError, ValueError) as exc:
         return [str(exc)]
     problems = [_file_problem(folder, rel, want, checksums, f"{name}/{rel}") for rel, want in files.items()]
+    if TWIN_SPIKES in files and SPIKES in files and files[TWIN_SPIKES].get("bytes") != files[SPIKES].get("bytes"):
+        problems.append(f"{name}/{TWIN_SPIKES}: its record gives {files[TWIN_SPIKES].get('bytes')} bytes, "
+                        f"{SPIKES} {files[SPIKES].get('bytes')}: a twin has the stream's steps")
     return [p for p in problems if p is not None]
 
 
 def holds_only_scene_files(folder: Path) -> bool:
     """Whether `folder` holds nothing but what `write_scene` writes (possibly partly deleted), so
     that removing it to rebuild the scene cannot lose anything else."""
-    known = {SPIKES: "file", META: "file", CHECKSUMS: "file", GT_DIR: "dir"}
+    known = {SPIKES: "file", TWIN_SPIKES: "file", META: "file", CHECKSUMS: "file", GT_DIR: "dir"}
     for entry in os.scandir(folder):
         kind = known.get(entry.name)
         if entry.is_symlink() or kind is None or (kind == "dir") != entry.is_dir(follow_symlinks=False):

@@ -520,11 +520,83 @@ class Simulator(BatchSimulator):
         return {k: (v[0] if isinstance(v, np.ndarray) else v) for k, v in state.items()}
 
 
+def twin_camera(camera: SpikeCamera) -> SpikeCamera:
+    """The noise-free twin of `camera`: every noise term off but the initial state. Its initial
+    charge comes from the same seed's draws, as the same fraction of its (ideal) threshold as the
+    camera's is of its own (fixed_pattern.draw_pixel_parameters), so the two streams start in the
+    same phase and differ by the noise alone. SCSim writes such a pair for every stream."""
+    from .camera import NOISE_TERMS
+    return camera.without(*(t for t in NOISE_TERMS if t != "random_initial_state"))
+
+
+class TwinSimulator:
+    """A simulator and its noise-free twin (twin_camera) on the same frames: each frame is rendered
+    once and simulated twice. Iterates the camera's stream parts; each twin part of the same steps
+    goes to `on_twin` just before it. Quacks like the Simulator it wraps for the calls a scene job
+    makes (stream, stream_keyframes, steps_done, backend_name, describe)."""
+
+    def __init__(self, sim: Simulator, on_twin: Any) -> None:
+        self.sim, self.on_twin = sim, on_twin
+        self.twin = Simulator(twin_camera(sim.camera), backend=sim.backend_name, seed=sim.seed,
+                              chunk_steps=sim.chunk_steps)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.sim, name)
+
+    def _pair(self, ours: Iterator[Any], theirs: Iterator[Any]) -> Iterator[Any]:
+        from itertools import zip_longest
+        for part, twin_part in zip_longest(ours, theirs):
+            if twin_part is not None:
+                self.on_twin(twin_part)
+            if part is not None:
+                yield part
+
+    def stream(self, frames: Iterable[Any], keyframe_every: int = 1, final: bool = True,
+               max_frames: int | None = None) -> Iterator[SpikeStream]:
+        from itertools import tee
+        a, b = tee(frames)  # holds at most the frames one simulator is ahead by: one chunk
+        return self._pair(self.sim.stream(a, keyframe_every, final, max_frames),
+                          self.twin.stream(b, keyframe_every, final, max_frames))
+
+    def stream_keyframes(self, keyframes: Iterable[tuple[int, Any]], final: bool = True) -> Iterator[SpikeStream]:
+        from itertools import tee
+        a, b = tee(keyframes)
+        return self._pair(self.sim.stream_keyframes(a, final), self.twin.stream_keyframes(b, final))
+
+    def run_to_dat(self, frames: Iterable[Any], path: str | Path, twin_path: str | Path, keyframe_every: int = 1,
+                   flip: bool = True, extra: dict[str, Any] | None = None,
+                   max_steps: int | None = None) -> tuple[Path, Path]:
+        """Both streams straight to `.dat` files with their sidecars (each sidecar names its camera,
+        the twin's also the stream it is the twin of); memory stays one chunk."""
+        cam = self.sim.camera
+        ours, theirs = (DatWriter(p, cam.height, cam.width, flip=flip) for p in (path, twin_path))
+
+        def cut(writer: DatWriter, part: SpikeStream) -> None:
+            n = part.num_steps if max_steps is None else min(part.num_steps, max_steps - writer.num_steps)
+            if n > 0:
+                writer.write(part.slice(0, n))
+        try:
+            self.on_twin = lambda part: cut(theirs, part)
+            for part in self.stream(frames, keyframe_every=keyframe_every):
+                cut(ours, part)
+                if max_steps is not None and ours.num_steps >= max_steps and theirs.num_steps >= max_steps:
+                    break
+            written = ours.close(), theirs.close()
+        except BaseException:
+            ours.abort()
+            theirs.abort()
+            raise
+        common = {"flip": flip, "keyframe_every": keyframe_every, **(extra or {})}
+        write_sidecar(written[0], self.sim.describe(num_steps=ours.num_steps, twin=written[1].name, **common))
+        write_sidecar(written[1], self.twin.describe(num_steps=theirs.num_steps, twin_of=written[0].name, **common))
+        return written
+
+
 def simulate(frames: Iterable[Any], camera: SpikeCamera | None = None, backend: str = "auto", seed: int = 0,
              keyframe_every: int = 1) -> SpikeStream:
     """One-call convenience: frames -> spike stream."""
     return Simulator(camera or SpikeCamera(), backend=backend, seed=seed).run(frames, keyframe_every=keyframe_every)
 
 
-__all__ = ["Simulator", "BatchSimulator", "simulate", "available_backends", "resolve_backend", "check_frame",
+__all__ = ["Simulator", "BatchSimulator", "TwinSimulator", "twin_camera", "simulate", "available_backends", "resolve_backend", "check_frame",
            "BACKENDS"]

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any, Callable, Iterator
 
 import numpy as np
 
-from spikesim.dataset import inside_root, remove_inside, write_scene
+from spikesim.dataset import TWIN_SPIKES, inside_root, remove_inside, write_scene
 from spikesim.outputs import writing
 from spikesim.keyframes import keyframe_count
 from spikesim.render.lights import scale_light_amounts
@@ -200,7 +200,7 @@ def run_job(job: SceneJob, root: str | Path, progress: Callable[[str, int, int],
     `backend` "auto" the sensor runs there too, and frames never leave the device: only packed
     spikes come back, to be written."""
     from spikesim.camera import SpikeCamera
-    from spikesim.simulate import Simulator
+    from spikesim.simulate import Simulator, TwinSimulator
     from spikesim.stream import DatWriter
 
     if threads is not None and threads >= 2:
@@ -214,6 +214,7 @@ def run_job(job: SceneJob, root: str | Path, progress: Callable[[str, int, int],
     remove_inside(root, work_name)  # debris of a killed run
     work.mkdir(parents=True)
     t0 = time.perf_counter()
+    twin_writer = None
     try:
         source = _FrameSource(job, work, device)
         inputs = _inputs_as_planned(job)  # hashed once the renderer has read its files
@@ -249,6 +250,18 @@ def run_job(job: SceneJob, root: str | Path, progress: Callable[[str, int, int],
         sim = Simulator(cam, backend=backend, seed=job.seed)
         on_device = renderer is not None and sim.backend_name == renderer.device
         dat = work / "spikes.dat"
+        twin_dat = work / TWIN_SPIKES if job.twin else None
+        twin_writer = DatWriter(twin_dat, cam.height, cam.width, flip=job.flip) if twin_dat is not None else None
+        twin_written = 0
+
+        def write_twin(part: Any) -> None:  # the twin's parts cover the same steps, cut at num_steps alike
+            nonlocal twin_written
+            take = min(part.num_steps, job.num_steps - twin_written)
+            if take > 0:
+                twin_writer.write(part.slice(0, take))
+                twin_written += take
+        if twin_writer is not None:
+            sim = TwinSimulator(sim, write_twin)  # one render per frame, two sensor passes
         written = 0
         # progress counts renders, ground truth included (the bar said 100 % at 78 s of a 180 s
         # scene, counting simulated steps only); a pattern has no render: its steps count instead
@@ -272,6 +285,9 @@ def run_job(job: SceneJob, root: str | Path, progress: Callable[[str, int, int],
                         progress(job.name, min(keyframe_count(written, k), frame_renders), total_renders)
             except ValueError as exc:
                 raise source.rendered_frames_error(exc) from exc
+        if twin_writer is not None:
+            twin_writer.close()
+            twin_writer = None
         t_frames = time.perf_counter() - t0
 
         def ground_truth() -> Iterator[tuple[int, np.ndarray]]:
@@ -290,8 +306,13 @@ def run_job(job: SceneJob, root: str | Path, progress: Callable[[str, int, int],
                 "settings": job.settings or None,
                 "simulator": sim.describe(num_steps=written),
                 "quality": quality_record}
-        write_scene(root, job.name, dat, ground_truth(), meta, flip=job.flip)
+        if twin_dat is not None:  # which camera made each stream: the dataset record says so
+            meta["twin"] = {"file": TWIN_SPIKES, "camera": sim.twin.camera.to_dict(),
+                            "simulator": sim.twin.describe(num_steps=twin_written)}
+        write_scene(root, job.name, dat, ground_truth(), meta, flip=job.flip, twin=twin_dat)
     finally:
+        if twin_writer is not None:  # not closed: the run failed before its stream was whole
+            twin_writer.abort()
         shutil.rmtree(work, ignore_errors=True)
     total = time.perf_counter() - t0
     size = sum(p.stat().st_size for p in inside_root(root, job.name).rglob("*") if p.is_file())

@@ -106,6 +106,9 @@ class SceneJob:
     quality: str | None = None
     """A `spikesim.quality` preset (draft / balanced / reference) that sets the render and sensor
     knobs (spp, variant, keyframe policy, noise terms, precision) instead of the fields above."""
+    twin: bool = False
+    """Also write the noise-free twin's stream (spikesim.simulate.twin_camera) on the same frames.
+    Part of the identity only when on, so every job made before it keeps its digest."""
     settings: dict[str, Any] = dataclasses.field(default_factory=dict, compare=False)
     """Each setting's value and where it came from (spikesim.generation.settings), recorded in
     meta.json; not part of the job's identity (`to_dict`, `digest`): the same values from another
@@ -145,6 +148,8 @@ class SceneJob:
         d["gt_steps"] = list(self.gt_steps)
         d["windows"] = [list(w) for w in self.windows]
         d["inputs"] = dict(sorted(self.inputs.items()))
+        if not self.twin:
+            del d["twin"]
         return d
 
     def parameters(self) -> dict[str, Any]:
