@@ -1,0 +1,131 @@
+"""`spikesim calibrate`: a camera file fitted from your own recordings.
+
+    spikesim calibrate --dark DARK.dat --flat FLAT.dat --height H --width W -o mine.toml
+    spikesim calibrate --dark DARK.dat --flat LOW.dat --flat HIGH.dat --scene SCENE.dat ... -o mine.toml
+    spikesim calibrate --scene recording.dat --height 250 --width 250 -o mine.toml   # what a scene tells
+
+- DARK: the lens capped. Gives dark_current_hz, dark_current_spread, and the hot pixels (counted).
+- FLAT: uniform light, below half the saturation rate. Gives gain_spread (which holds the threshold
+  mismatch and offset: they act on light alike; the file sets them to 0). A second flat is combined.
+- SCENE: any recording with texture. Gives row_gain_spread and column_gain_spread.
+
+Each fitted value is written with its standard error and the recording it came from; every other
+field keeps the --camera it starts from (default: the published realistic camera), and the file
+says so. Use the file as `--camera mine.toml` in simulate, generate, golden and demo.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+from pipelines.argtypes import camera_spec, existing_file, load_camera, output_file, positive_float, positive_int
+from spikesim import outputs
+
+
+def read_half_rates(path: Path, height: int | None, width: int | None, flip: bool | None) -> Any:
+    from spikesim.calibrate import half_rates
+    from spikesim.stream import DatReader, stream_geometry
+
+    h, w, f = stream_geometry(path, height, width, flip)
+    reader = DatReader(path, h, w, flip=f)
+    return half_rates(lambda a, b: reader.read(a, b).unpack(), reader.num_steps, str(path))
+
+
+def calibrated_toml(camera: Any, fitted: list[Any], notes: list[str]) -> str:
+    """The camera file (spikesim.camera_file.camera_toml) with each fitted field's line annotated:
+    value +- one standard error, and the recording."""
+    from spikesim.camera_file import camera_toml
+
+    by = {f.field: f for f in fitted}
+    lines = []
+    for line in camera_toml(camera).splitlines():
+        name = line.split(" = ", 1)[0]
+        if name in by and not line.startswith("#"):
+            f = by[name]
+            lines.append(f"{name} = {f.value!r}  # fitted: {f.value:.4g} +- {f.uncertainty:.2g} (one standard "
+                         f"error), from {f.source}")
+        else:
+            lines.append(line)
+    head = ["# Calibrated by `spikesim calibrate` from the recordings named below (docs/sensor.md, \"Calibrating",
+            "# a camera\"). Fields marked `fitted` were measured; every other field keeps the starting camera's",
+            "# value (the published default unless --camera said otherwise).", *(f"# {n}" for n in notes), ""]
+    return "\n".join(head + lines) + "\n"
+
+
+def run(args: argparse.Namespace) -> int:
+    from spikesim.calibrate import calibrated_camera, combine, fit_dark, fit_flat, fit_scene
+
+    if args.dark is None and not args.flat and args.scene is None:
+        raise ValueError("calibrate needs at least one recording: --dark (lens capped), --flat (uniform light) "
+                         "or --scene")
+    if args.out.suffix != ".toml":
+        raise ValueError(f"-o {args.out}: a camera file is TOML; name it *.toml")
+    if args.out.exists() and not args.overwrite:
+        raise FileExistsError(f"-o {args.out}: the file exists (--overwrite to replace it)")
+    base = load_camera(args.camera)
+    if args.readout_period_s is not None:
+        base = base.replace(readout_period_s=args.readout_period_s)
+    flip = False if args.no_flip else None
+    fitted, notes = [], []
+    dark = None
+    if args.dark is not None:
+        dark = read_half_rates(args.dark, args.height, args.width, flip)
+        dark_fit = fit_dark(dark, base.readout_period_s)
+        fitted += dark_fit.fitted
+        notes.append(f"{args.dark.name}: {int(dark_fit.hot.sum())} hot pixel(s) of {dark_fit.hot.size} (log dark "
+                     "rate 5 robust deviations above the median), left out of the dark-current fit")
+    else:
+        notes.append("not fitted: dark_current_hz and dark_current_spread need a dark recording (--dark)")
+    if args.flat:
+        flats = []
+        for path in args.flat:
+            fits, y = fit_flat(read_half_rates(path, args.height, args.width, flip), dark, base)
+            flats += fits
+            notes.append(f"{path.name}: light y = {y:.4g} spikes per step (dark subtracted)")
+        fitted.append(combine(flats))
+        notes.append("gain_spread holds the threshold mismatch and offset (a flat cannot tell them apart): "
+                     "threshold_mismatch and threshold_offset are set to 0")
+    else:
+        notes.append("not fitted: gain_spread needs a flat recording (--flat)")
+    if args.scene is not None:
+        fitted += fit_scene(read_half_rates(args.scene, args.height, args.width, flip), dark)
+    else:
+        notes.append("not fitted: row_gain_spread and column_gain_spread need a scene recording (--scene)")
+    notes.append("not fitted from any recording: outlier pixels, comparator and shot noise, reset loss "
+                 "(python -m pipelines.real_camera compares a recording with its simulated twin)")
+    camera = calibrated_camera(base, fitted)
+    text = calibrated_toml(camera, fitted, notes)
+    with outputs.output_file(args.out):
+        outputs.atomic_write_text(args.out, text)
+    if args.json:
+        print(json.dumps({"out": str(args.out), "fitted": [f.to_dict() for f in fitted], "notes": notes}, indent=2))
+    else:
+        for f in fitted:
+            print(f"{f.field} = {f.value:.4g} +- {f.uncertainty:.2g}  ({f.source})")
+        for n in notes:
+            print(n)
+    print(f"[calibrate] wrote {args.out}; use it as --camera {args.out}", file=sys.stderr)
+    return 0
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("calibrate", help="fit a camera file from your own dark, flat and scene recordings",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--dark", type=existing_file, help="a recording with the lens capped (.dat)")
+    p.add_argument("--flat", type=existing_file, action="append", default=[],
+                   help="a recording of uniform light (.dat); give it twice for two light levels")
+    p.add_argument("--scene", type=existing_file, help="a recording of a textured scene (.dat)")
+    p.add_argument("--height", type=positive_int, help="rows (default: the stream's sidecar, else 250)")
+    p.add_argument("--width", type=positive_int, help="columns (default: the stream's sidecar, else 400)")
+    p.add_argument("--no-flip", action="store_true", help="rows stored top-down (default: as recorded, else bottom-up)")
+    p.add_argument("--readout-period-s", type=positive_float,
+                   help="the recordings' readout period in seconds (default: the starting camera's, 25e-6)")
+    p.add_argument("--camera", type=camera_spec, default="realistic",
+                   help="the camera whose other fields the file keeps (a preset or a camera file; default realistic)")
+    p.add_argument("-o", "--out", type=output_file, required=True, help="the camera file to write (*.toml)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing -o")
+    p.add_argument("--json", action="store_true", help="print the fitted values as JSON")
+    p.set_defaults(func=run)

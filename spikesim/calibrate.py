@@ -1,0 +1,215 @@
+"""A camera fitted from a user's own recordings (`spikesim calibrate`): dark current and its spread
+from a dark recording, the pixels' response spread from a flat one, row and column patterns from a
+scene, each with the uncertainty its counting statistics give.
+
+Every estimate splits its recording into two halves in time and works on per-pixel rates r_a, r_b.
+The fixed pattern (what a camera field describes) is in both halves; the counting noise of a
+finite recording is independent between them. So the pattern's variance across pixels is
+cov(r_a, r_b), free of the counting noise that var(r) would add (the split-half estimator of
+fixed-pattern noise, as photon-transfer methods use it). Its standard error over n pixels is
+sqrt((var_a var_b + cov^2) / (n - 1)) (the variance of a sample covariance of two normals).
+
+What the recordings determine, and what calibrate writes (docs/sensor.md, "Calibrating a camera"):
+- dark: the mean dark rate d / theta, and its spread. Without light a pixel's rate is its dark
+  current over its threshold, so the spread is that of d / theta: written as dark_current_spread.
+- flat (uniform light, dark subtracted pixel by pixel): the response g / theta. Gain spread and
+  threshold mismatch and offset act on light alike (rate = (g y + d) / theta), so a flat at any
+  number of levels measures sqrt(gain^2 + mismatch^2 + offset^2) only. Calibrate writes it as
+  gain_spread and the threshold terms as 0: the same mean rate in every pixel under any light.
+  (Two flats check linearity instead: their response maps must agree up to one factor.)
+- scene: the rates relative to their neighbourhood's median; the spread of row and column means of
+  that ratio, by the same split-half covariance: row_gain_spread and column_gain_spread.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from .camera import SpikeCamera
+
+#: A pixel is hot when its log dark rate lies this many robust standard deviations (1.4826 MAD)
+#: above the median: far beyond a lognormal spread of 39 % (5 sigma: 1 pixel in 3.5 million).
+HOT_PIXEL_Z = 5.0
+#: Above this mean rate (spikes per step) a flat is too bright: a pixel cannot fire twice in a
+#: step, so the rate stops following the light (saturation at 1).
+FLAT_MAX_RATE = 0.5
+#: Side of the median filter that gives each pixel of a scene its neighbourhood's rate (as
+#: pipelines/real_camera.py's rate map).
+NEIGHBOURHOOD_PX = 9
+#: The fewest steps a recording may have: two halves of at least this many steps each.
+MIN_STEPS = 100
+
+
+@dataclass(frozen=True)
+class Fitted:
+    """One fitted camera field: its value, one standard error, and where it came from."""
+
+    field: str
+    value: float
+    uncertainty: float
+    source: str
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+@dataclass(frozen=True)
+class HalfRates:
+    """Per-pixel rates (spikes per step) of a recording's two halves in time, (H, W) each."""
+
+    a: np.ndarray
+    b: np.ndarray
+    steps: int
+    path: str
+
+    @property
+    def mean(self) -> np.ndarray:
+        return (self.a + self.b) / 2.0
+
+
+def half_rates(read_steps: Any, num_steps: int, path: str, chunk: int = 4096) -> HalfRates:
+    """Per-pixel spike counts of each half of a recording, read in chunks (memory: one chunk).
+    `read_steps(start, stop)` gives bool (n, H, W)."""
+    if num_steps < 2 * MIN_STEPS:
+        raise ValueError(f"{path}: {num_steps} steps; calibration needs at least {2 * MIN_STEPS} "
+                         "(two halves of a recording)")
+    half = num_steps // 2
+    counts = []
+    for lo, hi in ((0, half), (half, 2 * half)):
+        total = None
+        for start in range(lo, hi, chunk):
+            part = np.asarray(read_steps(start, min(start + chunk, hi))).sum(axis=0, dtype=np.int64)
+            total = part if total is None else total + part
+        counts.append(total / float(half))
+    return HalfRates(counts[0], counts[1], 2 * half, path)
+
+
+def split_half_spread(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
+    """(standard deviation, its standard error) of the pattern shared by two noisy copies a, b
+    (module docstring); 0 when the covariance is not positive (no pattern above the noise)."""
+    a, b = np.asarray(a, np.float64).ravel(), np.asarray(b, np.float64).ravel()
+    n = a.size
+    if n < 3:
+        raise ValueError(f"a spread needs at least 3 samples, got {n}")
+    cov = float(np.mean((a - a.mean()) * (b - b.mean()))) * n / (n - 1)
+    se_cov = math.sqrt((a.var(ddof=1) * b.var(ddof=1) + cov * cov) / (n - 1))
+    if cov <= 1e-12 * (a.mean() ** 2 + b.mean() ** 2):  # no pattern above rounding: identical pixels
+        return 0.0, math.sqrt(se_cov)
+    sd = math.sqrt(cov)
+    return sd, se_cov / (2.0 * sd)
+
+
+def hot_pixels(rate: np.ndarray) -> np.ndarray:
+    """Mask of hot pixels: log rate beyond HOT_PIXEL_Z robust deviations above the median."""
+    fired = rate > 0
+    if fired.sum() < 10:
+        return np.zeros(rate.shape, bool)
+    logs = np.log(rate[fired])
+    mad = float(np.median(np.abs(logs - np.median(logs)))) * 1.4826
+    hot = np.zeros(rate.shape, bool)
+    hot[fired] = logs > np.median(logs) + HOT_PIXEL_Z * max(mad, 1e-12)
+    return hot
+
+
+@dataclass(frozen=True)
+class DarkFit:
+    fitted: list[Fitted]
+    hot: np.ndarray
+    rates: HalfRates
+
+
+def fit_dark(dark: HalfRates, readout_period_s: float) -> DarkFit:
+    """dark_current_hz (mean dark rate / readout period: thresholds per second, the model's ideal
+    threshold) and dark_current_spread (split-half spread over the mean), hot pixels left out of
+    both and counted."""
+    r = dark.mean
+    hot = hot_pixels(r)
+    keep = ~hot
+    n = int(keep.sum())
+    mean = float(r[keep].mean())
+    where = f"{Path(dark.path).name} ({dark.steps} steps, dark)"
+    if mean <= 0:
+        return DarkFit([Fitted("dark_current_hz", 0.0, 1.0 / (dark.steps * n * readout_period_s), where),
+                        Fitted("dark_current_spread", 0.0, 0.0, where)], hot, dark)
+    se_mean = float(r[keep].std(ddof=1)) / math.sqrt(n) if n > 1 else mean
+    sd, se_sd = split_half_spread(dark.a[keep], dark.b[keep])
+    return DarkFit([Fitted("dark_current_hz", mean / readout_period_s, se_mean / readout_period_s, where),
+                    Fitted("dark_current_spread", sd / mean, se_sd / mean, where)], hot, dark)
+
+
+def fit_flat(flat: HalfRates, dark: HalfRates | None, camera: SpikeCamera) -> tuple[list[Fitted], float]:
+    """gain_spread: the split-half spread of the dark-subtracted response over its mean (the
+    combination sqrt(gain^2 + mismatch^2 + offset^2): module docstring); returns it and the flat's
+    light, y (spikes per step of an average pixel)."""
+    where = f"{Path(flat.path).name} ({flat.steps} steps, flat)"
+    mean_rate = float(flat.mean.mean())
+    if mean_rate > FLAT_MAX_RATE:
+        raise ValueError(f"{flat.path}: mean rate {mean_rate:.3f} spikes per step is too bright to fit a response "
+                         f"(above {FLAT_MAX_RATE}: pixels near saturation stop following the light); record a "
+                         "dimmer flat")
+    if dark is not None:
+        if dark.a.shape != flat.a.shape:
+            raise ValueError(f"{flat.path} is {flat.a.shape[0]} x {flat.a.shape[1]}, the dark recording "
+                             f"{dark.a.shape[0]} x {dark.a.shape[1]}")
+        resp_a, resp_b = flat.a - dark.a, flat.b - dark.b
+        hot = hot_pixels(dark.mean)
+    else:  # the camera's mean dark rate, taken out uniformly
+        resp_a = flat.a - camera.dark_per_step
+        resp_b = flat.b - camera.dark_per_step
+        where += ", the camera's mean dark current subtracted (no dark recording)"
+        hot = np.zeros(flat.a.shape, bool)
+    keep = ~hot
+    y = float(((resp_a + resp_b) / 2)[keep].mean())
+    if y <= 0:
+        raise ValueError(f"{flat.path}: no light above the dark current (mean response {y:.3g} spikes per step)")
+    sd, se = split_half_spread(resp_a[keep], resp_b[keep])
+    return [Fitted("gain_spread", sd / y, se / y, where)], y
+
+
+def combine(fits: Sequence[Fitted]) -> Fitted:
+    """Several estimates of one field (flats at two levels) as their inverse-variance mean."""
+    if len(fits) == 1:
+        return fits[0]
+    w = np.array([1.0 / max(f.uncertainty, 1e-12) ** 2 for f in fits])
+    v = np.array([f.value for f in fits])
+    return Fitted(fits[0].field, float((w * v).sum() / w.sum()), float(1.0 / math.sqrt(w.sum())),
+                  " + ".join(f.source for f in fits))
+
+
+def fit_scene(scene: HalfRates, dark: HalfRates | None = None) -> list[Fitted]:
+    """row_gain_spread and column_gain_spread from a scene: each pixel's rate over its
+    neighbourhood's median (NEIGHBOURHOOD_PX), averaged along rows and columns in each half; the
+    split-half spread of those means across rows (columns)."""
+    from scipy.ndimage import median_filter
+
+    where = f"{Path(scene.path).name} ({scene.steps} steps, scene)"
+    a, b = (scene.a - dark.a, scene.b - dark.b) if dark is not None else (scene.a, scene.b)
+    local = median_filter(scene.mean if dark is None else (a + b) / 2, size=NEIGHBOURHOOD_PX, mode="reflect")
+    lit = local > max(float(np.percentile(local, 10)), 1e-6)  # where there is light to measure a gain on
+    out = []
+    for field, axis in (("row_gain_spread", 1), ("column_gain_spread", 0)):
+        ra = np.where(lit, a / np.where(lit, local, 1.0), np.nan)
+        rb = np.where(lit, b / np.where(lit, local, 1.0), np.nan)
+        ma, mb = np.nanmean(ra, axis=axis), np.nanmean(rb, axis=axis)
+        ok = np.isfinite(ma) & np.isfinite(mb)
+        sd, se = split_half_spread(ma[ok], mb[ok])
+        out.append(Fitted(field, sd, se, where))
+    return out
+
+
+def calibrated_camera(base: SpikeCamera, fitted: Sequence[Fitted]) -> SpikeCamera:
+    """`base` with every fitted field set; a fitted gain spread also sets the threshold mismatch and
+    offset to 0 (it holds them: module docstring)."""
+    changes = {f.field: float(f.value) for f in fitted}
+    if "gain_spread" in changes:
+        changes.update(threshold_mismatch=0.0, threshold_offset=0.0)
+    return base.replace(**changes)
+
+
+__all__ = ["Fitted", "HalfRates", "DarkFit", "half_rates", "split_half_spread", "hot_pixels", "fit_dark", "fit_flat",
+           "fit_scene", "combine", "calibrated_camera"]
