@@ -17,6 +17,7 @@ _SUBCOMMANDS = (
     "pipelines.bench",
     "pipelines.golden_stats",
     "pipelines.camera_cmd",
+    "pipelines.calibrate_cmd",
     "pipelines.generate",
     "pipelines.render_cmd",
     "pipelines.train",
@@ -34,7 +35,7 @@ _SUBCOMMANDS = (
 # model's pull in torch, ~2 s) unless the full list is asked for.
 _COMMAND_MODULE = {
     "demo": "pipelines.demo", "simulate": "pipelines.simulate_cmd", "inspect": "pipelines.inspect_cmd",
-    "bench": "pipelines.bench", "golden": "pipelines.golden_stats", "camera": "pipelines.camera_cmd", "generate": "pipelines.generate",
+    "bench": "pipelines.bench", "golden": "pipelines.golden_stats", "camera": "pipelines.camera_cmd", "calibrate": "pipelines.calibrate_cmd", "generate": "pipelines.generate",
     "verify": "pipelines.generate", "render": "pipelines.render_cmd", "train": "pipelines.train",
     "evaluate": "pipelines.evaluate", "compare": "pipelines.compare", "reconstruct": "pipelines.reconstruct", "tradeoff": "pipelines.tradeoff",
     "panel": "pipelines.panel", "sweep": "pipelines.sweep", "gpu-campaign": "pipelines.gpu_campaign.cmd",
