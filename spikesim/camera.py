@@ -39,6 +39,10 @@ Y_MAX = 1000.0
 #: is a typo, and its state alone would not fit in memory.
 MAX_SIDE = 1 << 16
 PRECISIONS = ("float32", "float64")
+DARK_CURRENT_LAWS = ("lognormal", "normal")
+#: Switches added after the first camera, with their defaults: recorded only when not at their
+#: default, as LATER_TERMS, so every camera made before them keeps its dictionary and identity.
+LATER_SWITCHES = {"dark_current_law": "lognormal"}
 
 #: Noise terms and the value that switches each off.
 NOISE_TERMS: dict[str, Any] = {
@@ -81,7 +85,7 @@ MEASURED_TERMS: dict[str, float] = {
 #: a 20 kHz readout, its dark current and spreads, and its shot noise at 5e4 electrons per threshold
 #: (docs/sensor.md, "Other simulators' cameras", with what still differs and by how much). Run beside
 #: this sensor with these values, mean rates agreed within 0.5 % at ten light levels.
-SCSIM_TERMS: dict[str, float] = {
+SCSIM_TERMS: dict[str, Any] = {
     "readout_period_s": 50e-6,
     "dark_current_hz": 93.5,
     "dark_current_spread": 0.39,
@@ -91,6 +95,7 @@ SCSIM_TERMS: dict[str, float] = {
     "comparator_noise": 0.0058,
     "threshold_electrons": 5e4,
     "reset_loss": 0.002,
+    "dark_current_law": "normal",
 }
 
 
@@ -166,6 +171,11 @@ class SpikeCamera:
     outlier_gain_spread: float = 0.0
     """Standard deviation of an outlier pixel's extra gain factor (a normal around 1, clipped at
     0); 0.40 measured on a real recording (the `measured` preset)."""
+    dark_current_law: str = "lognormal"
+    """How the per-pixel dark current is drawn around its mean: "lognormal" (positive, with the skew
+    of real dark-current maps) or "normal" (SCSim's law, clipped at 0: at a 39 % spread, 0.5 % of
+    the pixels get no dark current and never fire in the dark; docs/sensor.md, "Other simulators'
+    cameras")."""
 
     def __post_init__(self) -> None:
         _check_int("height", self.height)
@@ -206,6 +216,8 @@ class SpikeCamera:
             raise ValueError(f"shot_noise={self.shot_noise!r}; expected one of {SHOT_NOISE_MODELS}")
         if self.precision not in PRECISIONS:
             raise ValueError(f"precision={self.precision!r}; expected one of {PRECISIONS}")
+        if self.dark_current_law not in DARK_CURRENT_LAWS:
+            raise ValueError(f"dark_current_law={self.dark_current_law!r}; expected one of {DARK_CURRENT_LAWS}")
         if not isinstance(self.random_initial_state, bool):
             raise TypeError(f"random_initial_state must be a bool, got {self.random_initial_state!r}")
 
@@ -273,6 +285,9 @@ class SpikeCamera:
         out = dataclasses.asdict(self)
         for name in LATER_TERMS:  # recorded only when on (LATER_TERMS)
             if out[name] == NOISE_TERMS[name]:
+                del out[name]
+        for name, default in LATER_SWITCHES.items():  # likewise recorded only when switched
+            if out[name] == default:
                 del out[name]
         return out
 

@@ -51,7 +51,11 @@ def draw_pixel_parameters(camera: SpikeCamera, seed: int) -> PixelParameters:
     dark = None
     if camera.dark_current_hz > 0:
         mean = camera.dark_per_step
-        if camera.dark_current_spread > 0:
+        if camera.dark_current_spread > 0 and camera.dark_current_law == "normal":
+            # SCSim's law: normal with the given mean and coefficient of variation, clipped at 0 (a
+            # negative current would drain the pixel; SCSim's pixels with one never fire in the dark).
+            dark = np.clip(rng.normal(mean, mean * camera.dark_current_spread, n), 0.0, None).astype(dtype)
+        elif camera.dark_current_spread > 0:
             # Lognormal with the given mean and coefficient of variation c:
             # sigma^2 = ln(1 + c^2), mu = ln(mean) - sigma^2 / 2.
             s2 = np.log1p(camera.dark_current_spread ** 2)

@@ -80,6 +80,30 @@ def test_the_scsim_preset_is_scsims_constants_and_fires_at_its_dark_rate():
     steps = 20000
     stream = Simulator(cam, backend="numpy", seed=3).run(constant_frames(0.0, steps, 48, 48))
     rate = stream.counts().mean() / steps
-    # the pixels' lognormal dark currents (spread 0.39) over 2,304 pixels: about 1 % standard error
+    # the pixels' normal dark currents (spread 0.39, clipped at 0) over 2,304 pixels: about 1 % standard error
     assert rate == pytest.approx(93.5 * 50e-6, rel=0.05)
     assert SpikeCamera.from_dict({"preset": "scsim", "height": 8, "width": 8}).readout_period_s == 50e-6
+
+
+def test_the_normal_dark_current_law_is_scsims_clipped_at_zero():
+    import numpy as np
+    from scipy.stats import norm
+
+    from spikesim.fixed_pattern import draw_pixel_parameters
+    cam = SpikeCamera.realistic(height=200, width=200, dark_current_law="normal")
+    dark = draw_pixel_parameters(cam, seed=4).dark_per_step
+    zero = float((dark == 0).mean())
+    want = norm.cdf(-1 / 0.39)  # the share of a normal draw below 0
+    assert zero == pytest.approx(want, abs=4 * np.sqrt(want / dark.size))
+    assert dark.std() / cam.dark_per_step == pytest.approx(0.39, rel=0.03)
+    assert dark.mean() / cam.dark_per_step == pytest.approx(1.0, rel=0.01)
+    lognormal = draw_pixel_parameters(SpikeCamera.realistic(height=200, width=200), seed=4).dark_per_step
+    assert (lognormal > 0).all()
+
+
+def test_the_dark_current_law_is_recorded_only_when_switched():
+    assert "dark_current_law" not in SpikeCamera().to_dict()  # every earlier camera keeps its identity
+    cam = SpikeCamera(dark_current_law="normal")
+    assert cam.to_dict()["dark_current_law"] == "normal" and SpikeCamera.from_dict(cam.to_dict()) == cam
+    with pytest.raises(ValueError, match="dark_current_law"):
+        SpikeCamera(dark_current_law="gamma")
