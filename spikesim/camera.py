@@ -42,7 +42,8 @@ PRECISIONS = ("float32", "float64")
 DARK_CURRENT_LAWS = ("lognormal", "normal")
 #: Switches added after the first camera, with their defaults: recorded only when not at their
 #: default, as LATER_TERMS, so every camera made before them keeps its dictionary and identity.
-LATER_SWITCHES = {"dark_current_law": "lognormal"}
+LATER_SWITCHES = {"dark_current_law": "lognormal", "reset_rule": "threshold"}
+RESET_RULES = ("threshold", "fired")
 
 #: Noise terms and the value that switches each off.
 NOISE_TERMS: dict[str, Any] = {
@@ -96,6 +97,7 @@ SCSIM_TERMS: dict[str, Any] = {
     "threshold_electrons": 5e4,
     "reset_loss": 0.002,
     "dark_current_law": "normal",
+    "reset_rule": "fired",
 }
 
 
@@ -171,6 +173,11 @@ class SpikeCamera:
     outlier_gain_spread: float = 0.0
     """Standard deviation of an outlier pixel's extra gain factor (a normal around 1, clipped at
     0); 0.40 measured on a real recording (the `measured` preset)."""
+    reset_rule: str = "threshold"
+    """What a spike takes from the accumulator: "threshold" (the pixel's threshold) or "fired" (the
+    level the noisy comparator fired at, threshold + its comparator noise that step: SCSim's rule;
+    a pixel fires when the noise is low, so it keeps more charge: +0.5 % rate in the dark). The
+    same with comparator_noise 0."""
     dark_current_law: str = "lognormal"
     """How the per-pixel dark current is drawn around its mean: "lognormal" (positive, with the skew
     of real dark-current maps) or "normal" (SCSim's law, clipped at 0: at a 39 % spread, 0.5 % of
@@ -216,6 +223,8 @@ class SpikeCamera:
             raise ValueError(f"shot_noise={self.shot_noise!r}; expected one of {SHOT_NOISE_MODELS}")
         if self.precision not in PRECISIONS:
             raise ValueError(f"precision={self.precision!r}; expected one of {PRECISIONS}")
+        if self.reset_rule not in RESET_RULES:
+            raise ValueError(f"reset_rule={self.reset_rule!r}; expected one of {RESET_RULES}")
         if self.dark_current_law not in DARK_CURRENT_LAWS:
             raise ValueError(f"dark_current_law={self.dark_current_law!r}; expected one of {DARK_CURRENT_LAWS}")
         if not isinstance(self.random_initial_state, bool):

@@ -376,6 +376,7 @@ class DrJitSensor:
         shot = cam.shot_noise == "gaussian"
         renewal = cam.shot_noise == "renewal"
         comparator = cam.comparator_noise > 0
+        reset_fired = cam.reset_rule == "fired"
         reset_loss = cam.reset_loss > 0
         inv_ne = 1.0 / cam.threshold_electrons
         retain = 1.0 - cam.reset_loss
@@ -416,14 +417,18 @@ class DrJitSensor:
             u = e - comp
             total = acc + u
             comp = (total - acc) - u
-            f = (total >= threshold + sigma_c * Float(z[1])) if comparator else (total >= threshold)
+            noise = sigma_c * Float(z[1]) if comparator else None
+            f = (total >= threshold + noise) if comparator else (total >= threshold)
             if renewal:  # reset by the next interval's threshold charge; count the spike
-                total = dr.select(f, total - threshold_charge(counts), total)
+                taken = threshold_charge(counts)
                 lo, hi = counts
                 lo2 = dr.select(f, lo + 1, lo)
                 counts = (lo2, dr.select(f & (lo2 == 0), hi + 1, hi))
             else:
-                total = dr.select(f, total - threshold, total)
+                taken = threshold
+            if comparator and reset_fired:  # the level it fired at (SCSim's reset)
+                taken = taken + noise
+            total = dr.select(f, total - taken, total)
             return f, dr.minimum(dr.maximum(total, -threshold), threshold + threshold), comp, counts
         return step, group_normals
 

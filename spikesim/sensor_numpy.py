@@ -102,14 +102,15 @@ class NumpySensor:
             total = A + u
             c = (total - A) - u
             A = total
-            if cam.comparator_noise > 0:
-                fire = A >= threshold + sigma_c * z_comparator.astype(dt, copy=False)
-            else:
-                fire = A >= threshold
+            noise = sigma_c * z_comparator.astype(dt, copy=False) if cam.comparator_noise > 0 else None
+            fire = A >= threshold + noise if noise is not None else A >= threshold
             if cam.shot_noise == "renewal":
-                A = np.where(fire, A - threshold * self._threshold_charge(threshold, fire), A)
+                taken = threshold * self._threshold_charge(threshold, fire)
             else:
-                A = np.where(fire, A - threshold, A)
+                taken = threshold
+            if noise is not None and cam.reset_rule == "fired":  # the level it fired at (SCSim's reset)
+                taken = taken + noise
+            A = np.where(fire, A - taken, A)
             A = np.minimum(np.maximum(A, -threshold), threshold + threshold)
             self.fired = fire
             out[s] = np.packbits(fire, bitorder="little")

@@ -107,3 +107,23 @@ def test_the_dark_current_law_is_recorded_only_when_switched():
     assert cam.to_dict()["dark_current_law"] == "normal" and SpikeCamera.from_dict(cam.to_dict()) == cam
     with pytest.raises(ValueError, match="dark_current_law"):
         SpikeCamera(dark_current_law="gamma")
+
+
+def test_resetting_by_the_fired_level_keeps_the_charge_the_comparator_noise_left():
+    """SCSim's reset rule: a pixel fires when its comparator noise is low, so subtracting the level
+    it fired at takes less than the threshold on average and the dark rate rises (by +0.5 % at
+    SCSim's constants); without comparator noise the two rules are one."""
+    import numpy as np
+
+    from spikesim.patterns import constant_frames
+    from spikesim.simulate import Simulator
+    base = SpikeCamera.noiseless(height=40, width=40, comparator_noise=0.05)
+    y = 0.05
+    rates = {rule: Simulator(base.replace(reset_rule=rule), backend="numpy", seed=2)
+             .run(constant_frames(y, 20_000, 40, 40)).counts().mean() / 20_000 for rule in ("threshold", "fired")}
+    assert rates["fired"] > rates["threshold"] * 1.005  # 5 % comparator noise: a clear rise
+    quiet = SpikeCamera.noiseless(height=8, width=8)
+    a = Simulator(quiet, backend="numpy", seed=1).run(constant_frames(0.3, 500, 8, 8))
+    b = Simulator(quiet.replace(reset_rule="fired"), backend="numpy", seed=1).run(constant_frames(0.3, 500, 8, 8))
+    assert a == b
+    assert np.isfinite(rates["fired"])

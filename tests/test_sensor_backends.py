@@ -33,6 +33,10 @@ MODELS = {
     "comparator-only": SpikeCamera.realistic(height=H, width=W, shot_noise="off"),
     "renewal": SpikeCamera.realistic(height=H, width=W, shot_noise="renewal"),
     "measured": SpikeCamera.measured(height=H, width=W),
+    # SCSim's camera: normal dark-current law, reset by the level the comparator fired at
+    "scsim": SpikeCamera.scsim(height=H, width=W),
+    "reset-fired-renewal": SpikeCamera.realistic(height=H, width=W, shot_noise="renewal", reset_rule="fired",
+                                                 comparator_noise=0.05),
 }
 
 
