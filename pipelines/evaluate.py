@@ -2,8 +2,9 @@
 condition (low, then normal) and overall, as tables like the paper's Table 1 (CSV + Markdown), in
 three conventions (ours, the authors' 8-bit one, light-normalised: model/metrics.py).
 
-Two inputs: a dataset in the project's layout (`--data`), or one external pair (`--dat` stream +
-`--gt` image at step `--center`, e.g. a Spk2ImgNet sample or a user's own recording). Trivial
+Three inputs: a dataset in the project's layout (`--data`), one external pair (`--dat` stream +
+`--gt` image at step `--center`, e.g. a Spk2ImgNet sample or a user's own recording), or every
+pair of a folder in Spike-Zoo's layout (`--spikezoo`, as `spikesim export` writes it). Trivial
 floors `black` and `mean` can be listed beside the methods, so every table shows what an image
 with no structure scores.
 
@@ -18,6 +19,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from dataclasses import replace
 from pathlib import Path
 from typing import Sequence
 
@@ -42,8 +44,12 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         raise ValueError(f"method names must be unique, got {names}; name them with label=spec")
     if args.out is not None:
         check_results(Path(args.out))  # a link where results go: refused before the work
+    if args.rate is not None and args.spikezoo is None:
+        raise ValueError("--rate goes with --spikezoo (a Spike-Zoo folder without spikezoo.json)")
     if args.dat is not None:
         return _evaluate_pair_cmd(args, methods, names)
+    if args.spikezoo is not None:
+        return _evaluate_spikezoo_cmd(args, methods, names)
     if args.gt is not None or args.center is not None:
         raise ValueError("--gt and --center go with --dat (one external stream), not with --data")
     scenes = open_scenes(args.data)
@@ -55,8 +61,13 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
                              f"{', '.join(s.name for s in scenes)})")
         scenes = [s for s in scenes if s.name in wanted]
     rows = evaluate(scenes, methods, args.window, progress=not (args.quiet or args.json))
+    return _report(args, rows, names, {"data": str(args.data)})
+
+
+def _report(args: argparse.Namespace, rows: Sequence[Score], names: Sequence[str], source: dict) -> int:
+    """Print the tables (or JSON) and write metrics.csv and metrics.md, as --data does."""
     if args.json:
-        print(json.dumps(json_safe(scores_json(rows, names, {"data": str(args.data)})), indent=2))
+        print(json.dumps(json_safe(scores_json(rows, names, source)), indent=2))
     else:
         print(markdown_table(rows, names))
     if args.out is not None or not args.json:  # --json alone only prints
@@ -66,6 +77,34 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         print(f"[evaluate] wrote {csv_path} and {md_path}" + (" (replacing an earlier evaluation's; -o DIR to keep "
                                                                 "each)" if replaced else ""), file=sys.stderr)
     return 0
+
+
+def _evaluate_spikezoo_cmd(args: argparse.Namespace, methods: Sequence[Method], names: Sequence[str]) -> int:
+    """Every pair of a Spike-Zoo folder scored as --dat/--gt scores one (centre: the key step;
+    ground truth: rate x PNG / 255, spikesim.spikezoo), pooled per light condition and overall."""
+    from spikesim.spikezoo import read_layout
+
+    if args.gt is not None or args.center is not None or args.scenes:
+        raise ValueError("--gt, --center and --scenes do not go with --spikezoo: each pair's ground truth, key step "
+                         "and scene come from the folder")
+    layout = read_layout(args.spikezoo, args.split, args.height, args.width, args.rate)
+    rows: list[Score] = []
+    for pair in layout.pairs:
+        try:
+            got, _ = evaluate_pair(pair.spike, pair.ground_truth(), pair.key_step, methods, args.window,
+                                   layout.height, layout.width, 0, True)
+        except ValueError as exc:
+            raise ValueError(f"{pair.spike}: {exc}") from None
+        rows += [replace(r, scene=pair.name) for r in got if r.scene != ALL]
+        if not (args.quiet or args.json):
+            print(f"[evaluate] {pair.name}: aligned PSNR " + ", ".join(f"{r.method} {r.psnr_aligned:.2f} dB"
+                                                                    for r in rows[-len(methods):]), file=sys.stderr)
+    condition = {p.name: light_condition(p.scene or p.name) for p in layout.pairs}
+    groups = [pooled(mine, group_name(c), m) for c in CONDITIONS for m in names
+              if (mine := [r for r in rows if r.method == m and condition[r.scene] == c])]
+    rows += groups + [pooled([r for r in rows if r.method == m], ALL, m) for m in names]
+    return _report(args, rows, names, {"spikezoo": str(args.spikezoo), "split": args.split,
+                                       "rates": {p.name: p.rate for p in layout.pairs}})
 
 
 def _evaluate_pair_cmd(args: argparse.Namespace, methods: Sequence[Method], names: Sequence[str]) -> int:
@@ -95,13 +134,20 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--data", help="dataset root (project layout)")
     src.add_argument("--dat", type=existing_file, help="one external spike stream (.dat); needs --gt and --center")
+    src.add_argument("--spikezoo", help="a folder in Spike-Zoo's layout ({train,test}/spike/NAME.dat, gt/NAME.png), as "
+                                        "spikesim export writes it: every pair, each at its key step")
+    p.add_argument("--split", choices=("train", "test"), default="test", help="with --spikezoo: the split to score")
+    p.add_argument("--rate", type=positive_float,
+                   help="with --spikezoo, a folder without spikezoo.json: the y of the PNG's white "
+                        "(default 0.6, Spike-Zoo's)")
     p.add_argument("--gt", type=existing_file, help="with --dat: the ground-truth image (PNG/JPEG/TIFF, EXR or .npy)")
     p.add_argument("--center", type=nonnegative_int, help="with --dat: the step the ground truth shows (0-based)")
     p.add_argument("--gt-scale", type=positive_float, default=1.0,
                    help="with --dat: ground truth in y = S x image / full scale (8/16-bit) or S x value (EXR, .npy); "
                         "Spk2ImgNet's simulator uses 0.6")
-    p.add_argument("--height", type=positive_int, help="with --dat: rows (default: as recorded beside it, else 250)")
-    p.add_argument("--width", type=positive_int, help="with --dat: columns without header (default: as recorded, else 400)")
+    p.add_argument("--height", type=positive_int, help="with --dat or --spikezoo: rows (default: as recorded, else 250)")
+    p.add_argument("--width", type=positive_int,
+                   help="with --dat or --spikezoo: columns without header (default: as recorded, else 400)")
     p.add_argument("--header-columns", type=header_columns_arg, default="auto",
                    help="with --dat: columns to drop at the end of each row (auto: as recorded, else detected)")
     p.add_argument("--no-flip", action="store_true",
@@ -113,8 +159,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         "paths; 'label=spec' names a column")
     p.add_argument("--json", action="store_true", help="print the scores as JSON (every metric convention)")
     p.add_argument("--scenes", nargs="+", help="only these scenes")
-    p.add_argument("-o", "--out", help=f"folder for metrics.csv and metrics.md (with --data, default {DEFAULT_OUT} unless --json; "
-                                        "with --dat, written only when -o is given)")
+    p.add_argument("-o", "--out", help=f"folder for metrics.csv and metrics.md (with --data or --spikezoo, default "
+                                        f"{DEFAULT_OUT} unless --json; with --dat, written only when -o is given)")
     p.add_argument("--window", type=positive_int, default=41, help="readout steps per window")
     p.add_argument("--chunk", type=positive_int, default=8, help="windows held in memory by a network")
     p.add_argument("--device", default="auto", help="auto (CUDA when present), cpu, cuda, cuda:N or mps")
