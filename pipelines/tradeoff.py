@@ -1,4 +1,4 @@
-"""`spikesim tradeoff`: the command line of the speed/accuracy study (spikesim.tradeoff).
+"""`spikesim tradeoff`: the command line of the speed/accuracy study (pipelines.tradeoff_study).
 
     spikesim tradeoff --scenes ball fan --light low normal --height 50 --width 80 --windows 3 -o out/tradeoff
 """
@@ -11,12 +11,12 @@ from typing import Any
 
 from pipelines.argtypes import (add_device_argument, add_threads_argument, bundled_scene, output_dir, positive_int,
                                seed_int)
-from spikesim import tradeoff
+from pipelines import tradeoff_study as tradeoff
 from spikesim._optional import require
-from spikesim.tradeoff import (DEFAULT_SCENES, KNOBS, StudyConfig, collect_gt_rows, collect_rows, run_study,
+from pipelines.tradeoff_study import (DEFAULT_SCENES, KNOBS, StudyConfig, collect_gt_rows, collect_rows, run_study,
                                write_report)
 
-log = logging.getLogger("spikesim.tradeoff")
+log = logging.getLogger("pipelines.tradeoff_study")
 
 
 # ---- command line ---------------------------------------------------------------------------------

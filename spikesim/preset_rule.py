@@ -42,7 +42,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
-from spikesim.tradeoff import RECON_AXES
+#: The reconstruction axes of the trade study (pipelines/tradeoff_study.py): TFP over the study's
+#: span of steps and the shipped network.
+RECON_AXES = ("tfp", "net")
 
 #: The 400 x 250 study the presets were chosen from (`spikesim tradeoff --height 250 --width 400
 #: --windows 5 --ref-spp 32 --gt-spp 128 --knobs spp seeds --gt-error-spp 16 64`).

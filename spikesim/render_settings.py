@@ -4,7 +4,7 @@ a preset, a scene's own XML, a settings file, command-line flags) are merged, re
 each value came from.
 
 SceneRenderer (spikesim.render), the quality presets (spikesim.quality), dataset generation
-(spikesim.generation) and the trade study (spikesim.tradeoff) all hold a RenderSettings rather
+(spikesim.generation) and the trade study (pipelines.tradeoff_study) all hold a RenderSettings rather
 than declaring these knobs again. Importing this module does not import Mitsuba.
 """
 from __future__ import annotations

@@ -69,3 +69,19 @@ def test_the_python_floor_allows_every_standard_module_the_code_imports():
     assert needed, "no module imports tomllib any more: drop it from `since` or lower the floor deliberately"
     too_low = {where: v for where, v in needed.items() if v > floor}
     assert not too_low, f"requires-python {declared} but {too_low} need a newer Python"
+
+
+def test_the_simulator_library_imports_nothing_of_the_model():
+    """Data flows one way (scene -> render -> sensor -> stream -> dataset -> model): a study that
+    joins the simulator and the model sits above both, in pipelines/."""
+    import ast
+    from pathlib import Path
+    root = Path(__file__).resolve().parents[1] / "spikesim"
+    offenders = []
+    for path in root.rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import)
+                     else [node.module or ""] if isinstance(node, ast.ImportFrom) and node.level == 0 else [])
+            offenders += [f"{path.relative_to(root.parent)}: {n}" for n in names
+                          if n.split(".")[0] in ("model", "pipelines")]
+    assert offenders == []

@@ -13,7 +13,7 @@ from spikesim.render_settings import RENDER_KNOBS, RenderSettings, merge_layers
 def test_the_render_knobs_are_declared_once():
     from spikesim.generation import Preset
     from spikesim.quality import QualitySettings
-    from spikesim.tradeoff import StudyConfig
+    from pipelines.tradeoff_study import StudyConfig
 
     for cls in (Preset, QualitySettings, StudyConfig):
         names = {f.name for f in dataclasses.fields(cls)}
@@ -24,7 +24,7 @@ def test_the_render_knobs_are_declared_once():
 def test_the_records_read_their_knobs_from_one_render_settings():
     from spikesim.generation import PRESETS
     from spikesim.quality import PRESETS as QUALITIES
-    from spikesim.tradeoff import StudyConfig
+    from pipelines.tradeoff_study import StudyConfig
 
     small = PRESETS["small"].replace(spp=3, keyframe_every=5, height=9)
     assert (small.spp, small.render.spp, small.keyframe_every, small.height) == (3, 3, 5, 9)

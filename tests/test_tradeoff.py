@@ -1,4 +1,4 @@
-"""The speed/accuracy study (spikesim/tradeoff.py), adaptive keyframes
+"""The speed/accuracy study (pipelines/tradeoff_study.py), adaptive keyframes
 (spikesim/render/adaptive.py) and the quality presets (spikesim/quality.py), at tiny sizes."""
 from __future__ import annotations
 
@@ -180,14 +180,14 @@ def test_quality_simulate_gives_exactly_the_steps_asked(policy, k):
 
 # ---- the study machinery ---------------------------------------------------------------------------
 def test_pareto_front_on_hand_made_points():
-    from spikesim.tradeoff import pareto_front
+    from pipelines.tradeoff_study import pareto_front
 
     pts = [(1.0, 0.0), (0.5, 0.1), (0.6, 0.2), (0.2, 0.5), (0.2, 0.6), (0.1, 1.0), (0.5, 0.1), (math.nan, 0.0)]
     assert pareto_front(pts) == [True, True, False, True, False, True, True, False]
 
 
 def test_study_config_is_validated():
-    from spikesim.tradeoff import StudyConfig
+    from pipelines.tradeoff_study import StudyConfig
 
     with pytest.raises(ValueError, match="resolution"):
         StudyConfig.of(resolution=(5, 40))
@@ -199,7 +199,7 @@ def test_study_config_is_validated():
 
 
 def test_plan_covers_every_knob():
-    from spikesim.tradeoff import StudyConfig, plan_runs
+    from pipelines.tradeoff_study import StudyConfig, plan_runs
 
     runs = plan_runs(StudyConfig.of(spp_values=(1, 4), keyframe_values=(2,), adaptive_px=(0.5,)))
     names = [r.name for r in runs]
@@ -212,7 +212,7 @@ def test_plan_covers_every_knob():
 
 @requires_llvm
 def test_study_rows_and_resume(tmp_path, monkeypatch):
-    from spikesim import tradeoff
+    from pipelines import tradeoff_study as tradeoff
 
     cfg = tradeoff.StudyConfig.of(scenes=("ball",), lights=("low",), resolution=(25, 40), windows=1, ref_spp=2,
                                gt_spp=4, knobs=("spp", "precision", "adaptive"), spp_values=(1,),

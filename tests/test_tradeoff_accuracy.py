@@ -1,4 +1,4 @@
-"""The trade study's accuracy axes downstream of the stream (spikesim/tradeoff.py, docs/tradeoff.md
+"""The trade study's accuracy axes downstream of the stream (pipelines/tradeoff_study.py, docs/tradeoff.md
 "Reconstruction and ground-truth axes"): reconstruction scores against the reference's ground truth,
 the ground truth's own error at fewer samples, and the fresh/fixed render-seed knob. Tiny sizes."""
 from __future__ import annotations
@@ -10,7 +10,7 @@ import re
 import numpy as np
 import pytest
 
-from spikesim import tradeoff
+from pipelines import tradeoff_study as tradeoff
 from spikesim.camera import SpikeCamera
 from spikesim.render_settings import RenderSettings
 from spikesim.simulate import Simulator

@@ -48,6 +48,7 @@ import numpy as np
 from spikesim._optional import require
 from spikesim.config_io import read_json_object
 from spikesim.outputs import atomic_write_file, make_dirs, output_folder, writable
+from spikesim.preset_rule import RECON_AXES  # the axes the quality presets are chosen on
 from spikesim.render_settings import RenderSettings, render_knob
 
 log = logging.getLogger(__name__)
@@ -788,8 +789,6 @@ def collect_rows(cfg: StudyConfig, out: Path, runs: Sequence[RunSpec] | None = N
     return rows
 
 
-#: The reconstruction axes: TFP over cfg.tfp_span steps and the shipped network.
-RECON_AXES = ("tfp", "net")
 #: Each Pareto flag of a run row and the error it is taken on (against time x reference): the
 #: firing-rate error, and the reconstruction scores' loss against the reference run's (dB).
 PARETO_AXES = {"pareto": lambda r: r["rate_err"], "pareto_tfp": lambda r: -r["tfp_gt_dpsnr"],
