@@ -1,7 +1,7 @@
 """`spikesim export`: write a dataset this project generated in another toolbox's layout.
 
-    spikesim export data/llr_paper --format spikezoo -o out/llr_spikezoo            # the test split
-    spikesim export data/rllr_nat48 --format spikezoo --split train -o out/llr_spikezoo
+    spikesim export data/llr_paper --format spikezoo -o out/llr_spikezoo      # the test split
+    spikesim export data/rllr_paper --format spikezoo --split train --steps 41 --gt-stride 41 -o out/llr_spikezoo
     spikesim evaluate --spikezoo out/llr_spikezoo --methods tfp tfi               # scored back here
 
 Spike-Zoo's layout (spikesim/spikezoo.py names the file of its code each convention comes from):
@@ -33,7 +33,7 @@ def run(args: argparse.Namespace) -> int:
     from spikesim.spikezoo import export_spikezoo
 
     record = export_spikezoo(args.dataset, args.out, split=args.split, steps=args.steps, rate=args.rate,
-                             scenes=args.scenes)
+                             scenes=args.scenes, gt_stride=args.gt_stride)
     entry = record["splits"][args.split]
     rates = sorted({s["rate"] for s in entry["scenes"].values()})
     print(f"[export] wrote {len(entry['pairs'])} pair(s) of {args.steps} steps, {record['height']} x {record['width']}, "
@@ -52,6 +52,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--split", choices=("train", "test"), default="test", help="the Spike-Zoo split to write")
     p.add_argument("--steps", type=positive_int, default=301,
                    help="steps per stream, the ground truth at index steps // 2 (Spike-Zoo's REDS test streams: 301)")
+    p.add_argument("--gt-stride", type=positive_int, default=1,
+                   help="keep ground-truth steps at least this many steps apart (an RLLR scene has ground truth at "
+                        "every step; --gt-stride 41 gives one pair per 41-step window)")
     p.add_argument("--rate", type=rate_arg, default=None,
                    help="y that the PNG's white stands for: a number (Spike-Zoo's REDS: 0.6), or auto (default): a "
                         "rate per scene, its brightest ground truth capped at saturation")

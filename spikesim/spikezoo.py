@@ -129,12 +129,23 @@ class ScenePlan:
         return f"{self.scene.name}_step{int(gt_step):06d}"
 
 
-def plan_export(scenes: Sequence[SceneRecord], steps: int = STEPS) -> list[ScenePlan]:
-    """Per scene, the ground-truth steps whose `steps`-step window lies inside the stream."""
+def _spaced(steps: Sequence[int], gt_stride: int) -> list[int]:
+    """The first of `steps`, then each one at least `gt_stride` steps after the last kept."""
+    kept: list[int] = []
+    for g in sorted(steps):
+        if not kept or g - kept[-1] >= gt_stride:
+            kept.append(g)
+    return kept
+
+
+def plan_export(scenes: Sequence[SceneRecord], steps: int = STEPS, gt_stride: int = 1) -> list[ScenePlan]:
+    """Per scene, the ground-truth steps whose `steps`-step window lies inside the stream, at
+    least `gt_stride` steps apart (an RLLR scene has ground truth at every step: its 1000 steps
+    would make 700 overlapping 301-step pairs)."""
     plans = []
     for sc in scenes:
         fits = [g for g in sc.gt_steps if window_of(g, steps)[0] >= 0 and window_of(g, steps)[1] <= sc.num_steps]
-        plans.append(ScenePlan(sc, fits, [g for g in sc.gt_steps if g not in fits]))
+        plans.append(ScenePlan(sc, _spaced(fits, gt_stride), [g for g in sc.gt_steps if g not in fits]))
     return plans
 
 
@@ -263,31 +274,32 @@ def pick_scenes(dataset: str | Path, scenes: Sequence[SceneRecord], names: Seque
 
 
 def export_spikezoo(dataset: str | Path, out: str | Path, split: str = "test", steps: int = STEPS,
-                    rate: float | None = None, scenes: Sequence[str] | None = None,
+                    rate: float | None = None, scenes: Sequence[str] | None = None, gt_stride: int = 1,
                     log: Callable[[str], None] | None = None) -> dict[str, Any]:
     """Write the dataset at `dataset` (its `scenes`, all when None) into `out` in Spike-Zoo's
     layout (split `split`): one pair per ground-truth step whose `steps`-step window fits in its
-    stream; `rate` None: a rate per scene (`scene_rate`). Every file is written whole (temporary
-    file, then rename); spikezoo.json says "complete" only once all are. Returns the record."""
+    stream, at least `gt_stride` steps apart; `rate` None: a rate per scene (`scene_rate`). Every
+    file is written whole (temporary file, then rename); spikezoo.json says "complete" only once
+    all are. Returns the record."""
     from .generation.lock import output_lock
 
     log = log or (lambda text: print(text, file=sys.stderr))
     if split not in SPLITS:
         raise ValueError(f"--split {split!r}: Spike-Zoo's splits are {', '.join(SPLITS)}")
-    if steps < 1:
-        raise ValueError(f"--steps {steps}: a window needs at least one step")
+    if steps < 1 or gt_stride < 1:
+        raise ValueError(f"--steps {steps}, --gt-stride {gt_stride}: each must be at least one step")
     if rate is not None and not (math.isfinite(rate) and rate > 0):
         raise ValueError(f"--rate {rate}: must be a finite number > 0")
     dataset, out = Path(dataset), Path(out)
     chosen = pick_scenes(dataset, open_dataset(dataset), scenes)
     height, width = check_geometry(dataset, chosen)
-    plans = plan_export(chosen, steps)
+    plans = plan_export(chosen, steps, gt_stride)
     if not any(p.steps for p in plans):
         raise _no_window_error(dataset, plans, steps)
     check_output(out, split)  # refused before any folder is made
     with outputs.output_folder(out), output_lock(out, f"export {dataset} (pid {os.getpid()})", what="export run"):
         old = check_output(out, split)  # again, now that no other export writes here
-        record = _start_record(out, split, old, dataset, steps, height, width, plans)
+        record = _start_record(out, split, old, dataset, steps, gt_stride, height, width, plans)
         split_entry = record["splits"][split]
         for plan in plans:
             if plan.skipped:
@@ -306,8 +318,8 @@ def export_spikezoo(dataset: str | Path, out: str | Path, split: str = "test", s
     return record
 
 
-def _start_record(out: Path, split: str, old: dict[str, Any] | None, dataset: Path, steps: int, height: int,
-                  width: int, plans: Sequence[ScenePlan]) -> dict[str, Any]:
+def _start_record(out: Path, split: str, old: dict[str, Any] | None, dataset: Path, steps: int, gt_stride: int,
+                  height: int, width: int, plans: Sequence[ScenePlan]) -> dict[str, Any]:
     """Remove the files of `split` an earlier export wrote that this one will not, make the
     split's folders, and write the record that lists this export's pairs as not complete yet:
     an interrupted run leaves a folder a rerun recognises and replaces."""
@@ -325,8 +337,9 @@ def _start_record(out: Path, split: str, old: dict[str, Any] | None, dataset: Pa
     outputs.make_dirs(out, split, SPIKE_DIR)
     outputs.make_dirs(out, split, GT_DIR)
     record["splits"][split] = {"source": str(dataset), "steps": steps, "key_index": key_index(steps),
-                               "complete": False, "scenes": {},
-                               "pairs": {p.pair_name(g): {"scene": p.scene.name, "gt_step": g} for p in plans for g in p.steps}}
+                               "gt_stride": gt_stride, "complete": False, "scenes": {},
+                               "pairs": {p.pair_name(g): {"scene": p.scene.name, "gt_step": g}
+                                         for p in plans for g in p.steps}}
     outputs.atomic_write_json(outputs.writable(out, RECORD), record, sort_keys=True)
     record["splits"][split]["pairs"] = {}  # filled as each pair is written
     return record

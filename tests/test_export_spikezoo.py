@@ -148,6 +148,14 @@ def test_the_default_window_is_spike_zoos_301_steps_around_the_middle_one(textur
     assert not (out / "train").exists() and (out / "README.md").is_file()
 
 
+def test_gt_stride_keeps_the_exported_ground_truth_steps_apart(texture_data, capsys, tmp_path):
+    # an RLLR scene has ground truth at every step: --gt-stride thins the pairs (here every other one)
+    out = tmp_path / "zoo"
+    _export(capsys, texture_data, out, "--steps", "41", "--gt-stride", "82")
+    pairs = json.loads((out / "spikezoo.json").read_text())["splits"]["test"]["pairs"]
+    assert sorted(p["gt_step"] for p in pairs.values() if p["scene"] == "tex_low") == [20, 102, 184, 266, 348]
+
+
 def test_a_rate_per_scene_keeps_low_light_off_black(texture_data, capsys, tmp_path):
     from PIL import Image
     out = tmp_path / "zoo"
