@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from spikesim import tradeoff
+from pipelines import tradeoff_study as tradeoff
 from pipelines.cli import main
 
 
