@@ -120,7 +120,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--scene", type=existing_file, help="a recording of a textured scene (.dat)")
     p.add_argument("--height", type=positive_int, help="rows (default: the stream's sidecar, else 250)")
     p.add_argument("--width", type=positive_int, help="columns (default: the stream's sidecar, else 400)")
-    p.add_argument("--no-flip", action="store_true", help="rows stored top-down (default: as recorded, else bottom-up)")
+    p.add_argument("--no-flip", action="store_true",
+                   help="rows stored top-down (SPCS/SCSim); default: as recorded, else rows stored bottom-up (flip)")
     p.add_argument("--readout-period-s", type=positive_float,
                    help="the recordings' readout period in seconds (default: the starting camera's, 25e-6)")
     p.add_argument("--camera", type=camera_spec, default="realistic",
