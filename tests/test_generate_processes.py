@@ -143,3 +143,42 @@ def test_the_parent_watchdog_alone_ends_an_orphaned_worker(tmp_path):
             parent.wait()
         if pid is not None and _running(pid):
             os.kill(pid, signal.SIGKILL)
+
+
+@pytest.mark.slow
+def test_a_worker_killed_from_outside_is_one_line_and_the_finished_scenes_stay(tmp_path):
+    """The kernel's out-of-memory killer ends a worker: generate says so in one MemoryError (the
+    CLI's one-line exit 2) naming the scenes, and keeps every finished scene for a rerun."""
+    import threading
+
+    from spikesim.dataset import scene_folders
+    from spikesim.generation import PRESETS, generate, plan_rllr
+
+    preset = PRESETS["small"].replace(height=64, width=64, rllr_steps=40_000, rllr_gt_stride=41)
+    jobs = plan_rllr(preset, seed=1, count=6, source="pattern")
+
+    def workers() -> list[int]:
+        found = []
+        for pid in os.listdir("/proc"):
+            try:
+                stat = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+                cmd = Path(f"/proc/{pid}/cmdline").read_bytes()
+            except (OSError, IndexError):
+                continue
+            if int(stat[1]) == os.getpid() and b"spawn_main" in cmd:
+                found.append(int(pid))
+        return found
+
+    def kill_a_worker_after_the_first_scene() -> None:
+        deadline = time.monotonic() + 300
+        while time.monotonic() < deadline and not scene_folders(tmp_path):
+            time.sleep(0.05)
+        for pid in workers()[:1]:
+            os.kill(pid, signal.SIGKILL)
+
+    killer = threading.Thread(target=kill_a_worker_after_the_first_scene, daemon=True)
+    killer.start()
+    with pytest.raises(MemoryError, match="worker process was killed while on rllr_.*run the same command again"):
+        generate(jobs, tmp_path, workers=2, show_progress=False)
+    killer.join()
+    assert 1 <= len(scene_folders(tmp_path)) < 6

@@ -13,6 +13,7 @@ import signal
 import sys
 import threading
 import time
+from concurrent.futures.process import BrokenProcessPool
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Optional
@@ -112,6 +113,11 @@ def generate_local(todo: list[SceneJob], root: Path, workers: int, show_progress
                 fut.cancel()
             if isinstance(exc, KeyboardInterrupt):  # Ctrl-C or SIGTERM: the scenes in progress stop too
                 _stop_workers(pool)
+            if isinstance(exc, BrokenProcessPool):  # a worker killed from outside: most often for memory
+                running = [job.name for job in pending.values()][:4]
+                raise MemoryError(f"a worker process was killed while on {', '.join(running) or 'a scene'} (out of "
+                                  f"memory?); every finished scene in {root} is kept: run the same command again to "
+                                  "go on, with --workers 1 if it happens again") from None
             raise
     overall.close()
     queue.close()
