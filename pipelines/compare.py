@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import os
 import shlex
 import sys
 from pathlib import Path
@@ -153,54 +154,58 @@ def cmd_compare(args: argparse.Namespace) -> int:
         train_scenes = open_scenes(next(iter(data.values())))
         check_samples(args.configs, train_scenes)
     out = Path(args.out)
-    roots: Any = data if by_data else next(iter(data.values()))
-    import torch
-    worker_threads = max(1, torch.get_num_threads() // args.jobs)  # --threads (or the free cores) shared out
-    steps: Any = args.max_steps
-    if args.equal == "flop":
-        if not args.max_steps:
-            raise ValueError("--equal flop shares out --max-steps of the reference config by training FLOP; give --max-steps")
-        from model.comparison import equal_flop_steps
-        reference = _reference_label(args, study)
-        steps = equal_flop_steps(args.configs, args.max_steps, reference)
-        print(f"[compare] equal training FLOP: {args.max_steps} steps of {reference} -> "
-              + ", ".join(f"{k} {v}" for k, v in steps.items()), file=sys.stderr)
-    checkpoints = train_seeds(args.configs, seeds, steps, train_scenes, out, str(dev), args.precision,
-                              progress=not args.quiet, budget_minutes=args.budget_minutes, init=args.init,
-                              jobs=args.jobs, data_roots=roots, threads=worker_threads)
-    rows = evaluate_runs(checkpoints, test_scenes, window, args.baselines, str(dev), progress=not args.quiet,
-                         jobs=args.jobs, test_root=Path(args.test_data), out=out,
-                         threads=worker_threads)
-    stats = aggregate(rows, labels, args.baselines)
-    length = (f"{args.max_steps} steps" if args.max_steps and args.equal == "steps" else
-              f"the training FLOP of {args.max_steps} steps of {_reference_label(args, study)}" if args.max_steps else
-              f"{args.budget_minutes:g} minutes of wall time")
-    costs = run_costs(args.configs, checkpoints, test_scenes[0].height, test_scenes[0].width)
-    text = markdown(stats, labels, args.baselines, seeds, length, steps_per_run(checkpoints), costs)
-    if study is not None:
-        from model.studies import study_markdown
-        labels_of = {baseline_label(b): baseline_label(b) for b in args.baselines}
-        text = study_markdown(study, stats, costs, labels_of) + "\n" + text
-    meta = {"command": "spikesim " + shlex.join(sys.argv[1:]), "data": {k: str(v) for k, v in data.items()},
-            "init": args.init,
-            "test_data": str(args.test_data), "seeds": seeds, "steps": args.max_steps,
-            "budget_minutes": args.budget_minutes, "equal": args.equal, "steps_per_run": {f"{k[0]}#{k[1]}": v for k, v in
-                                                                    steps_per_run(checkpoints).items()},
-            "configs": {label: exp.to_dict() for label, exp in args.configs}, "study": args.study,
-            "costs": costs, "jobs": args.jobs}
-    write_comparison(stats, rows, text, meta, out)
-    if study is not None:  # one folder can hold every study (runs shared): each keeps its own table
-        from model.evaluation import json_safe
-        from spikesim.outputs import atomic_write_text, writable
-        atomic_write_text(writable(out, f"study_{study.name}.md"), text)
-        atomic_write_text(writable(out, f"study_{study.name}.json"), json.dumps(json_safe(
-            {**meta, "statistics": [{**dataclasses.asdict(s), "values": list(s.values)} for s in stats]}), indent=1))
-    if args.json:
-        from model.evaluation import json_safe
-        print(json.dumps(json_safe({**meta, "statistics": [{**dataclasses.asdict(s), "values": list(s.values), "n": s.n}
-                                                          for s in stats]}), indent=2))
-    else:
-        print(text)
+    from spikesim.generation.lock import output_lock
+    from spikesim.outputs import output_folder
+    # one compare per folder: two at once would train the same runs and write each other's tables
+    with output_folder(out), output_lock(out, f"compare (pid {os.getpid()})", what="compare run"):
+        roots: Any = data if by_data else next(iter(data.values()))
+        import torch
+        worker_threads = max(1, torch.get_num_threads() // args.jobs)  # --threads (or the free cores) shared out
+        steps: Any = args.max_steps
+        if args.equal == "flop":
+            if not args.max_steps:
+                raise ValueError("--equal flop shares out --max-steps of the reference config by training FLOP; give --max-steps")
+            from model.comparison import equal_flop_steps
+            reference = _reference_label(args, study)
+            steps = equal_flop_steps(args.configs, args.max_steps, reference)
+            print(f"[compare] equal training FLOP: {args.max_steps} steps of {reference} -> "
+                  + ", ".join(f"{k} {v}" for k, v in steps.items()), file=sys.stderr)
+        checkpoints = train_seeds(args.configs, seeds, steps, train_scenes, out, str(dev), args.precision,
+                                  progress=not args.quiet, budget_minutes=args.budget_minutes, init=args.init,
+                                  jobs=args.jobs, data_roots=roots, threads=worker_threads)
+        rows = evaluate_runs(checkpoints, test_scenes, window, args.baselines, str(dev), progress=not args.quiet,
+                             jobs=args.jobs, test_root=Path(args.test_data), out=out,
+                             threads=worker_threads)
+        stats = aggregate(rows, labels, args.baselines)
+        length = (f"{args.max_steps} steps" if args.max_steps and args.equal == "steps" else
+                  f"the training FLOP of {args.max_steps} steps of {_reference_label(args, study)}" if args.max_steps else
+                  f"{args.budget_minutes:g} minutes of wall time")
+        costs = run_costs(args.configs, checkpoints, test_scenes[0].height, test_scenes[0].width)
+        text = markdown(stats, labels, args.baselines, seeds, length, steps_per_run(checkpoints), costs)
+        if study is not None:
+            from model.studies import study_markdown
+            labels_of = {baseline_label(b): baseline_label(b) for b in args.baselines}
+            text = study_markdown(study, stats, costs, labels_of) + "\n" + text
+        meta = {"command": "spikesim " + shlex.join(sys.argv[1:]), "data": {k: str(v) for k, v in data.items()},
+                "init": args.init,
+                "test_data": str(args.test_data), "seeds": seeds, "steps": args.max_steps,
+                "budget_minutes": args.budget_minutes, "equal": args.equal, "steps_per_run": {f"{k[0]}#{k[1]}": v for k, v in
+                                                                        steps_per_run(checkpoints).items()},
+                "configs": {label: exp.to_dict() for label, exp in args.configs}, "study": args.study,
+                "costs": costs, "jobs": args.jobs}
+        write_comparison(stats, rows, text, meta, out)
+        if study is not None:  # one folder can hold every study (runs shared): each keeps its own table
+            from model.evaluation import json_safe
+            from spikesim.outputs import atomic_write_text, writable
+            atomic_write_text(writable(out, f"study_{study.name}.md"), text)
+            atomic_write_text(writable(out, f"study_{study.name}.json"), json.dumps(json_safe(
+                {**meta, "statistics": [{**dataclasses.asdict(s), "values": list(s.values)} for s in stats]}), indent=1))
+        if args.json:
+            from model.evaluation import json_safe
+            print(json.dumps(json_safe({**meta, "statistics": [{**dataclasses.asdict(s), "values": list(s.values), "n": s.n}
+                                                              for s in stats]}), indent=2))
+        else:
+            print(text)
     print(f"[compare] wrote {out / 'compare.md'}, {out / 'compare.csv'} and {out / 'metrics.csv'}", file=sys.stderr)
     return 0
 

@@ -184,3 +184,18 @@ def test_a_baseline_is_a_seedless_method_spec():
     assert baseline_spec("tfp:82") == "tfp:82" and baseline_label("tfp:21", 7) == "TFP-21"
     with pytest.raises(ValueError, match="odd number"):
         baseline_label("tfp:82", 41)
+
+
+def test_a_second_compare_into_a_folder_in_use_is_refused_before_training(tmp_path, capsys):
+    """Two compares into one folder would train the same runs and write each other's tables."""
+    from spikesim.generation.lock import output_lock
+    _write_dataset(tmp_path / "d", ["a_low", "b_normal"], 0)
+    e = _config(tmp_path / "e.json", "e")
+    out = tmp_path / "o"
+    out.mkdir()
+    with output_lock(out, "compare other (pid 4242)", what="compare run"):
+        assert main(["compare", "--data", str(tmp_path / "d"), "--test-data", str(tmp_path / "d"), "--max-steps", "1",
+                     "--device", "cpu", "--quiet", "--out", str(out), "--configs", f"E={e}", "--seeds", "0", "1",
+                     "2"]) == 2
+    err = capsys.readouterr().err
+    assert "another compare run" in err and "4242" in err and not (out / "runs").exists()
