@@ -183,3 +183,11 @@ def test_a_scene_at_another_power_under_a_taken_name_is_refused_naming_both_powe
     generate([job(1.0)], tmp_path, workers=1, show_progress=False)
     with pytest.raises(FileExistsError, match=r"holds another scene, .*power x1\b.*this run gives .*power x0\.5"):
         generate([job(0.5)], tmp_path, workers=1, show_progress=False)
+
+
+def test_a_quality_with_adaptive_keyframes_says_so_where_the_spacing_is_reported():
+    """`--quality balanced` printed `keyframe_every 1 (--quality balanced)` though it places its
+    keyframes by motion."""
+    from spikesim.generation.settings import resolve_settings
+    assert "keyframe_every 1 (--quality balanced: adaptive" in resolve_settings("llr", quality="balanced").summary()
+    assert "keyframe_every 1 (--quality reference)" in resolve_settings("llr", quality="reference").summary()

@@ -186,6 +186,11 @@ def resolve_settings(kind: str, preset: str | Preset = "small", xml: str | Path 
         if origins.get("spp") == f"--quality {quality}":  # run_job picks it per scene from probe renders
             origins["spp"] = (f"--quality {quality}: per scene, 1-{rule.max_spp} by its Monte Carlo noise "
                               f"(predicted loss <= {rule.tolerance_db:g} dB)")
+    if quality is not None and (q := QualitySettings.from_name(quality)).keyframe_policy == "adaptive":
+        if origins.get("keyframe_every") == f"--quality {quality}":  # the renderer places keyframes by motion
+            origins["keyframe_every"] = (f"--quality {quality}: adaptive, not this fixed spacing: a keyframe where "
+                                         f"the image has moved {q.max_px_per_keyframe:g} px, at most "
+                                         f"{q.max_interval} steps apart")
     if kind == "scene" and any(origins.get(k, "").startswith("--") for k in ("rllr_steps", "rllr_gt_stride")):
         kind = "scene-steps"
     planned = {k: v for k, v in values.items() if k != "camera"}
