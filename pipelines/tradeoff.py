@@ -37,7 +37,13 @@ def _windows(text: str) -> int:
 
 
 def cmd_tradeoff(args: argparse.Namespace) -> int:
-    cfg = StudyConfig.of(scenes=tuple(args.scenes), lights=tuple(args.light),
+    if args.xml is not None and args.scenes:
+        raise ValueError("give --scenes (bundled scenes) or --xml (your own), not both")
+    if args.xml is not None:
+        from spikesim.render.scene_files import SceneFiles
+        SceneFiles.resolve(str(args.xml))  # a missing file is named before anything renders
+    scenes = (str(args.xml),) if args.xml is not None else tuple(args.scenes or DEFAULT_SCENES)
+    cfg = StudyConfig.of(scenes=scenes, lights=tuple(args.light),
                       resolution=(args.height, args.width), windows=args.windows, ref_spp=args.ref_spp, gt_spp=args.gt_spp,
                       seed=args.seed, backend=args.backend, device=args.device, knobs=tuple(args.knobs),
                       repeats=args.repeats, gt_error_spp=tuple(args.gt_error_spp), seed_spp_values=tuple(args.seed_spp),
@@ -72,8 +78,10 @@ def cmd_tradeoff(args: argparse.Namespace) -> int:
 def add_parser(subparsers: Any) -> None:
     p = subparsers.add_parser("tradeoff", help="measure each render/sensor knob's cost and error (docs/tradeoff.md)",
                               description=tradeoff.__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--scenes", nargs="+", type=bundled_scene, default=list(DEFAULT_SCENES),
+    p.add_argument("--scenes", nargs="+", type=bundled_scene,
                    help="LLR scenes (default: all five)")
+    p.add_argument("--xml", type=Path,
+                   help="your own scene XML instead (with its lights.json for --light and its motion.json)")
     p.add_argument("--light", nargs="+", default=["low", "normal"], choices=("low", "normal"),
                    help="lighting conditions to study")
     p.add_argument("--height", type=_side, default=50, help="rows of camera and renders, pixels")

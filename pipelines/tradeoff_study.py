@@ -88,6 +88,7 @@ class StudyConfig:
     `StudyConfig.of(ref_spp=..., resolution=..., ...)` builds one from flat knobs."""
 
     scenes: tuple[str, ...] = DEFAULT_SCENES
+    """Bundled LLR scene names, or scene XML paths (with their lights.json and motion.json)."""
     lights: tuple[str, ...] = ("low", "normal")
     reference: RenderSettings = REFERENCE_RENDER
     """The reference run's renders; its resolution (height, width) is the camera's too."""
@@ -445,6 +446,12 @@ class SceneStudy:
         return gt, time.perf_counter() - t0
 
 
+def scene_label(scene: str) -> str:
+    """How a studied scene is named in folders and tables: a bundled scene by its name, a scene XML
+    (`tradeoff --xml`) by its folder, as `sweep` names it."""
+    return Path(scene).parent.name if scene.lower().endswith(".xml") else scene
+
+
 def _slug(name: str) -> str:
     return "".join(c if c.isalnum() or c in "=.-" else "_" for c in name)
 
@@ -620,7 +627,7 @@ def _reference_folders(cfg: StudyConfig, out: Path) -> Iterator[tuple[str, str, 
     """(scene, light, folder, reference row) of every scene and light whose reference is cached."""
     for scene in cfg.scenes:
         for light in cfg.lights:
-            folder = out / "runs" / f"{scene}_{light}"
+            folder = out / "runs" / f"{scene_label(scene)}_{light}"
             if (folder / "reference.json").exists():
                 yield scene, light, folder, _read_json(folder / "reference.json")
 
@@ -635,7 +642,7 @@ def collect_gt_rows(cfg: StudyConfig, out: Path) -> list[dict[str, Any]]:
     for scene, light, folder, ref in _reference_folders(cfg, out):
         ref_gt = _load_npz(folder / "reference.npz", "gt")["gt"]
         ref_frame_s = float(ref.get("gt_render_s", math.nan)) / cfg.windows  # NaN: measured before it was kept
-        block = [{"scene": scene, "light": light, "run": f"gt spp={cfg.gt_spp}", "knob": "gt",
+        block = [{"scene": scene_label(scene), "light": light, "run": f"gt spp={cfg.gt_spp}", "knob": "gt",
                   "gt_spp": cfg.gt_spp, "gt_frame_s": ref_frame_s, "gt_time_ratio": ref_frame_s / ref_frame_s,
                   "gt_self_err": 0.0, "gt_self_psnr": math.inf, "gt_ref_err_est": math.nan}]
         for spp in cfg.gt_error_values():
@@ -648,7 +655,7 @@ def collect_gt_rows(cfg: StudyConfig, out: Path) -> list[dict[str, Any]]:
             gt = _load_npz(folder / f"{_gt_name(spp)}.npz", "gt")["gt"]
             err = gt_error(gt, ref_gt)
             frame_s = float(row["gt_render_s"]) / cfg.windows
-            block.append({"scene": scene, "light": light, "run": f"gt spp={spp}", "knob": "gt", "gt_spp": spp,
+            block.append({"scene": scene_label(scene), "light": light, "run": f"gt spp={spp}", "knob": "gt", "gt_spp": spp,
                           "gt_frame_s": frame_s, "gt_time_ratio": frame_s / ref_frame_s, **err,
                           "gt_ref_err_est": err["gt_self_err"] * math.sqrt(spp / (spp + cfg.gt_spp))})
         front = pareto_front([(r["gt_frame_s"], r["gt_self_err"]) for r in block])
@@ -686,20 +693,20 @@ def run_study(cfg: StudyConfig, out: Path, progress: bool = True) -> list[dict[s
     studies: dict[tuple[str, str], SceneStudy] = {}
     bar = progress_bar(jobs, desc="tradeoff", unit="run", quiet=not progress)
     for scene, light, spec in bar:
-        folder = out / "runs" / f"{scene}_{light}"
-        make_dirs(out, "runs", f"{scene}_{light}")  # inside -o, no link on the way
+        folder = out / "runs" / f"{scene_label(scene)}_{light}"
+        make_dirs(out, "runs", f"{scene_label(scene)}_{light}")  # inside -o, no link on the way
         path = folder / f"{_slug(spec.name)}.json"
         key = _digest({**cfg.result_key(), "scene": scene, "light": light, **spec.to_dict()})
         if _is_cached(path, folder / f"{_slug(spec.name)}.npz", key):
             log.debug("%s %s %s: cached", scene, light, spec.name)
             continue
-        bar.set_postfix_str(f"{scene}/{light} {spec.name}")
+        bar.set_postfix_str(f"{scene_label(scene)}/{light} {spec.name}")
         study = studies.setdefault((scene, light), SceneStudy(cfg, scene, light, folder))
         if spec.knob != "reference" and not (folder / "reference.json").exists():
             raise RuntimeError(f"{folder}: the reference run is missing; it runs first")
         t0 = time.perf_counter()
         row = study.run(spec)
-        row.update({"key": key, "session": session, "scene": scene, "light": light, **spec.to_dict()})
+        row.update({"key": key, "session": session, "scene": scene_label(scene), "light": light, **spec.to_dict()})
         _write_json(path, row)
         log.info("%s %s %-28s render %.2f s simulate %.3f s (%.1f s)", scene, light, spec.name, row["render_s"],
                  row["simulate_s"], time.perf_counter() - t0)
@@ -707,7 +714,7 @@ def run_study(cfg: StudyConfig, out: Path, progress: bool = True) -> list[dict[s
             _write_json(folder / "reference.json", row)
     for scene in cfg.scenes:  # the ground truth's own error: lower-sample ground truths, cached each
         for light in cfg.lights:
-            folder = out / "runs" / f"{scene}_{light}"
+            folder = out / "runs" / f"{scene_label(scene)}_{light}"
             for spp in cfg.gt_error_values():
                 path, npz = folder / f"{_gt_name(spp)}.json", folder / f"{_gt_name(spp)}.npz"
                 key = _gt_key(cfg, scene, light, spp)
@@ -765,7 +772,7 @@ def collect_rows(cfg: StudyConfig, out: Path, runs: Sequence[RunSpec] | None = N
             recon = (ref_recon if spec.knob == "reference" else
                      cached_recon_scores(folder, spec.name, row["key"], ref["key"], data["packed"], gt, cfg))
             block.append({
-                "scene": scene, "light": light, "ref_y_median": y_median, "ref_mc_ratio": mc_ratio,
+                "scene": scene_label(scene), "light": light, "ref_y_median": y_median, "ref_mc_ratio": mc_ratio,
                 "ref_spp": cfg.ref_spp, "run": spec.name, "knob": spec.knob,
                 "render_s": row["render_s"], "simulate_s": row["simulate_s"], "total_s": total,
                 "render_ratio": row["render_s"] / ref_render, "simulate_ratio": row["simulate_s"] / ref["simulate_s"],

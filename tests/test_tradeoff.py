@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 import math
 
 import numpy as np
@@ -276,3 +277,23 @@ def test_static_bundled_scene_renders_once(tmp_path):
     r = SceneRenderer("ball", light="low", variant="mono", resolution=(25, 40), spp=1, motion=motion)
     keys = list(AdaptiveKeyframes(AdaptivePolicy(max_interval=4096)).keyframes(r, 0, 41))
     assert r.stats["renders"] == 1 and [s for s, _ in keys] == [0, 40]
+
+
+def test_the_study_runs_on_a_users_scene_xml(tmp_path, capsys):
+    """`tradeoff --xml`: the speed/accuracy study of a user's own scene (sweep had --xml, the study
+    ran only on the bundled scenes); its folders and rows are named by the scene's folder."""
+    import shutil
+
+    from pipelines.cli import main
+    scene = tmp_path / "myscene"
+    shutil.copytree(Path(__file__).resolve().parents[1] / "scenes" / "ball", scene,
+                    ignore=shutil.ignore_patterns("__pycache__"))
+    out = tmp_path / "study"
+    assert main(["tradeoff", "--xml", str(scene / "scene.xml"), "--light", "low", "--height", "25", "--width", "40",
+                 "--windows", "1", "--ref-spp", "2", "--gt-spp", "4", "--knobs", "precision",
+                 "--gt-error-spp", "2", "--repeats", "1", "--quiet", "-o", str(out)]) == 0
+    rows = (out / "tradeoff.csv").read_text().splitlines()
+    assert (out / "runs" / "myscene_low" / "float32.json").is_file()
+    assert all(r.startswith("myscene,low,") for r in rows[1:]) and "**myscene, low light**" in (out / "tradeoff.md").read_text()
+    assert main(["tradeoff", "--xml", str(scene / "scene.xml"), "--scenes", "ball", "-o", str(out)]) == 2
+    assert "--scenes (bundled scenes) or --xml" in capsys.readouterr().err
