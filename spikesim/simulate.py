@@ -60,7 +60,8 @@ def check_frame(frame: Any, index: int, height: int, width: int) -> np.ndarray:
     """A (H, W) float32 array of y >= 0, or a ValueError naming the frame and the problem."""
     arr = np.asarray(frame)
     if arr.shape != (height, width):
-        raise ValueError(f"frame {index}: shape {arr.shape}, expected ({height}, {width}) for this camera")
+        raise ValueError(f"frame {index}: shape {arr.shape}, expected ({height}, {width}) for this camera; "
+                         "a camera of another size is SpikeCamera.realistic(height=..., width=...)")
     if not np.issubdtype(arr.dtype, np.floating) and not np.issubdtype(arr.dtype, np.integer):
         raise ValueError(f"frame {index}: dtype {arr.dtype} is not numeric")
     arr = arr.astype(np.float32, copy=False)
@@ -358,7 +359,8 @@ class BatchSimulator:
         arr = np.asarray(frame)
         if arr.shape != self._frame_shape():
             raise ValueError(f"frame {self._frames_seen}: shape {arr.shape}, expected {self._frame_shape()} "
-                             "for this camera")
+                             "for this camera; a camera of another size is SpikeCamera.realistic(height=..., "
+                             "width=...)")
         if not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
             raise ValueError(f"frame {self._frames_seen}: dtype {arr.dtype} is not numeric")
         return arr.reshape(-1)

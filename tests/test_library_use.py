@@ -2,6 +2,7 @@
 library never imports the command line (`pipelines`)."""
 from __future__ import annotations
 
+import pytest
 import dataclasses
 import subprocess
 import sys
@@ -90,3 +91,14 @@ def test_a_script_trains_and_evaluates_a_model_without_the_command_line(tmp_path
         print(sorted(m for m in sys.modules if m.split(".")[0] == "pipelines"))
     """, tmp_path)
     assert out.splitlines() == ["2 3 21 TFP-21", "[]"]
+
+
+def test_a_frame_of_another_size_names_how_to_make_a_camera_of_that_size():
+    import numpy as np
+
+    from spikesim import SpikeCamera
+    from spikesim.simulate import Simulator
+    with pytest.raises(ValueError, match=r"expected \(250, 400\).*SpikeCamera.realistic\(height=\.\.\., width=\.\.\.\)"):
+        Simulator(SpikeCamera.realistic(), backend="numpy").run(np.zeros((2, 64, 100), np.float32))
+    small = Simulator(SpikeCamera.realistic(height=64, width=100), backend="numpy").run(np.zeros((2, 64, 100), np.float32))
+    assert small.num_steps == 2
