@@ -2,12 +2,13 @@
 library never imports the command line (`pipelines`)."""
 from __future__ import annotations
 
-import pytest
 import dataclasses
 import subprocess
 import sys
 import textwrap
 from pathlib import Path
+
+import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 
