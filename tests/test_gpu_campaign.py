@@ -515,7 +515,7 @@ def test_relative_paths_are_resolved_before_the_stages_run(tmp_path, monkeypatch
 
 def test_the_trained_run_carries_the_token_its_state_records(dry_run):
     """The run the campaign trains is marked as its own (the token state.json records), so a later
-    call may replace it; a run without that mark is never removed (tests/test_campaign_hostile.py)."""
+    call may replace it; a run without that mark is never removed (tests/test_gpu_campaign_work_folder.py)."""
     from pipelines.gpu_campaign.stages import RUN_MARKER
 
     _, work, _ = dry_run
