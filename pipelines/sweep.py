@@ -37,6 +37,7 @@ from spikesim.dataset import SATURATION_Y
 RESULT_FILES = ("sweep.csv", "sweep.md", "sweep.png", "sweep.json")
 #: The reported metrics, in the order of the tables (model.metrics.METRICS keys).
 HEADLINE = ("psnr_aligned", "ssim_aligned")
+DEFAULT_METHODS = ("tfp", "tfi", "tfp:205", "lrrep")
 #: Every metric a row keeps: the headline pair first, then the plain, 8-bit and light-normalised ones.
 METRIC_KEYS = HEADLINE + ("ssim", "psnr", "psnr_8bit", "ssim_8bit", "psnr_norm", "ssim_norm")
 WINDOW = 41
@@ -242,64 +243,100 @@ def plot(rows: Sequence[dict[str, Any]], methods: Sequence[str], saturation_lux:
     return path
 
 
-def run(args: argparse.Namespace) -> int:
+@dataclass
+class SweepResult:
+    """What a sweep measured: a row per (scene, level, method), the record sweep.json keeps (levels,
+    saturation, scenes, camera, settings, the levels each method does not lead), and the tables."""
+
+    rows: list[dict[str, Any]]
+    record: dict[str, Any]
+    markdown: str
+
+
+def run_sweep(scenes: Sequence[str] = ("ball", "car", "cook", "fan", "rotate"), methods: Sequence[str] = DEFAULT_METHODS,
+              levels: Sequence[float] | None = None, light: str = "normal", camera: Any = None, windows: int = 5,
+              spp: int = 2, gt_spp: int = 32, seed: int = 0, backend: str = "auto", out: str | Path | None = None,
+              draw_plot: bool = True, progress: bool = False) -> SweepResult:
+    """The sweep as a library function (a notebook runs it without argparse): each scene (a bundled
+    name or a scene XML) rendered once under `light`, simulated at every level (lx at the subject;
+    default light_levels()'s nine from 0.1 to 3000), every method scored; with `out`, sweep.csv,
+    .md, .json and .png written there (atomically; a link refused before the work)."""
     from model.methods import method_from_spec
-    from model.threads import set_cpu_threads
     from spikesim.generation import bundled_scene
     from spikesim.outputs import atomic_write_json, atomic_write_text, output_folder, writable
     from spikesim.render.scene_files import SceneFiles
+
+    levels = np.asarray(light_levels(0.1, 3000.0, 9) if levels is None else levels, dtype=np.float64)
+    seen = [s for i, s in enumerate(scenes) if s in scenes[:i]]
+    if seen:
+        raise ValueError(f"scenes: {', '.join(dict.fromkeys(seen))} given twice (each scene is scored once)")
+    method_objs = [method_from_spec(s, WINDOW) for s in methods]
+    names = [m.name for m in method_objs]
+    if len(set(names)) != len(names):
+        raise ValueError(f"method names must be unique, got {names}; name them with label=spec")
+    from spikesim.camera import SpikeCamera
+    camera = camera if camera is not None else SpikeCamera.realistic(height=64, width=100)
+    if out is not None:
+        out = Path(out)
+        for name in RESULT_FILES:
+            writable(out, name)  # a link where results go: refused before the work
+    sources = []
+    for s in scenes:
+        if str(s).lower().endswith(".xml"):
+            SceneFiles.resolve(str(s))  # a missing file is named before rendering
+            sources.append((str(s), Path(s).parent.name))
+        else:
+            sources.append((bundled_scene(s), s))
+    rendered = []
+    for i, (scene, name) in enumerate(sources):
+        rendered.append(render_scene(scene, light, camera, windows, spp, gt_spp, seed + i, name=name,
+                                     progress=progress and sys.stderr.isatty()))
+        if progress:
+            r = rendered[-1]
+            print(f"[sweep] rendered {name}: {r.subject_lux:.4g} lx at the subject under {light!r}, "
+                  f"saturation edge {r.saturation_lux:.4g} lx", file=sys.stderr)
+    rows = sweep(rendered, levels, method_objs, camera, seed=seed, backend=backend, progress=progress)
+    saturation = float(np.median([r.saturation_lux for r in rendered]))
+    md = markdown(rows, names, saturation)
+    record = {"levels_lux": levels.tolist(), "saturation_lux": saturation,
+              "scenes": {r.name: {"subject_lux": r.subject_lux, "saturation_lux": r.saturation_lux} for r in rendered},
+              "methods": names, "camera": camera.to_dict(), "windows": windows, "spp": spp,
+              "gt_spp": gt_spp, "seed": seed, "light": light,
+              "not_best_below_saturation": {m: losing_levels(rows, m, saturation) for m in names}}
+    if out is not None:
+        buf = io.StringIO(newline="")
+        w = csv.DictWriter(buf, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+        with output_folder(out):
+            atomic_write_text(writable(out, "sweep.csv"), buf.getvalue())
+            atomic_write_text(writable(out, "sweep.md"), md)
+            atomic_write_json(writable(out, "sweep.json"), record, indent=1)
+            if draw_plot:
+                plot(rows, names, saturation, writable(out, "sweep.png"),
+                     f"{', '.join(r.name for r in rendered)} at {camera.height} x {camera.width}, {windows} windows")
+    return SweepResult(rows, record, md)
+
+
+def run(args: argparse.Namespace) -> int:
+    """The command: a thin parser over run_sweep."""
+    from model.threads import set_cpu_threads
 
     set_cpu_threads(args.threads)
     levels = light_levels(args.lux_min, args.lux_max, args.levels)
     if args.xml is not None and args.scenes:
         raise ValueError("give --scenes (bundled scenes) or --xml (your own), not both")
-    methods = [method_from_spec(s, WINDOW) for s in args.methods]
-    names = [m.name for m in methods]
-    if len(set(names)) != len(names):
-        raise ValueError(f"method names must be unique, got {names}; name them with label=spec")
+    scenes = [str(args.xml)] if args.xml is not None else (args.scenes or ["ball", "car", "cook", "fan", "rotate"])
     camera = load_camera(args.camera).replace(height=args.height, width=args.width)
-    out = Path(args.out)
-    for name in RESULT_FILES:
-        writable(out, name)  # a link where results go: refused before the work
-    if args.xml is not None:
-        SceneFiles.resolve(str(args.xml))  # a missing file is named before rendering
-        sources = [(str(args.xml), args.xml.parent.name)]
-    else:
-        sources = [(bundled_scene(s), s) for s in (args.scenes or ["ball", "car", "cook", "fan", "rotate"])]
-    progress = not args.quiet and sys.stderr.isatty()
-    rendered = []
-    for i, (scene, name) in enumerate(sources):
-        rendered.append(render_scene(scene, args.light, camera, args.windows, args.spp, args.gt_spp,
-                                     args.seed + i, name=name, progress=progress))
-        if not args.quiet:
-            r = rendered[-1]
-            print(f"[sweep] rendered {name}: {r.subject_lux:.4g} lx at the subject under {args.light!r}, "
-                  f"saturation edge {r.saturation_lux:.4g} lx", file=sys.stderr)
-    rows = sweep(rendered, levels, methods, camera, seed=args.seed, backend=args.backend, progress=not args.quiet)
-    saturation = float(np.median([r.saturation_lux for r in rendered]))
-    md = markdown(rows, names, saturation)
-    record = {"levels_lux": levels.tolist(), "saturation_lux": saturation,
-              "scenes": {r.name: {"subject_lux": r.subject_lux, "saturation_lux": r.saturation_lux} for r in rendered},
-              "methods": names, "camera": camera.to_dict(), "windows": args.windows, "spp": args.spp,
-              "gt_spp": args.gt_spp, "seed": args.seed, "light": args.light,
-              "not_best_below_saturation": {m: losing_levels(rows, m, saturation) for m in names}}
-    buf = io.StringIO(newline="")
-    w = csv.DictWriter(buf, fieldnames=list(rows[0]))
-    w.writeheader()
-    w.writerows(rows)
-    with output_folder(out):
-        atomic_write_text(writable(out, "sweep.csv"), buf.getvalue())
-        atomic_write_text(writable(out, "sweep.md"), md)
-        atomic_write_json(writable(out, "sweep.json"), record, indent=1)
-        if not args.no_plot:
-            plot(rows, names, saturation, writable(out, "sweep.png"),
-                 f"{', '.join(r.name for r in rendered)} at {args.height} x {args.width}, {args.windows} windows")
+    result = run_sweep(scenes, args.methods, levels, light=args.light, camera=camera, windows=args.windows,
+                       spp=args.spp, gt_spp=args.gt_spp, seed=args.seed, backend=args.backend, out=Path(args.out),
+                       draw_plot=not args.no_plot, progress=not args.quiet)
     if args.json:
         from spikesim.config_io import standard_json
-        print(standard_json({**record, "rows": rows}, indent=1))  # no Infinity: strict JSON readers refuse it
+        print(standard_json({**result.record, "rows": result.rows}, indent=1))  # no Infinity: strict readers refuse it
     else:
-        print(md)
-        print(f"[sweep] wrote {out}/sweep.csv, sweep.md, sweep.json" + ("" if args.no_plot else ", sweep.png"),
+        print(result.markdown)
+        print(f"[sweep] wrote {args.out}/sweep.csv, sweep.md, sweep.json" + ("" if args.no_plot else ", sweep.png"),
               file=sys.stderr)
     return 0
 
@@ -312,7 +349,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--scenes", nargs="+", help="bundled scenes (default: the LLR five, ball car cook fan rotate)")
     p.add_argument("--xml", type=Path, help="your own scene XML instead (with its lights.json and motion.json)")
     p.add_argument("--light", default="normal", help="the lighting condition the levels scale (default: normal)")
-    p.add_argument("--methods", nargs="+", default=["tfp", "tfi", "tfp:205", "lrrep"],
+    p.add_argument("--methods", nargs="+", default=list(DEFAULT_METHODS),
                    help="methods as in evaluate (default: tfp tfi tfp:205 lrrep)")
     p.add_argument("--lux-min", type=positive_float, default=0.1, help="dimmest level, lx at the subject (0.1)")
     p.add_argument("--lux-max", type=positive_float, default=3000.0,

@@ -109,3 +109,16 @@ def test_light_levels_outside_what_float32_frames_hold_are_refused(lo, hi, n):
     from pipelines.sweep import light_levels
     with pytest.raises(ValueError, match="lux|levels"):
         light_levels(lo, hi, n)
+
+
+def test_a_script_runs_a_sweep_without_the_command_line(tmp_path):
+    """run_sweep is the job as a library function: the same rows and record the command writes,
+    in memory, with or without an output folder; a scene given twice is refused, not scored twice."""
+    from pipelines.sweep import run_sweep
+    camera = SpikeCamera.realistic(height=16, width=24)
+    result = run_sweep(["fan"], ["tfp", "mean"], levels=[1.0, 100.0], camera=camera, windows=1, spp=1, gt_spp=2)
+    assert len(result.rows) == 2 * 2 and result.record["scenes"]["fan"]["saturation_lux"] > 0
+    assert {r["method"] for r in result.rows} == {"TFP", "mean"} and "aligned SSIM" in result.markdown
+    assert all(r["ssim_aligned"] == pytest.approx(0.0, abs=1e-9) for r in result.rows if r["method"] == "mean")
+    with pytest.raises(ValueError, match="fan given twice"):
+        run_sweep(["fan", "fan"], ["tfp"], levels=[1.0, 100.0], camera=camera, windows=1, spp=1, gt_spp=2)
