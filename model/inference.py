@@ -63,7 +63,9 @@ def reconstruct(spikes: Any, method: str = "lrrep", window: int = 41, threads: i
     of a `.dat` stream, read as `spikesim reconstruct` reads one: `height`/`width`/`flip` as recorded
     beside it unless given (else 250 x 400, rows bottom-up), `header_columns` detected unless given,
     `drop_partial` for a file cut off mid-frame. `method` is any spec
-    `evaluate` takes (lrrep, tfp, tfi, tfp:N, a checkpoint path, label=spec)."""
+    `evaluate` takes (lrrep, tfp, tfi, tfp:N, a checkpoint path, label=spec). `device` (cpu, cuda,
+    cuda:N, mps, auto) is checked for every method, a device this machine lacks refused naming it;
+    the window averages (tfp, tfi, tfp:N) compute on the CPU whatever it is."""
     if isinstance(spikes, (str, Path)):
         from spikesim.stream import open_stream  # what `reconstruct FILE.dat` takes, with the same defaults
         reader, _ = open_stream(Path(spikes), height, width, flip, header_columns, drop_partial)
@@ -74,6 +76,8 @@ def reconstruct(spikes: Any, method: str = "lrrep", window: int = 41, threads: i
     m = s.shape[0] // window
     if m < 1:
         raise ValueError(f"spikes: {s.shape[0]} steps hold no whole {window}-step window")
+    from .training import resolve_device
+    device = str(resolve_device(device))  # "mps" blamed the weights and "gpu" raised torch's own error
     set_cpu_threads(threads)
     chosen = method_from_spec(method, window, chunk, device)
     source = TensorWindows((s[: m * window] != 0).reshape(m, window, *s.shape[1:]))

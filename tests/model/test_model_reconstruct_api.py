@@ -121,3 +121,16 @@ def test_a_dat_path_takes_what_the_command_takes(tmp_path):
     with pytest.raises(ValueError, match="drop_partial"):
         reconstruct(path, method="tfp", height=12, width=16, header_columns=0)
     assert reconstruct(path, method="tfp", height=12, width=16, header_columns=0, drop_partial=True).shape == (2, 12, 16)
+
+
+@pytest.mark.parametrize("device, says", [("gpu", "is not a device"), ("mps", "no MPS device")])
+def test_a_device_this_machine_lacks_is_named_for_every_method(device, says):
+    """"mps" used to blame the weights ("not a checkpoint of this project") and "gpu" raised torch's
+    own error; TFP took any device and ran on the CPU."""
+    from spikesim.errors import UnavailableError
+    if device == "mps" and torch.backends.mps.is_available():
+        pytest.skip("this machine has an MPS device")
+    s = np.random.default_rng(0).random((82, 12, 12)) < 0.2
+    for method in ("tfp", "lrrep"):
+        with pytest.raises((ValueError, UnavailableError), match=says):
+            model.reconstruct(s, method=method, device=device)
