@@ -360,7 +360,7 @@ def recorded_geometry(dat_path: str | Path) -> dict[str, Any] | None:
     if missing:
         raise ValueError(f"{source} does not record the stream's {' and '.join(missing)}")
     return {"height": info["height"], "width": info["width"], "header_columns": info.get("header_columns", 0),
-            "flip": info.get("flip"), "source": source}
+            "flip": info.get("flip"), "num_steps": info.get("num_steps"), "source": source}
 
 
 def stream_geometry(dat_path: str | Path, height: int | None = None, width: int | None = None,
@@ -486,13 +486,19 @@ def open_stream(path: str | Path, height: int | None = None, width: int | None =
         if not (height and width):  # part of the layout from the record: the rest must agree with it
             check_recorded_layout(path, h, w, header)
     try:
-        return DatReader(path, h, w, flip=flip, header_columns=header, drop_partial=drop_partial), header
+        reader = DatReader(path, h, w, flip=flip, header_columns=header, drop_partial=drop_partial)
     except ValueError as exc:
         rec = recorded_geometry(path)
         if rec is None or (height and width):
             raise
         raise ValueError(f"{exc} (height {h}, width {w} as recorded in {rec['source']}; "
                          "--height/--width override it)") from None
+    rec = recorded_geometry(path) if not (height and width) else None
+    recorded = None if rec is None else rec.get("num_steps")
+    if isinstance(recorded, int) and not isinstance(recorded, bool) and recorded != reader.num_steps and not drop_partial:
+        raise ValueError(f"{rec['source']} records {recorded} steps, {path} holds {reader.num_steps}: the record is "
+                         "another stream's or the stream was cut; --height/--width read it without the record")
+    return reader, header
 
 
 __all__ = ["open_stream", "SpikeStream", "DatWriter", "DatReader", "write_dat", "read_dat", "pack_frames", "unpack_frames",

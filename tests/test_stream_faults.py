@@ -191,3 +191,18 @@ def test_failed_png_write_leaves_no_part_file(tmp_path, monkeypatch):
     with pytest.raises(OSError, match="No space"):
         write_png(tmp_path / "p.png", np.zeros((4, 4)))
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_sidecar_recording_another_length_is_named(tmp_path):
+    """A sidecar's num_steps of 5000 beside a 123-step file was read silently: a stale record."""
+    from spikesim.stream import open_stream, write_dat, write_sidecar
+    path = tmp_path / "s.dat"
+    write_dat(path, SpikeStream.from_bool(np.zeros((123, 8, 16), bool)), flip=True)
+    write_sidecar(path, {"height": 8, "width": 16, "flip": True, "num_steps": 5000})
+    with pytest.raises(ValueError, match=r"s.dat.json records 5000 steps, .*holds 123"):
+        open_stream(path)
+    reader, _ = open_stream(path, height=8, width=16)  # the record set aside: read as told
+    assert reader.num_steps == 123
+    side = json.loads((tmp_path / "s.dat.json").read_text())
+    write_sidecar(path, {**side, "num_steps": 123})
+    assert open_stream(path)[0].num_steps == 123
