@@ -347,15 +347,16 @@ def equal_flop_steps(configs: Sequence[tuple[str, Any]], steps: int, reference: 
     return {label: max(1, round(steps * cost[reference] / c)) for label, c in cost.items()}
 
 
-def check_samples(configs: Sequence[tuple[str, Any]], train_scenes: Sequence[Any]) -> None:
+def check_samples(configs: Sequence[tuple[str, Any]], train_scenes: Sequence[Any], flag: str = "--configs") -> None:
     """Every config finds training samples in the data, checked before any run trains (so a
-    config that cannot train does not fail after the others have)."""
+    config that cannot train does not fail after the others have); the error names `flag` and the
+    run's label (--data LABEL where the runs are labelled by their data)."""
     from model.data import SequenceDataset
     for label, exp in configs:
         try:
             SequenceDataset(train_scenes, exp.model.window, exp.train.num_windows, exp.train.crop)
         except ValueError as exc:
-            raise ValueError(f"--configs {label}: {exc}") from None
+            raise ValueError(f"{flag} {label}: {exc}") from None
 
 
 def run_name(label: str, seed: int) -> str:

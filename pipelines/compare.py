@@ -50,22 +50,28 @@ def config_spec(text: str) -> tuple[str, Any]:
     return label, exp
 
 
+#: The longest label: it names a folder (with "#seed") and a table column.
+MAX_LABEL = 64
+
+
 def _check_label(text: str, label: str) -> None:
     """A label names a run's folder and a table's column: a plain name, printable, no |."""
-    if (not label or any(c in label for c in "/\\#|") or label.startswith(".") or label.upper().startswith("ALL")
-            or any(not c.isprintable() for c in label)):
-        raise argparse.ArgumentTypeError(f"{text!r}: a label is a plain, printable name (no /, \\, # or |, not "
-                                         "starting with a dot or ALL)")
+    if (not label.strip() or any(c in label for c in "/\\#|=") or label.startswith(".")
+            or label.upper().startswith("ALL") or any(not c.isprintable() for c in label) or len(label) > MAX_LABEL):
+        raise argparse.ArgumentTypeError(f"{text[:80]!r}: a label is a plain, printable name of at most {MAX_LABEL} "
+                                         "characters (not blank; no /, \\, #, | or =; not starting with a dot or ALL)")
 
 
 def data_spec(text: str) -> tuple[str, Path]:
-    """argparse type: LABEL=ROOT or ROOT (a dataset root; label: its folder's name)."""
-    label, _, root = text.rpartition("=") if "=" in text else ("", "", text)
-    path = Path(root)
-    if not label:
-        return "", path  # unlabelled: one dataset for every config, or named by its folder (cmd_compare)
+    """argparse type: LABEL=ROOT or ROOT (a dataset root; label: its folder's name). Split at the
+    first "=", as evaluate's LABEL=SPEC (a root's path may hold "="; a label may not)."""
+    if "=" not in text:
+        return "", Path(text)  # unlabelled: one dataset for every config, or named by its folder (cmd_compare)
+    label, _, root = text.partition("=")
     _check_label(text, label)
-    return label, path
+    if not root:
+        raise argparse.ArgumentTypeError(f"{text!r}: LABEL=ROOT with no ROOT")
+    return label, Path(root)
 
 
 def baseline_spec(text: str) -> str:
@@ -149,7 +155,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     if by_data:
         train_scenes: Any = {label: open_scenes(root) for label, root in data.items()}
         for label, exp in args.configs:
-            check_samples([(label, exp)], train_scenes[label])
+            check_samples([(label, exp)], train_scenes[label], flag="--data")
     else:
         train_scenes = open_scenes(next(iter(data.values())))
         check_samples(args.configs, train_scenes)

@@ -102,6 +102,18 @@ def _estimate_only(args: argparse.Namespace, jobs: list, device: str, resolved: 
     return 0
 
 
+def lamps_lux(text: str) -> float:
+    """argparse type: an RLLR lamp level, lux at the subject, no brighter than a real light
+    (spikesim.render.lights.MAX_ILLUMINANCE_LUX: direct sunlight); 1e30 passed the parser and then
+    failed inside a scene's work folder."""
+    from spikesim.render.lights import MAX_ILLUMINANCE_LUX
+    value = positive_float(text)
+    if value > MAX_ILLUMINANCE_LUX:
+        raise argparse.ArgumentTypeError(f"{text} lx is brighter than any real light (at most {MAX_ILLUMINANCE_LUX:g} "
+                                         "lx, direct sunlight)")
+    return value
+
+
 def run(args: argparse.Namespace) -> int:
     _refuse_options_for_other_kinds(args)
     if args.kind == "scene" and args.xml is None:
@@ -223,7 +235,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--scales", type=_pixel_scale, nargs="+", metavar="S",
                    help="RLLR pixel scales: each scene is rendered at one of them, drawn at random, times the preset's "
                         "height and width with the same field of view (e.g. 1 0.5 0.25; default 1)")
-    p.add_argument("--lamps-lux", type=positive_float, nargs=2, metavar=("LOW", "HIGH"),
+    p.add_argument("--lamps-lux", type=lamps_lux, nargs=2, metavar=("LOW", "HIGH"),
                    help="RLLR lamps' illuminance at the subject before darkening, lux, drawn log-uniformly (default: "
                         "the content's, 30-250 procedural, 20-1000 natural)")
     p.add_argument("--peak-y", type=positive_float, metavar="Y",

@@ -200,3 +200,10 @@ def test_fan_low_has_the_same_bytes_alone_or_with_other_scenes(tmp_path):
     from spikesim.imageio import read_exr
     f = "fan_low/gt/step_000020.exr"
     np.testing.assert_array_max_ulp(read_exr(tmp_path / "alone" / f), read_exr(tmp_path / "both" / f), maxulp=2)
+
+
+def test_lamp_levels_brighter_than_sunlight_are_refused_by_the_parser(tmp_path, capsys):
+    from pipelines.cli import main
+    assert main(["generate", "rllr", "--preset", "small", "--count", "1", "--lamps-lux", "1e30", "1e30",
+                 "-o", str(tmp_path / "d")]) == 2
+    assert "brighter than any real light" in capsys.readouterr().err and not (tmp_path / "d").exists()

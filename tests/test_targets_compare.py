@@ -199,3 +199,14 @@ def test_a_second_compare_into_a_folder_in_use_is_refused_before_training(tmp_pa
                      "2"]) == 2
     err = capsys.readouterr().err
     assert "another compare run" in err and "4242" in err and not (out / "runs").exists()
+
+
+@pytest.mark.parametrize("spec, says", [("=d", "not blank"), ("   =d", "not blank"), ("a" * 300 + "=d", "at most 64"),
+                                        ("x=", "no ROOT")])
+def test_compare_data_labels_are_checked_in_the_parser(spec, says, tmp_path, capsys):
+    """Blank and 300-character labels were accepted (the long one left an empty runs/); LABEL=ROOT
+    splits at the first "=", as evaluate's LABEL=SPEC does."""
+    assert main(["compare", "--data", spec, "--test-data", "d", "--max-steps", "1", "--out", str(tmp_path / "o"),
+                 "--configs", "lrrep_finetune"]) == 2
+    assert says in capsys.readouterr().err and not (tmp_path / "o").exists()
+    assert cmp.data_spec("x=y=z") == ("x", Path("y=z"))
