@@ -4,7 +4,11 @@ Renders a bundled scene (Mitsuba 3, physical lights) under normal and low light,
 frames through the realistic sensor into `.dat` files with ground truth (the LLR layout, small
 preset), reconstructs every window with TFP, TFI, TFP over the shipped network's span and the shipped
 network (and a trained checkpoint if given), and
-prints the PSNR/SSIM table and the streams' statistics; previews go next to the data.
+prints the table (aligned PSNR and SSIM first: the metrics no image without structure can win)
+and the streams' statistics; previews go next to the data.
+
+    spikesim demo                       # Fan, 64 x 100, normal and low light, 5 windows each
+    spikesim demo --scenes ball car -o out/demo2 --no-model
 """
 from __future__ import annotations
 
@@ -101,7 +105,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("demo", help="render a scene, simulate its spike stream and reconstruct it, end to end")
+    p = sub.add_parser("demo", help="render a scene, simulate its spike stream and reconstruct it, end to end",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("-o", "--out", type=output_dir, default=Path("out/demo"), help="output folder (dataset, tables, images)")
     p.add_argument("--scenes", nargs="+", type=bundled_scene, default=["fan"],
                    help="bundled scenes (ball, car, cook, fan, rotate)")

@@ -152,6 +152,10 @@ def run(args: argparse.Namespace) -> int:
         print(f"spikesim generate: {exc}: the scenes in progress were removed and finished ones kept; "
               "rerun the same command to continue", file=sys.stderr)
         return TERMINATED
+    except KeyboardInterrupt:  # Ctrl-C: the same, said the same way (it used to say only "interrupted")
+        print("spikesim generate: interrupted: the scenes in progress were removed and finished ones kept; "
+              "rerun the same command to continue", file=sys.stderr)
+        return 130
     saturation = report["saturation"]
     if args.json:
         print(json.dumps({"settings": resolved.table(), **report}, indent=2, default=str))

@@ -37,9 +37,9 @@ def add_camera_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--camera", type=camera_spec, default="realistic",
                    help="a built-in camera (realistic: every noise term; noiseless: none) or a JSON/TOML camera file")
     g.add_argument("--height", type=positive_int,
-                   help="sensor rows (default: a camera file's, else a --scene's film, else 250)")
+                   help="sensor rows (default: a camera file's, else a --scene's film or the --frames', else 250)")
     g.add_argument("--width", type=positive_int,
-                   help="sensor columns (default: a camera file's, else a --scene's film, else 400)")
+                   help="sensor columns (default: a camera file's, else a --scene's film or the --frames', else 400)")
 
 
 def scene_settings(args: argparse.Namespace) -> Any:
@@ -99,6 +99,29 @@ def frames_from_source(args: argparse.Namespace, cam: SpikeCamera, sensor_device
                             readout_period_s=cam.readout_period_s, seed=args.seed)
     steps = DEFAULT_STEPS if args.steps is None else args.steps
     return pattern.frames(keyframe_count(steps, k), every=k), {"source": "moving_pattern", "peak_y": args.peak_y}, steps
+
+
+def _camera_file_sizes(camera: Any) -> bool:
+    """Whether --camera is a file that sets the frame size (a preset does not)."""
+    if not isinstance(camera, Path):
+        return False
+    from spikesim.config_io import read_config_file
+    data = read_config_file(camera)
+    return "height" in data or "width" in data
+
+
+def frames_size(path: Path) -> tuple[int, int] | None:
+    """(H, W) of --frames (a .npy's array, a folder's first EXR); None where it cannot be read, so
+    that the reader's own error names what is wrong."""
+    try:
+        if path.is_dir():
+            from spikesim.imageio import read_exr
+            shape = read_exr(exr_files(path)[0]).shape
+        else:
+            shape = np.load(path, mmap_mode="r").shape[1:]
+    except (OSError, ValueError, EOFError, IndexError):
+        return None
+    return (int(shape[0]), int(shape[1])) if len(shape) == 2 and min(shape) > 0 else None
 
 
 def load_npy_frames(path: Path, cam: SpikeCamera) -> np.ndarray:
@@ -213,6 +236,10 @@ def run(args: argparse.Namespace) -> int:
 
     check_outputs(args)
     cam = camera_from_args(args)
+    if args.frames is not None and args.height is None and args.width is None and not _camera_file_sizes(args.camera):
+        size = frames_size(Path(args.frames))  # the frames' own size, not the default camera's 250 x 400
+        if size is not None:
+            cam = cam.replace(height=size[0], width=size[1])
     backend = args.backend
     settings = None
     if args.scene is not None and args.frames is None:

@@ -57,3 +57,14 @@ def test_scene_options_without_a_scene_are_refused(tmp_path, capsys):
     assert main(simulate("--frames", str(tmp_path / "f.npy"), "--spp", "4", "-o", str(tmp_path / "s.dat"))) == 2
     assert "--spp applies to a rendered scene" in capsys.readouterr().err
 
+
+
+def test_frames_give_the_camera_their_size_unless_told_otherwise(tmp_path, capsys):
+    """`simulate --frames x.npy` asked for the size the array has."""
+    frames = tmp_path / "f.npy"
+    np.save(frames, np.full((30, 6, 10), 0.2, np.float32))
+    assert main(["simulate", "--frames", str(frames), "--backend", "numpy", "--quiet", "-o", str(tmp_path / "a.dat")]) == 0
+    assert read_dat(tmp_path / "a.dat", 6, 10).num_steps == 30
+    assert main(["simulate", "--frames", str(frames), "--height", "8", "--width", "10", "--backend", "numpy",
+                 "--quiet", "-o", str(tmp_path / "b.dat")]) == 2  # a size given is a size checked
+    assert "frames are 6x10" in capsys.readouterr().err
