@@ -55,7 +55,7 @@ def _plain_name(text: str) -> str:
 
 # Options that only some kinds take: given to another kind, they would be silently ignored.
 _ONLY_FOR = {
-    "scenes": ("llr",), "count": ("rllr",), "pattern": ("rllr",), "darkening": ("rllr",), "content": ("rllr",), "scales": ("rllr",), "lamps_lux": ("rllr",), "peak_y": ("rllr",), "steps": ("rllr", "scene"), "gt_stride": ("rllr", "scene"),
+    "scenes": ("llr",), "count": ("rllr",), "pattern": ("rllr",), "darkening": ("rllr",), "content": ("rllr",), "scales": ("rllr",), "lamps_lux": ("rllr",), "peak_y": ("rllr",), "still_share": ("rllr",), "steps": ("rllr", "scene"), "gt_stride": ("rllr", "scene"),
     "windows": ("llr", "scene"), "xml": ("scene",), "motion": ("scene",), "lights": ("scene",),
     "light": ("scene",), "light_power_factor": ("scene",), "name": ("scene",),
 }
@@ -102,6 +102,17 @@ def _estimate_only(args: argparse.Namespace, jobs: list, device: str, resolved: 
     return 0
 
 
+def share(text: str) -> float:
+    """argparse type: a chance in [0, 1]."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not 0.0 <= value <= 1.0:
+        raise argparse.ArgumentTypeError(f"{text} is not a chance in [0, 1]")
+    return value
+
+
 def lamps_lux(text: str) -> float:
     """argparse type: an RLLR lamp level, lux at the subject, no brighter than a real light
     (spikesim.render.lights.MAX_ILLUMINANCE_LUX: direct sunlight); 1e30 passed the parser and then
@@ -130,7 +141,7 @@ def run(args: argparse.Namespace) -> int:
                          darkening=args.darkening or "uniform", content=args.content or "procedural",
                          scales=tuple(args.scales) if args.scales else (1.0,),
                          lamps_lux=None if args.lamps_lux is None else tuple(args.lamps_lux),
-                         peak_y=args.peak_y)
+                         peak_y=args.peak_y, still_share=args.still_share or 0.0)
     else:
         jobs = plan_user(str(args.xml), args.light or "normal", preset, seed=args.seed,
                          motion=None if args.motion is None else str(args.motion),
@@ -242,6 +253,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--lamps-lux", type=lamps_lux, nargs=2, metavar=("LOW", "HIGH"),
                    help="RLLR lamps' illuminance at the subject before darkening, lux, drawn log-uniformly (default: "
                         "the content's, 30-250 procedural, 20-1000 natural)")
+    p.add_argument("--still-share", type=share, metavar="P",
+                   help="photo content: the chance that a scene's camera stands still while objects cross (static "
+                        "backgrounds, as LLR's; default 0: every camera moves)")
     p.add_argument("--peak-y", type=positive_float, metavar="Y",
                    help="photo content: white's expected spikes per step before darkening (default 0.8; above 1 bright "
                         "surfaces saturate and scenes reach video brightness)")

@@ -6,7 +6,8 @@ objects in it. This source fills the frame the way a video does:
 
 - a backdrop: a photograph (scikit-image's bundled pictures, scenes/natural_textures.PHOTOS) or a
   dead-leaves image, larger than the frame, the camera panning across it (a straight pan at an
-  image speed drawn log-uniformly in PAN_PX_PER_STEP, or a shake: the pan plus a wobble);
+  image speed drawn log-uniformly in PAN_PX_PER_STEP, or a shake: the pan plus a wobble), or,
+  with a chance `still_share`, standing still;
 - in front of it, 0-3 objects: discs and rectangles cut from other pictures, each crossing the view
   at its own speed (OBJECT_PX_PER_STEP);
 - light: white (reflectance 1) maps to `peak_y` expected spikes per step, times RLLR's darkening
@@ -102,8 +103,14 @@ class PhotoPan:
     peak_y: float = PHOTO_PEAK_Y
     photo_set: str = "train"
     encoding: str = "linear"
+    still_share: float = 0.0
+    """The chance that the camera stands still (objects still cross in front): LLR's static
+    backgrounds, where an average over several windows is the best classic estimate. Drawn from a
+    stream of its own, so a scene with 0 is the scene it was before this field existed."""
 
     def __post_init__(self) -> None:
+        if not (isinstance(self.still_share, (int, float)) and 0.0 <= self.still_share <= 1.0):
+            raise ValueError(f"still_share={self.still_share!r}: expected a chance in [0, 1]")
         if not (isinstance(self.height, int) and isinstance(self.width, int) and self.height > 0 and self.width > 0):
             raise ValueError(f"photo scene size must be positive integers, got {self.height}x{self.width}")
         if not (isinstance(self.num_steps, int) and self.num_steps >= 1):
@@ -176,6 +183,9 @@ class PhotoPan:
                             "velocity": (ospeed * math.sin(oangle), ospeed * math.cos(oangle)),
                             "record": {"shape": shape, "size_px": size, "px_per_step": ospeed, **rec}})
         gain = float(rng.uniform(0.5, 1.0))  # surfaces are not all white paper
+        if self.still_share > 0 and np.random.default_rng(
+                np.random.SeedSequence([int(self.seed), 5152])).random() < self.still_share:
+            kind, speed, wobble, vy, vx, amp = "still", 0.0, 0.0, 0.0, 0.0, 0.0  # the drawn canvas still fits
         return {"canvas": backdrop * gain, "start": start, "velocity": (vy, vx), "wobble_amp": amp,
                 "wobble_period": period, "wobble_phase": float(rng.uniform(0, 2 * math.pi)), "objects": objects,
                 "record": {"camera": {"kind": kind, "px_per_step": speed, "wobble_px_per_step": wobble},
@@ -214,9 +224,10 @@ class PhotoPan:
             yield self.frame(start + i * every)
 
     def describe(self) -> dict:
+        still = {"still_share": self.still_share} if self.still_share > 0 else {}
         return {"photo_scene": {"generator": "scenes/photo_pan.py", "version": PHOTO_PAN_VERSION,
                                 "seed": int(self.seed), "peak_y": self.peak_y, "photo_set": self.photo_set,
-                                "encoding": self.encoding, **self.layout["record"]}}
+                                "encoding": self.encoding, **still, **self.layout["record"]}}
 
 
 __all__ = ["PhotoPan", "PHOTO_PAN_VERSION", "PHOTO_PEAK_Y", "PAN_PX_PER_STEP", "OBJECT_PX_PER_STEP",

@@ -178,3 +178,25 @@ def test_generate_natural_records_licences_and_scales(tmp_path):
     r = subprocess.run([sys.executable, "-m", "pipelines.cli", "generate", "llr", "--content", "natural", "-o",
                         str(tmp_path / "x")], capture_output=True, text=True, timeout=120)
     assert r.returncode == 2 and "--content applies to generate rllr" in r.stderr
+
+
+def test_a_still_share_stops_the_camera_and_leaves_other_scenes_as_they_were():
+    """`generate --still-share`: LLR's static backgrounds (where TFP over 205 steps wins) in photo
+    scenes; drawn from a stream of its own, so a scene with 0 is bit for bit the scene it was."""
+    import numpy as np
+
+    from scenes.photo_pan import PhotoPan
+    moving = PhotoPan(height=24, width=32, num_steps=200, seed=9)
+    same = PhotoPan(height=24, width=32, num_steps=200, seed=9, still_share=0.0)
+    np.testing.assert_array_equal(moving.frame(150), same.frame(150))
+    still = PhotoPan(height=24, width=32, num_steps=200, seed=9, still_share=1.0)
+    assert still.camera_offset(0) == still.camera_offset(199)  # the backdrop does not move
+    assert still.describe()["photo_scene"]["camera"]["kind"] == "still"
+    assert moving.camera_offset(0) != moving.camera_offset(199)
+    from spikesim.generation import PRESETS, plan_rllr
+    preset = PRESETS["small"].replace(rllr_steps=82, rllr_gt_stride=41)
+    plain = plan_rllr(preset, seed=3, count=2, content="photo")
+    assert plain == plan_rllr(preset, seed=3, count=2, content="photo", still_share=0.0)
+    assert all("still_share" not in j.source for j in plain)
+    with pytest.raises(ValueError, match="photo"):
+        plan_rllr(preset, seed=3, count=1, content="natural", still_share=0.5)

@@ -58,7 +58,8 @@ class _FrameSource:
             from scenes.photo_pan import PhotoPan
             self._pattern = PhotoPan(height=h, width=w, num_steps=int(job.num_steps), seed=int(src["scene_seed"]),
                                      peak_y=float(src["peak_y"]), photo_set=str(src.get("photo_set", "train")),
-                                     encoding=str(src.get("encoding", "linear")))
+                                     encoding=str(src.get("encoding", "linear")),
+                                     still_share=float(src.get("still_share", 0.0)))
             self._renderer = None
         else:
             from spikesim.camera import SpikeCamera

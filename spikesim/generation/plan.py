@@ -294,7 +294,8 @@ def scaled_size(height: int, width: int, scale: float) -> tuple[int, int]:
 def plan_rllr(preset: Preset, seed: int = 0, camera: Any | None = None, count: int | None = None,
               source: str = "random", quality: str | None = None, darkening: str = "uniform",
               content: str = "procedural", scales: tuple[float, ...] = (1.0,),
-              lamps_lux: tuple[float, float] | None = None, peak_y: float | None = None) -> list[SceneJob]:
+              lamps_lux: tuple[float, float] | None = None, peak_y: float | None = None,
+              still_share: float = 0.0) -> list[SceneJob]:
     """RLLR: random scenes, each darkened by a random factor (paper, "RLLR": uniform in (0, 1);
     DARKENINGS for the other choice). A random scene's job records its lamps' range
     (scenes.random_scene.LAMPS_LUX), so scenes built with another range are not taken for finished
@@ -304,7 +305,9 @@ def plan_rllr(preset: Preset, seed: int = 0, camera: Any | None = None, count: i
     factors and scenes of a one-scale plan are unchanged. `lamps_lux` replaces the content's lamp
     range (lux at the subject, before darkening). `peak_y` replaces a photo scene's white level
     (expected spikes per step before darkening; scenes.photo_pan.PHOTO_PEAK_Y): above 1, bright
-    surfaces saturate, and the scene's mean reaches video brightness (REDS-like pairs: mean y 0.22)."""
+    surfaces saturate, and the scene's mean reaches video brightness (REDS-like pairs: mean y 0.22).
+    `still_share`: the chance that a photo scene's camera stands still (scenes.photo_pan); recorded
+    in its job only when above 0, so every earlier plan is unchanged."""
     from scenes.random_scene import LAMPS_LUX
     if darkening not in DARKENINGS:
         raise ValueError(f"darkening={darkening!r}; expected one of {DARKENINGS}")
@@ -315,6 +318,10 @@ def plan_rllr(preset: Preset, seed: int = 0, camera: Any | None = None, count: i
             raise ValueError(f"peak_y={peak_y!r}: expected a white level in (0, 100] spikes per step")
         if content != "photo":
             raise ValueError("peak_y sets the white level of photo content (--content photo)")
+    if not (isinstance(still_share, (int, float)) and 0.0 <= still_share <= 1.0):
+        raise ValueError(f"still_share={still_share!r}: expected a chance in [0, 1]")
+    if still_share > 0 and content != "photo":
+        raise ValueError("still_share is the chance that a photo scene's camera stands still (--content photo)")
     if source != "random" and content != "procedural":
         raise ValueError("content applies to random scenes, not the built-in pattern")
     if lamps_lux is not None:
@@ -343,7 +350,7 @@ def plan_rllr(preset: Preset, seed: int = 0, camera: Any | None = None, count: i
             from scenes.photo_pan import PHOTO_PEAK_Y
             src = {"type": "photo", "index": i, "scene_seed": s, "peak_y": float(peak_y or PHOTO_PEAK_Y),
                    "photo_set": "train",
-                   "encoding": "linear"}
+                   "encoding": "linear", **({"still_share": float(still_share)} if still_share > 0 else {})}
         elif content == "reds-like":
             src = {"type": "photo", "index": i, "scene_seed": s, "peak_y": REDS_LIKE_PEAK_Y, "photo_set": "heldout",
                    "encoding": "srgb"}
