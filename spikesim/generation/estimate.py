@@ -110,8 +110,7 @@ def _render_spp(job: "SceneJob") -> tuple[int, int]:
     from spikesim.render_settings import RenderSettings
     settings = RenderSettings.from_dict(job.render)
     if job.quality is not None:
-        from spikesim.quality import QualitySettings
-        settings = settings.replace(**QualitySettings.from_name(job.quality).render_kwargs())
+        settings = settings.replace(**job.quality_settings.render_kwargs())
     return int(settings.spp), int(settings.gt_spp)
 
 
@@ -130,8 +129,7 @@ def adaptive_policy(job: "SceneJob") -> Any:
     """The job's adaptive keyframe policy, or None where it renders at a fixed spacing."""
     if job.quality is None or job.source.get("type") in UNRENDERED_SOURCES:
         return None
-    from spikesim.quality import QualitySettings
-    q = QualitySettings.from_name(job.quality)
+    q = job.quality_settings
     return q.adaptive_policy() if q.keyframe_policy == "adaptive" else None
 
 
@@ -164,8 +162,7 @@ def sample_rule(job: "SceneJob") -> Any:
     """The job's quality when it chooses its samples per scene (`sample_rule`), else None."""
     if job.quality is None or job.source.get("type") in UNRENDERED_SOURCES:
         return None
-    from spikesim.quality import QualitySettings
-    q = QualitySettings.from_name(job.quality)
+    q = job.quality_settings
     return q if q.sample_rule is not None else None
 
 

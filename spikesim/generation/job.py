@@ -83,8 +83,7 @@ class _FrameSource:
                 scene, motion, lights, light = src["scene"], src.get("motion"), src.get("lights"), src["light"]
             settings = RenderSettings.from_dict(job.render)
             if job.quality is not None:
-                from spikesim.quality import QualitySettings
-                settings = settings.replace(**QualitySettings.from_name(job.quality).render_kwargs())
+                settings = settings.replace(**job.quality_settings.render_kwargs())
             self._renderer = SceneRenderer(scene, light=light, motion=motion, lights=lights,
                                            camera=SpikeCamera.from_dict(job.camera),
                                            settings=settings.replace(device=device))
@@ -222,8 +221,7 @@ def run_job(job: SceneJob, root: str | Path, progress: Callable[[str, int, int],
         cam = SpikeCamera.from_dict(job.camera)
         quality_record = None
         if job.quality is not None and source.renderer is not None:
-            from spikesim.quality import QualitySettings
-            q = QualitySettings.from_name(job.quality)
+            q = job.quality_settings
             y_levels = sampling = None
             if q.sample_rule is not None:  # probe renders: the scene's Monte Carlo noise decides the samples
                 sampling = sample_rule_choice(q, source.renderer, source.scale, cam.threshold_electrons)

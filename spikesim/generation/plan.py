@@ -8,6 +8,7 @@ from __future__ import annotations
 import math
 
 import dataclasses
+import functools
 import hashlib
 import json
 from dataclasses import dataclass
@@ -79,6 +80,14 @@ PRESETS: dict[str, Preset] = {
 
 
 # ---- jobs -----------------------------------------------------------------------------------------
+@functools.lru_cache(maxsize=None)
+def resolved_quality(name: str) -> Any:
+    """A quality preset by name (spikesim.quality.QualitySettings.from_name), resolved once: the
+    estimate, the job and its run read the same object."""
+    from spikesim.quality import QualitySettings
+    return QualitySettings.from_name(name)
+
+
 @dataclass(frozen=True)
 class SceneJob:
     """Everything that determines one scene folder, bit for bit."""
@@ -125,8 +134,7 @@ class SceneJob:
             from spikesim.generation.inputs import identities, job_inputs
             object.__setattr__(self, "inputs", identities(job_inputs(self.source, self.quality)))
         if self.quality is not None:
-            from spikesim.quality import QualitySettings
-            QualitySettings.from_name(self.quality)  # validates the name
+            resolved_quality(self.quality)  # validates the name
         try:  # the checks every render setting gets, before any folder is locked or worker started
             settings = RenderSettings.from_dict({**self.render, "keyframe_every": self.keyframe_every})
             if self.source.get("type") not in UNRENDERED_SOURCES:
@@ -141,6 +149,12 @@ class SceneJob:
         bad = [s for s in self.gt_steps if not 0 <= s < self.num_steps]
         if bad:
             raise ValueError(f"job {self.name}: ground-truth steps {bad[:5]} outside [0, {self.num_steps})")
+
+    @property
+    def quality_settings(self) -> Any:
+        """The job's quality preset (spikesim.quality.QualitySettings), resolved once per name and
+        process (resolved_quality); None without one. Every stage of a job reads it here."""
+        return None if self.quality is None else resolved_quality(self.quality)
 
     def to_dict(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)

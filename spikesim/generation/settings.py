@@ -178,15 +178,17 @@ def resolve_settings(kind: str, preset: str | Preset = "small", xml: str | Path 
     if settings_file is not None:
         layers.append((f"--render-settings {settings_file}", settings_file_values(settings_file)))
     layers += list((flags or {}).items())
+    q = None
     if quality is not None:
         from spikesim.quality import QualitySettings
-        layers.append((f"--quality {quality}", QualitySettings.from_name(quality).render_kwargs()))
+        q = QualitySettings.from_name(quality)  # resolved once here; each job holds its own (SceneJob)
+        layers.append((f"--quality {quality}", q.render_kwargs()))
     values, origins = merge_layers(layers)
-    if quality is not None and (rule := QualitySettings.from_name(quality).sample_rule) is not None:
+    if q is not None and (rule := q.sample_rule) is not None:
         if origins.get("spp") == f"--quality {quality}":  # run_job picks it per scene from probe renders
             origins["spp"] = (f"--quality {quality}: per scene, 1-{rule.max_spp} by its Monte Carlo noise "
                               f"(predicted loss <= {rule.tolerance_db:g} dB)")
-    if quality is not None and (q := QualitySettings.from_name(quality)).keyframe_policy == "adaptive":
+    if q is not None and q.keyframe_policy == "adaptive":
         if origins.get("keyframe_every") == f"--quality {quality}":  # the renderer places keyframes by motion
             origins["keyframe_every"] = (f"--quality {quality}: adaptive, not this fixed spacing: a keyframe where "
                                          f"the image has moved {q.max_px_per_keyframe:g} px, at most "
