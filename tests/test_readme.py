@@ -90,7 +90,7 @@ def _blocks_to_run() -> list[tuple[str, str]]:
 
 def test_blocks_parse_and_every_input_is_made_first():
     made: set[str] = set(SHIPPED)
-    reads = re.compile(r"(?:(?<=\s)|^)((?:data|out|runs|tests/data)/[\w./-]+|[\w-]+\.(?:toml|npy|json|dat))")
+    reads = re.compile(r"(?:(?<=\s)|^)((?:data|out|runs|tests/data)/[\w./-]+|[\w-]+\.(?:toml|npy|json|dat)\b)")
     for lang, body in _blocks_to_run():
         lines = commands(body) if lang == "bash" else [body]
         for line in lines:
