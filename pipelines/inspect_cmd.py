@@ -193,13 +193,16 @@ def run(args: argparse.Namespace) -> int:
     if side:
         s["sidecar"] = {k: side[k] for k in ("seed", "backend", "keyframe_every", "irradiance") if k in side}
     if args.preview:
-        from spikesim.imageio import write_png
+        from spikesim.imageio import PREVIEW_PERCENTILE, auto_percentile, write_png
         from spikesim.outputs import output_file
         a = max(start, (start + stop) // 2 - args.window // 2)
         tfp = reader.read(a, min(stop, a + args.window)).unpack().mean(axis=0)
+        # a dark stream's preview is stretched to its 99.5th percentile (it was near-black in low light)
+        percentile = PREVIEW_PERCENTILE if args.enhance else auto_percentile(tfp)
         with output_file(args.preview) as preview:  # never through a link; no new empty folder on failure
-            write_png(preview, tfp, percentile=99.5 if args.enhance else None)
+            write_png(preview, tfp, percentile=percentile)
         s["preview"] = str(args.preview)
+        s["preview_stretched"] = percentile is not None
     if args.json:
         print(json.dumps(s, indent=2))
         return 0
@@ -224,7 +227,8 @@ def _print_summary(args: argparse.Namespace, s: dict[str, Any], flip: bool, peri
     else:
         print("  ISI          no pixel fired twice")
     if args.preview:
-        print(f"  TFP preview  {args.preview}")
+        stretched = " (dark: stretched to its 99.5th percentile, for display only)" if s.get("preview_stretched") else ""
+        print(f"  TFP preview  {args.preview}{stretched}")
 
 
 def header_columns_arg(text: str) -> str | int:
@@ -253,6 +257,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--readout-period-s", type=positive_float,
                    help="seconds per readout step, for rates in Hz (default: as recorded, else 25e-6)")
     p.add_argument("--preview", type=Path, help="save a TFP preview PNG of the middle window")
-    p.add_argument("--enhance", action="store_true", help="stretch a dark preview (display only)")
+    p.add_argument("--enhance", action="store_true",
+                   help="stretch the preview to its 99.5th percentile (display only; a dark one is stretched anyway)")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=run)

@@ -152,3 +152,17 @@ def test_inspect_preview_and_header_columns_in_json(dat, tmp_path, capsys):
     assert main(["inspect", str(dat), "--json", "--preview", str(tmp_path / "p.png"), "--start", "10"]) == 0
     info = json.loads(capsys.readouterr().out)
     assert info["num_steps"] == 40 and info["header_columns"] == 0 and (tmp_path / "p.png").exists()
+
+
+def test_a_dark_streams_preview_is_stretched_and_says_so(tmp_path, capsys):
+    """`inspect --preview` of a low-light stream was near-black."""
+    from PIL import Image
+
+    from pipelines.cli import main
+    from spikesim.stream import SpikeStream, write_dat
+    path = tmp_path / "dark.dat"
+    rng = np.random.default_rng(0)
+    write_dat(path, SpikeStream.from_bool(rng.random((82, 16, 32)) < np.linspace(0, 0.02, 32)), flip=True)
+    assert main(["inspect", str(path), "--height", "16", "--width", "32", "--preview", str(tmp_path / "p.png")]) == 0
+    assert "stretched" in capsys.readouterr().out
+    assert np.asarray(Image.open(tmp_path / "p.png")).max() > 200  # white is the brightest part, not y = 1
