@@ -6,7 +6,9 @@
 
 - DARK: the lens capped. Gives dark_current_hz, dark_current_spread, and the hot pixels (counted).
 - FLAT: uniform light, below half the saturation rate. Gives gain_spread (which holds the threshold
-  mismatch and offset: they act on light alike; the file sets them to 0). A second flat is combined.
+  mismatch and offset: they act on light alike; the file sets them to 0) and the outlier pixels
+  (outlier_pixel_fraction, outlier_gain_spread; 0 where one normal explains the pixels). A second
+  flat is combined.
 - SCENE: any recording with texture. Gives row_gain_spread and column_gain_spread.
 
 Each fitted value is written with its standard error and the recording it came from; every other
@@ -56,7 +58,7 @@ def calibrated_toml(camera: Any, fitted: list[Any], notes: list[str]) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from spikesim.calibrate import calibrated_camera, combine, fit_dark, fit_flat, fit_scene
+    from spikesim.calibrate import calibrated_camera, combine, fit_dark, fit_flat, fit_outliers, fit_scene
 
     if args.dark is None and not args.flat and args.scene is None:
         raise ValueError("calibrate needs at least one recording: --dark (lens capped), --flat (uniform light) "
@@ -85,7 +87,13 @@ def run(args: argparse.Namespace) -> int:
             fits, y = fit_flat(read_half_rates(path, args.height, args.width, flip), dark, base)
             flats += fits
             notes.append(f"{path.name}: light y = {y:.4g} spikes per step (dark subtracted)")
-        fitted.append(combine(flats))
+        gain = combine(flats)
+        outliers = fit_outliers(read_half_rates(args.flat[0], args.height, args.width, flip), dark, base)
+        if outliers[0].value > 0:  # the pixels' own spread is the mixture's narrow part
+            gain = outliers[2]
+            notes.append(f"{args.flat[0].name}: an outlier population found (a share of pixels with an extra gain "
+                         "factor); gain_spread is the spread without them")
+        fitted += [gain, *outliers[:2]]
         notes.append("gain_spread holds the threshold mismatch and offset (a flat cannot tell them apart): "
                      "threshold_mismatch and threshold_offset are set to 0")
     else:
@@ -94,8 +102,9 @@ def run(args: argparse.Namespace) -> int:
         fitted += fit_scene(read_half_rates(args.scene, args.height, args.width, flip), dark)
     else:
         notes.append("not fitted: row_gain_spread and column_gain_spread need a scene recording (--scene)")
-    notes.append("not fitted from any recording: outlier pixels, comparator and shot noise, reset loss "
-                 "(python -m pipelines.real_camera compares a recording with its simulated twin)")
+    notes.append("not fitted from any recording: comparator and shot noise, reset loss (python -m "
+                 "pipelines.real_camera compares a recording with its simulated twin)"
+                 + ("" if args.flat else "; outlier pixels need a flat (--flat)"))
     camera = calibrated_camera(base, fitted)
     text = calibrated_toml(camera, fitted, notes)
     with outputs.output_file(args.out):

@@ -17,6 +17,9 @@ What the recordings determine, and what calibrate writes (docs/sensor.md, "Calib
   number of levels measures sqrt(gain^2 + mismatch^2 + offset^2) only. Calibrate writes it as
   gain_spread and the threshold terms as 0: the same mean rate in every pixel under any light.
   (Two flats check linearity instead: their response maps must agree up to one factor.)
+- flat, outliers: the relative responses as a mixture of the pixels' spread and a share of outlier
+  pixels (SpikeCamera's outlier terms), by EM, kept where two components beat one (BIC); then
+  gain_spread is the narrow part.
 - scene: the rates relative to their neighbourhood's median; the spread of row and column means of
   that ratio, by the same split-half covariance: row_gain_spread and column_gain_spread.
 """
@@ -171,6 +174,60 @@ def fit_flat(flat: HalfRates, dark: HalfRates | None, camera: SpikeCamera) -> tu
     return [Fitted("gain_spread", sd / y, se / y, where)], y
 
 
+#: A two-component fit (outlier pixels) is kept only when it explains the flat's responses better
+#: than one normal by this much Bayesian information criterion (strong evidence, Kass & Raftery).
+OUTLIER_BIC_MARGIN = 10.0
+#: Bootstrap resamples of the pixels for the outlier fit's standard errors.
+OUTLIER_BOOTSTRAP = 20
+
+
+def _mixture(e: np.ndarray, noise_var: float, iterations: int = 200) -> tuple[float, float, float, float]:
+    """(f, sd0, sd1, log-likelihood gain over one normal) of relative responses e: a share f of
+    outlier pixels N(0, sd1^2) among N(0, sd0^2), both widened by the counting noise, by EM."""
+    v_all = float(np.mean(e * e))
+    v0, v1, f = v_all * 0.5, v_all * 4.0, 0.1
+    for _ in range(iterations):
+        p0 = (1 - f) * np.exp(-e * e / (2 * v0)) / np.sqrt(v0)
+        p1 = f * np.exp(-e * e / (2 * v1)) / np.sqrt(v1)
+        w = p1 / np.maximum(p0 + p1, 1e-300)
+        f = float(np.clip(w.mean(), 1e-6, 0.5))
+        v1 = max(float(np.sum(w * e * e) / max(w.sum(), 1e-12)), noise_var * 1.0001)
+        v0 = max(float(np.sum((1 - w) * e * e) / max((1 - w).sum(), 1e-12)), noise_var * 1.0001)
+    ll2 = float(np.sum(np.log((1 - f) * np.exp(-e * e / (2 * v0)) / np.sqrt(2 * np.pi * v0)
+                              + f * np.exp(-e * e / (2 * v1)) / np.sqrt(2 * np.pi * v1))))
+    ll1 = float(np.sum(-e * e / (2 * v_all) - 0.5 * np.log(2 * np.pi * v_all)))
+    return f, math.sqrt(max(v0 - noise_var, 0.0)), math.sqrt(max(v1 - noise_var, 0.0)), ll2 - ll1
+
+
+def fit_outliers(flat: HalfRates, dark: HalfRates | None, camera: SpikeCamera, seed: int = 0) -> list[Fitted]:
+    """outlier_pixel_fraction and outlier_gain_spread from a flat: the relative responses are a
+    mixture of the pixels' gain spread and a share of outlier pixels with an extra gain factor
+    N(1, s) (SpikeCamera's outlier terms), fitted by EM with the counting noise (from the two halves)
+    taken out; kept when two components beat one by OUTLIER_BIC_MARGIN, else both 0. Standard
+    errors by a bootstrap over the pixels."""
+    where = f"{Path(flat.path).name} ({flat.steps} steps, flat)"
+    ra, rb = (flat.a - dark.a, flat.b - dark.b) if dark is not None else (flat.a - camera.dark_per_step,
+                                                                         flat.b - camera.dark_per_step)
+    keep = ~hot_pixels(dark.mean) if dark is not None else np.ones(ra.shape, bool)
+    mean = float(((ra + rb) / 2)[keep].mean())
+    e = (((ra + rb) / 2)[keep] / mean - 1.0).ravel()
+    noise_var = float(np.var((ra - rb)[keep] / mean)) / 4.0  # of the halves' mean
+    f, sd0, sd1, gain = _mixture(e, noise_var)
+    if 2 * gain < 3 * math.log(e.size) + OUTLIER_BIC_MARGIN or sd1 <= sd0:  # 3 parameters against 1
+        return [Fitted("outlier_pixel_fraction", 0.0, 0.0, where + ": no outlier population"),
+                Fitted("outlier_gain_spread", 0.0, 0.0, where + ": no outlier population")]
+    spread = math.sqrt(max(sd1 ** 2 - sd0 ** 2, 0.0))
+    rng = np.random.default_rng(seed)
+    boot = []
+    for _ in range(OUTLIER_BOOTSTRAP):
+        bf, b0, b1, _ = _mixture(rng.choice(e, e.size), noise_var)
+        boot.append((bf, math.sqrt(max(b1 ** 2 - b0 ** 2, 0.0)), b0))
+    se_f, se_s, se_0 = (float(np.std(v, ddof=1)) for v in zip(*boot))
+    # with outliers, the pixels' own spread is the mixture's narrow part, not the whole flat's
+    return [Fitted("outlier_pixel_fraction", f, se_f, where), Fitted("outlier_gain_spread", spread, se_s, where),
+            Fitted("gain_spread", sd0, se_0, where + ", without its outlier pixels")]
+
+
 def combine(fits: Sequence[Fitted]) -> Fitted:
     """Several estimates of one field (flats at two levels) as their inverse-variance mean."""
     if len(fits) == 1:
@@ -212,4 +269,5 @@ def calibrated_camera(base: SpikeCamera, fitted: Sequence[Fitted]) -> SpikeCamer
 
 
 __all__ = ["Fitted", "HalfRates", "DarkFit", "half_rates", "split_half_spread", "hot_pixels", "fit_dark", "fit_flat",
+           "fit_outliers",
            "fit_scene", "combine", "calibrated_camera"]

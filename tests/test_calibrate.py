@@ -100,3 +100,19 @@ def test_calibrate_writes_a_camera_file_the_other_commands_take(tmp_path, capsys
     Simulator(cam, seed=2).run_to_dat((np.full((16, 24), 0.9, np.float32) for _ in range(400)), bright)
     assert main(["calibrate", "--flat", str(bright), "-o", str(tmp_path / "b.toml")]) == 2
     assert "too bright" in capsys.readouterr().err and not (tmp_path / "b.toml").exists()
+
+
+@pytest.mark.parametrize("fraction, spread", [(0.0, 0.0), (0.12, 0.40), (0.05, 0.30)])
+def test_outlier_pixels_are_recovered_from_a_flat_and_absent_where_there_are_none(fraction, spread):
+    from spikesim.calibrate import fit_outliers
+    cam = SpikeCamera.realistic(height=H, width=W, outlier_pixel_fraction=fraction, outlier_gain_spread=spread)
+    dark, flat = recording(cam, 0.0, 5_000, seed=8), recording(cam, 0.1, 5_000, seed=8)
+    fits = {f.field: f for f in fit_outliers(flat, dark, cam)}
+    if fraction == 0:
+        assert fits["outlier_pixel_fraction"].value == 0 and "gain_spread" not in fits
+        return
+    for field, truth in (("outlier_pixel_fraction", fraction), ("outlier_gain_spread", spread)):
+        f = fits[field]
+        assert abs(f.value - truth) <= max(3 * f.uncertainty, 0.15 * truth), (f, truth)
+    combined = float(np.sqrt(cam.gain_spread ** 2 + cam.threshold_mismatch ** 2 + cam.threshold_offset ** 2))
+    assert abs(fits["gain_spread"].value - combined) < 0.2 * combined  # the narrow part: the pixels' own spread
