@@ -36,12 +36,21 @@ class PretrainedWeights:
 #: The shipped weights by name (docs/model.md, "Model card": how they were made and scored).
 PRETRAINED: dict[str, PretrainedWeights] = {
     "lrrep": PretrainedWeights(
-        name="lrrep", file="lrrep_refine.pt",
+        name="lrrep", file="lrrep_span.pt",
+        file_sha256="44a0e5d62cf77e70c58d75ed44485adfe8189ac7d3996b3029abbf5af6150383",
+        weights_sha256="2e2b2e4f3ec5afd559fa360491dc039b2a93e9c385b87bc6ab6f2a34f19af085",
+        summary="(E) at 16 features and 2 blocks, K = 5, GISI as 1/interval, with the refining output and the span's "
+                "average at its head (gates to the window's TFP and TFI and to TFP over the 5 windows around it): "
+                "lrrep_v3 fine-tuned about 85 minutes on two CPU cores (config lrrep_span) on 8 rendered natural scenes "
+                "and 192 video-like photo scenes, half at video brightness, half with a still camera"),
+    "lrrep_v3": PretrainedWeights(
+        name="lrrep_v3", file="lrrep_refine.pt",
         file_sha256="8c3011faec4df249a4c20ce37499d59c1a5707d166d5f17e759cefaa0aaa87fc",
         weights_sha256="f8e9151278a59bd1c12234127a82262e80a9661a41cea62017e7e07dbcb6cd7e",
-        summary="(E) at 16 features and 2 blocks, K = 5, GISI as 1/interval, with the refining output (per-pixel gates "
-                "to the window's TFP and TFI): lrrep_v2 fine-tuned 47 minutes on two CPU cores (config lrrep_refine) on "
-                "8 rendered natural scenes and 96 video-like photo scenes, half of them at video brightness"),
+        summary="the fourth stage, kept for comparison: (E) at 16 features and 2 blocks, K = 5, GISI as 1/interval, "
+                "with the refining output (per-pixel gates to the window's TFP and TFI): lrrep_v2 fine-tuned 47 "
+                "minutes on two CPU cores (config lrrep_refine) on 8 rendered natural scenes and 96 video-like photo "
+                "scenes, half of them at video brightness"),
     "lrrep_v2": PretrainedWeights(
         name="lrrep_v2", file="lrrep_nat.pt",
         file_sha256="430d80fbe024e2b348d91c8e5df3fb9532ae459cdcae04c23c332eadd95a6aa8",
