@@ -381,6 +381,9 @@ def _read_scores(path: Path, stamp: list[Any], scenes: Sequence[str] | None = No
         data = json.loads(read_small_file(path, "a score cache", limit=64 << 20))
         if data.get("checkpoint") != stamp:
             return None
+        missing = sorted({m for row in data["rows"] for m in SCORE_METRICS if m not in row})
+        if missing:  # a cache from before a metric existed (ssim_aligned): scored again, not shown as nan
+            raise ValueError(f"it has no {', '.join(missing)} (written before that metric existed)")
         rows = [Score(**{k: (math.nan if v is None else v) for k, v in row.items()}) for row in data["rows"]]
         for r in rows:  # every value of its type and range: an edited cache ("frames": -5, a string) is not used
             if not (isinstance(r.scene, str) and isinstance(r.method, str) and isinstance(r.frames, int)

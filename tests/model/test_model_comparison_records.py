@@ -10,8 +10,8 @@ import pytest
 from model.comparison import _read_scores, _write_scores, read_compute
 from model.evaluation import Score
 
-ROWS = [Score("ball_low", "tfp", 20.0, 0.5, 3, 20.0, 0.5, 1.0, 0.1, 14.0),
-        Score("ALL", "tfp", 20.0, 0.5, 3, 20.0, 0.5, 1.0, 0.1, 14.0)]
+ROWS = [Score("ball_low", "tfp", 20.0, 0.5, 3, 20.0, 0.5, 1.0, 0.1, 14.0, 0.3),
+        Score("ALL", "tfp", 20.0, 0.5, 3, 20.0, 0.5, 1.0, 0.1, 14.0, 0.3)]
 
 
 def test_a_good_compute_record_reads_and_none_is_empty(tmp_path):
@@ -47,3 +47,15 @@ def test_an_edited_score_cache_is_named_and_scored_again(tmp_path, edit):
     path.write_text(json.dumps(data))
     with pytest.warns(UserWarning, match="scores.json.*malformed score cache"):
         assert _read_scores(path, [1, 2], ["ball_low"]) is None
+
+
+def test_a_score_cache_from_before_the_aligned_ssim_is_scored_again(tmp_path):
+    """A cache without a metric the tables now show would print nan in its column."""
+    import json
+    path = tmp_path / "scores.json"
+    _write_scores(path, [1, 2], ROWS)
+    data = json.loads(path.read_text())
+    for row in data["rows"]:
+        del row["ssim_aligned"]
+    path.write_text(json.dumps(data))
+    assert _read_scores(path, [1, 2], ["ball_low"]) is None
