@@ -29,6 +29,17 @@ def positive_int(text: str) -> int:
     return v
 
 
+def float_in(lo: float, hi: float, what: str):
+    """argparse type: a number in [lo, hi] (a chance, a percentile), the error naming `what`."""
+    def parse(text: str) -> float:
+        v = _number(text, float)
+        if not lo <= v <= hi:
+            raise argparse.ArgumentTypeError(f"must be {what} from {lo:g} to {hi:g}, got {text}")
+        return v
+    parse.__name__ = what.split()[-1]
+    return parse
+
+
 def bounded_count(limit: int, what: str):
     """argparse type: an integer in 1..limit (a count whose plan is held in memory at once)."""
     def parse(text: str) -> int:

@@ -11,7 +11,7 @@ import sys
 from pathlib import Path
 
 from pipelines.argtypes import (seed_int, add_device_argument, bounded_count, add_light_power_factor_argument, camera_spec, existing_file,
-                                load_camera, positive_float, positive_int)
+                                float_in, load_camera, positive_float, positive_int)
 from spikesim._drjit import resolve_device
 from spikesim.dataset import check_scene_name
 from spikesim.generation.plan import CONTENTS, DARKENINGS, LOG_DARKENING_MIN
@@ -100,17 +100,6 @@ def _estimate_only(args: argparse.Namespace, jobs: list, device: str, resolved: 
     else:
         print(est.summary())
     return 0
-
-
-def share(text: str) -> float:
-    """argparse type: a chance in [0, 1]."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not 0.0 <= value <= 1.0:
-        raise argparse.ArgumentTypeError(f"{text} is not a chance in [0, 1]")
-    return value
 
 
 def lamps_lux(text: str) -> float:
@@ -253,7 +242,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--lamps-lux", type=lamps_lux, nargs=2, metavar=("LOW", "HIGH"),
                    help="RLLR lamps' illuminance at the subject before darkening, lux, drawn log-uniformly (default: "
                         "the content's, 30-250 procedural, 20-1000 natural)")
-    p.add_argument("--still-share", type=share, metavar="P",
+    p.add_argument("--still-share", type=float_in(0.0, 1.0, "a chance"), metavar="P",
                    help="photo content: the chance that a scene's camera stands still while objects cross (static "
                         "backgrounds, as LLR's; default 0: every camera moves)")
     p.add_argument("--peak-y", type=positive_float, metavar="Y",

@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from pipelines.argtypes import (seed_int, add_device_argument, add_light_power_factor_argument, config_file, existing_file,
-                                output_dir, positive_float, positive_int)
+                                float_in, output_dir, positive_float, positive_int)
 from spikesim.outputs import atomic_write_with, output_folder, writing
 
 
@@ -80,17 +80,6 @@ def resolve_render_settings(args: argparse.Namespace, xml: Path) -> Any:
                                     flags=flags)
 
 
-def percentile(text: str) -> float:
-    """A percentile, 0 to 100."""
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not 0 <= v <= 100:
-        raise argparse.ArgumentTypeError(f"must be a percentile from 0 to 100, got {text}")
-    return v
-
-
 def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     """Register the `render` subcommand on an argparse subparsers object."""
     p = subparsers.add_parser("render", help="render a scene's frames or ground truth to EXR + PNG",
@@ -118,7 +107,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--exposure", type=config_file, default=None,
                    help="JSON/TOML file of Exposure (optics, pixel, T, threshold)")
     p.add_argument("--png-scale", type=positive_float, default=None, help="PNG preview: multiply y by this before display")
-    p.add_argument("--png-percentile", type=percentile, default=None,
+    p.add_argument("--png-percentile", type=float_in(0.0, 100.0, "a percentile"), default=None,
                    help="PNG preview: map this percentile (0-100) of y to white (default: 99.5 for a frame whose "
                         "99.5th percentile is below y = 0.25, else y = 1 is white)")
     p.add_argument("-o", "--out", type=output_dir, default=Path("out/render"), help="output folder")
