@@ -165,6 +165,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"  {r['name']}: {r['seconds']:.1f} s, {r['bytes'] / 1e6:.2f} MB, "
               f"{percent(saturation.get(r['name']))} of ground-truth pixels saturated"
               + (f", {lux:.4g} lx at the subject" if lux is not None else "")
+              + (" (metered: direct and indirect)" if str(r.get("subject_illuminance", "")).startswith("total") else "")
               + (f" (rebuilt: {r['rebuilt']})" if r.get("rebuilt") else ""))
     print(f"{args.out}: {len(report['generated'])} scene(s) generated, {report['skipped']} already complete, "
           f"{report['seconds']:.1f} s; manifest {report['manifest']}")

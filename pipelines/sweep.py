@@ -56,6 +56,8 @@ class RenderedScene:
     frames: np.ndarray
     ground_truth: dict[int, np.ndarray]
     subject_lux: float
+    subject_lux_kind: str = "direct, computed at the light file's subject"
+    """What subject_lux is (spikesim.render.SceneRenderer.subject_illuminance)."""
 
     @property
     def saturation_lux(self) -> float:
@@ -118,10 +120,12 @@ def render_scene(scene: str, light: str, camera: Any, num_windows: int, spp: int
 
     renderer = SceneRenderer(scene, light=light, motion=motion, lights=lights, camera=camera,
                              settings=RenderSettings(spp=spp, gt_spp=gt_spp, seed=seed))
-    lux = renderer.lighting.subject_illuminance_lux()
+    lux, kind = renderer.subject_illuminance()
     if lux is None or not lux > 0:
-        raise ValueError(f"{scene}: light {light!r} has no subject to meter (a lights.json with a 'subject'), so its "
-                         "illuminance, and the sweep's light levels, are not defined")
+        why = ("the camera's view centre hits nothing" if lux is None else
+               f"the illuminance there is {lux:.3g} lx ({kind})")
+        raise ValueError(f"{scene}: light {light!r} has no subject to meter ({why}; a lights.json can name one with "
+                         "'subject'), so the sweep's light levels are not defined")
     n = num_windows * WINDOW
     need = n * camera.height * camera.width * 4
     if need > MAX_FRAMES_BYTES:
@@ -137,7 +141,7 @@ def render_scene(scene: str, light: str, camera: Any, num_windows: int, spp: int
         frames[i] = f
     gts = {c: np.asarray(renderer.ground_truth(c), dtype=np.float32)
            for c in (i * WINDOW + WINDOW // 2 for i in range(num_windows))}
-    return RenderedScene(name or Path(scene).stem, frames, gts, float(lux))
+    return RenderedScene(name or Path(scene).stem, frames, gts, float(lux), kind)
 
 
 def simulate_level(rendered: RenderedScene, lux: float, camera: Any, seed: int, backend: str = "auto") -> LevelScene:
@@ -293,13 +297,15 @@ def run_sweep(scenes: Sequence[str] = ("ball", "car", "cook", "fan", "rotate"), 
                                      progress=progress and sys.stderr.isatty()))
         if progress:
             r = rendered[-1]
-            print(f"[sweep] rendered {name}: {r.subject_lux:.4g} lx at the subject under {light!r}, "
+            print(f"[sweep] rendered {name}: {r.subject_lux:.4g} lx at the subject under {light!r} "
+                  f"({r.subject_lux_kind}), "
                   f"saturation edge {r.saturation_lux:.4g} lx", file=sys.stderr)
     rows = sweep(rendered, levels, method_objs, camera, seed=seed, backend=backend, progress=progress)
     saturation = float(np.median([r.saturation_lux for r in rendered]))
     md = markdown(rows, names, saturation)
     record = {"levels_lux": levels.tolist(), "saturation_lux": saturation,
-              "scenes": {r.name: {"subject_lux": r.subject_lux, "saturation_lux": r.saturation_lux} for r in rendered},
+              "scenes": {r.name: {"subject_lux": r.subject_lux, "subject_lux_is": r.subject_lux_kind,
+                                   "saturation_lux": r.saturation_lux} for r in rendered},
               "methods": names, "camera": camera.to_dict(), "windows": windows, "spp": spp,
               "gt_spp": gt_spp, "seed": seed, "light": light,
               "not_best_below_saturation": {m: losing_levels(rows, m, saturation) for m in names}}

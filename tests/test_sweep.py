@@ -74,6 +74,14 @@ def test_render_scene_meters_the_subject():
     assert sc.subject_lux == pytest.approx(110.0, rel=0.05)  # the Fan scene's normal light (docs/scenes.md)
 
 
+def test_a_scene_lit_by_bounced_light_is_swept_at_its_metered_illuminance():
+    """A plain scene whose view centre gets no direct light: the sweep takes the metered total
+    (direct and indirect) as its light, where it used to refuse the scene for want of a subject."""
+    cam = SpikeCamera.realistic(height=8, width=12)
+    sc = render_scene("tests/data/bounce_scene/scene.xml", "normal", cam, num_windows=1, spp=1, gt_spp=2, seed=0)
+    assert sc.subject_lux_kind.startswith("total") and 10 < sc.subject_lux < 1000
+
+
 def test_sweep_command_writes_its_tables(tmp_path):
     out = tmp_path / "sw"
     r = subprocess.run([sys.executable, "-m", "pipelines.cli", "sweep", "--scenes", "fan", "--levels", "2",

@@ -21,6 +21,7 @@ if not has_llvm():  # pragma: no cover - depends on the machine
     pytest.skip("Dr.Jit's LLVM backend is unavailable (libLLVM >= 17 missing)", allow_module_level=True)
 
 PLAIN = Path(__file__).resolve().parent / "data" / "plain_scene" / "scene.xml"  # film 40 x 25, sampler 16 spp
+BOUNCE = Path(__file__).resolve().parent / "data" / "bounce_scene" / "scene.xml"  # lit by bounced light only
 TINY = ["--height", "8", "--width", "12", "--workers", "1", "--quiet"]
 
 
@@ -86,6 +87,21 @@ def test_generate_scene_takes_steps_and_a_ground_truth_stride(tmp_path, capsys):
     assert "steps 6 (--steps)" in settings_line(out) and "gt_stride 3 (--gt-stride)" in settings_line(out) and "rllr_" not in settings_line(out)
     meta = json.loads((tmp_path / "d" / "plain_scene_normal" / "meta.json").read_text())
     assert meta["job"]["num_steps"] == 6 and len(meta["job"]["gt_steps"]) == 2 and meta["windows"] == []
+    # no light file names a subject: the view centre's is metered, and under the lamp it is all direct light
+    subject = meta["source"]["light"]["subject"]
+    assert meta["subject_illuminance"].startswith("total") and meta["subject_illuminance_lux"] == subject["total_illuminance_lux"]
+    assert meta["subject_illuminance_lux"] == pytest.approx(subject["direct_illuminance_lux"],
+                                                            abs=4 * subject["total_illuminance_se_lux"], rel=0.01)
+
+
+def test_generate_scene_meters_a_subject_lit_by_bounced_light(tmp_path, capsys):
+    """The ball's front faces away from its lamp: 0 lx of direct light, yet lit by the floor and wall."""
+    out = run(["generate", "scene", "--xml", BOUNCE, "--steps", "2", "--gt-stride", "2", "--spp", "1", "--gt-spp", "1",
+               *TINY, "-o", tmp_path / "d"], capsys)
+    meta = json.loads((tmp_path / "d" / "bounce_scene_normal" / "meta.json").read_text())
+    assert meta["source"]["light"]["subject"]["direct_illuminance_lux"] == 0.0
+    assert meta["subject_illuminance_lux"] > 10 and meta["subject_illuminance"].startswith("total")
+    assert f"{meta['subject_illuminance_lux']:.4g} lx at the subject (metered: direct and indirect)" in out
 
 
 def test_generate_scene_refuses_windows_with_steps(tmp_path, capsys):

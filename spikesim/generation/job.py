@@ -150,8 +150,17 @@ def subject_illuminance_lux(source: dict[str, Any]) -> float | None:
     """The illuminance at the scene's subject as rendered (light power factor included), if the
     lighting records one."""
     subject = source.get("light", {}).get("subject") or {}
-    lux = subject.get("direct_illuminance_lux")
+    lux = subject.get("illuminance_lux", subject.get("direct_illuminance_lux"))  # records before the meter: direct
     return float(lux) if isinstance(lux, (int, float)) else None
+
+
+def subject_illuminance_kind(source: dict[str, Any]) -> str | None:
+    """What `subject_illuminance_lux` is: computed direct light at a light file's subject, or the
+    total metered on the surface at the view centre (SceneRenderer.subject_illuminance)."""
+    subject = source.get("light", {}).get("subject") or {}
+    if "illuminance" in subject:
+        return str(subject["illuminance"])
+    return "direct, computed" if "direct_illuminance_lux" in subject else None
 
 
 def _without_prefix(obj: Any, prefix: str, replacement: str) -> Any:
@@ -302,6 +311,7 @@ def run_job(job: SceneJob, root: str | Path, progress: Callable[[str, int, int],
                 "height": cam.height, "width": cam.width,
                 "windows": [list(w) for w in job.windows], "light_power_factor": job.light_power_factor,
                 "source": described, "subject_illuminance_lux": subject_illuminance_lux(described),
+                "subject_illuminance": subject_illuminance_kind(described),
                 "settings": job.settings or None,
                 "simulator": sim.describe(num_steps=written),
                 "quality": quality_record}
@@ -316,7 +326,7 @@ def run_job(job: SceneJob, root: str | Path, progress: Callable[[str, int, int],
     total = time.perf_counter() - t0
     size = sum(p.stat().st_size for p in inside_root(root, job.name).rglob("*") if p.is_file())
     return {"name": job.name, "seconds": total, "frames_and_spikes_seconds": t_frames, "bytes": size,
-            "subject_illuminance_lux": meta["subject_illuminance_lux"]}
+            "subject_illuminance_lux": meta["subject_illuminance_lux"], "subject_illuminance": meta["subject_illuminance"]}
 
 
 __all__ = ["run_job"]

@@ -13,6 +13,7 @@ sub-step renders (`samples_per_substep`), where a frame's spp are each render's.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from pathlib import Path
@@ -31,6 +32,11 @@ from .projection import PinholeCamera
 from .mono import spectrum_mix
 from .scene import SceneFiles, load_scene, prepare_xml, scene_lighting, with_subject
 from .scene_checks import check_camera, check_frame
+from .illuminance_meter import MeteredIlluminance, meter_illuminance, surface_at_subject
+
+#: What `SceneRenderer.subject_illuminance` reports, in the words a dataset record uses.
+SUBJECT_DIRECT = "direct, computed at the light file's subject (no occlusion, no inter-reflection)"
+SUBJECT_METERED = "total (direct and indirect), metered on the surface at the view centre"
 
 #: Seed streams, so frames and ground truth at the same step use independent samples.
 _FRAMES, _GROUND_TRUTH, _PREVIEW = 0, 1, 2
@@ -110,6 +116,7 @@ class SceneRenderer:
         self._gain_device: Any = None  # the gain map on the render device, made on first use
         self.stats = {"renders": 0, "render_seconds": 0.0, "frames": 0}
         self._view: tuple[np.ndarray, np.ndarray] | None = None  # _view_samples, made on first use
+        self._metered: MeteredIlluminance | None = None  # metered_illuminance, measured on first use
 
     # ---- time ---------------------------------------------------------------------------------
     @property
@@ -284,6 +291,37 @@ class SceneRenderer:
             raise ValueError(f"step={step!r} must be a non-negative integer")
         return int(step)
 
+    # ---- the light at the subject -------------------------------------------------------------
+    def metered_illuminance(self) -> MeteredIlluminance | None:
+        """The illuminance on the subject's surface, direct and indirect, metered in the scene at
+        its rest pose (illuminance_meter.py; light power factor included); None without a subject.
+        Measured once, on first use (about 2-5 s on a CPU)."""
+        if self.lighting.subject is None:
+            return None
+        if self._metered is None:
+            at, lifted = surface_at_subject(self.scene, *self.lighting.subject)
+            m = meter_illuminance(self.files.xml, self.lighting, at, self.lighting.subject[1], device=self.device,
+                                  lifted_by=lifted)
+            f = self.light_power_factor
+            self._metered = dataclasses.replace(m, total_lux=m.total_lux * f, total_se_lux=m.total_se_lux * f,
+                                                direct_lux=m.direct_lux * f, direct_se_lux=m.direct_se_lux * f)
+            use_variant(self._variant)
+        return self._metered
+
+    def subject_illuminance(self) -> tuple[float | None, str]:
+        """The illuminance that names this scene's light level (lx), and what it is.
+
+        A light file's subject keeps the figure its lamps were set by: the direct illuminance there,
+        computed (inverse-square law and form factors, no occlusion), as a lighting designer states
+        it. A subject the camera found (the view centre of a scene without one) is metered: direct
+        and indirect light on the surface the camera sees, which is what a light meter held there
+        would read, and which is not 0 on a surface lit only by bounced light."""
+        if self.lighting.subject is None:
+            return None, "none"
+        if self.lighting.subject_from == "light file":
+            return float(self.lighting.subject_illuminance_lux()) * self.light_power_factor, SUBJECT_DIRECT
+        return self.metered_illuminance().total_lux, SUBJECT_METERED
+
     # ---- reproducibility ----------------------------------------------------------------------
     def describe(self) -> dict[str, Any]:
         """Every parameter that determines the output, for a dataset's meta.json."""
@@ -292,6 +330,11 @@ class SceneRenderer:
             from spikesim.render.lights import scale_light_amounts
             light = {**scale_light_amounts(light, self.light_power_factor),
                      "light_power_factor": self.light_power_factor}
+        lux, kind = self.subject_illuminance()
+        if "subject" in light:
+            if kind == SUBJECT_METERED:  # measured only where it is the scene's figure (a light file's is computed)
+                light["subject"] = {**light["subject"], **self.metered_illuminance().describe()}
+            light["subject"] = {**light["subject"], "illuminance_lux": lux, "illuminance": kind}
         return {
             "scene": self.files.name,
             "files": {k: str(getattr(self.files, k)) for k in ("xml", "motion", "lights") if getattr(self.files, k)},
@@ -308,4 +351,4 @@ class SceneRenderer:
         }
 
 
-__all__ = ["SceneRenderer", "RenderSettings", "samples_per_substep"]
+__all__ = ["SceneRenderer", "RenderSettings", "samples_per_substep", "SUBJECT_DIRECT", "SUBJECT_METERED"]
