@@ -167,8 +167,10 @@ def run(args: argparse.Namespace) -> int:
               + (f", {lux:.4g} lx at the subject" if lux is not None else "")
               + (" (metered: direct and indirect)" if str(r.get("subject_illuminance", "")).startswith("total") else "")
               + (f" (rebuilt: {r['rebuilt']})" if r.get("rebuilt") else ""))
+    renders = sum(int(r.get("renders", 0)) for r in report["generated"])
     print(f"{args.out}: {len(report['generated'])} scene(s) generated, {report['skipped']} already complete, "
-          f"{report['seconds']:.1f} s; manifest {report['manifest']}")
+          f"{report['seconds']:.1f} s" + (f", {renders:,} renders (probes, motion-blur sub-steps and ground truth "
+                                        "included)" if renders else "") + f"; manifest {report['manifest']}")
     if report["checked"] == "sizes" and report["skipped"]:
         print(f"{report['skipped']} finished scene(s) were checked by file size only (quick: catches deleted and "
               f"truncated files); --check also compares every file's sha256 and rebuilds what differs, "

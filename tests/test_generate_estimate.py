@@ -214,3 +214,20 @@ def test_ground_truth_renders_count_their_motion_blur_substeps():
     images = len(jobs[1].gt_steps)
     want = 2 * images * cal.fixed_s + images * cal.per_sample_pixel_s * gt_only.gt_spp * gt_only.pixels
     assert gt_only.seconds(cal) == pytest.approx(want * gt_only.render_scale, rel=1e-12)
+
+
+def test_an_adaptive_plan_says_its_uncounted_renders_are_not_the_runs_and_the_read_count_is(tmp_path):
+    """Issue 40: the plan line counted a frame at every step (773) where the run rendered another
+    number (861). Unread, it now says so; read (--estimate), it equals the renders the run makes,
+    probes, motion-blur sub-steps and ground truth included."""
+    from spikesim.generation.run import generate
+    job = plan_llr(PRESETS["small"], scenes=["fan"], lights=("low",), quality="balanced")[0]
+    job = dataclasses.replace(job, num_steps=82, gt_steps=(20, 61), windows=job.windows[:2])
+    unread = estimate([job], 1)
+    assert unread.calibration is None and unread.adaptive_jobs == 1
+    assert "counted as a frame at every step" in unread.summary() and "--estimate reads" in unread.summary()
+    cal = Calibration("x", 1, startup_s=1.0, fixed_s=0.01, per_sample_pixel_s=1e-8, sensor_per_pixel_step_s=1e-9)
+    read = estimate([job], 1, calibration=cal)
+    assert read.motion_scenes == 1 and read.renders < unread.renders
+    report = generate([job], tmp_path / "ds", workers=1, show_progress=False, estimate_time=False)
+    assert report["generated"][0]["renders"] == read.renders + read.gt_renders

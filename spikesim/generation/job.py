@@ -325,7 +325,8 @@ def run_job(job: SceneJob, root: str | Path, progress: Callable[[str, int, int],
         shutil.rmtree(work, ignore_errors=True)
     total = time.perf_counter() - t0
     size = sum(p.stat().st_size for p in inside_root(root, job.name).rglob("*") if p.is_file())
-    return {"name": job.name, "seconds": total, "frames_and_spikes_seconds": t_frames, "bytes": size,
+    renders = int(renderer.stats["renders"]) if renderer is not None else 0  # probes, sub-steps and ground truth included
+    return {"name": job.name, "seconds": total, "frames_and_spikes_seconds": t_frames, "bytes": size, "renders": renders,
             "subject_illuminance_lux": meta["subject_illuminance_lux"], "subject_illuminance": meta["subject_illuminance"]}
 
 
