@@ -642,8 +642,9 @@ def collect_gt_rows(cfg: StudyConfig, out: Path) -> list[dict[str, Any]]:
     for scene, light, folder, ref in _reference_folders(cfg, out):
         ref_gt = _load_npz(folder / "reference.npz", "gt")["gt"]
         ref_frame_s = float(ref.get("gt_render_s", math.nan)) / cfg.windows  # NaN: measured before it was kept
+        timed = ref_frame_s * cfg.windows >= MIN_TIMED_S
         block = [{"scene": scene_label(scene), "light": light, "run": f"gt spp={cfg.gt_spp}", "knob": "gt",
-                  "gt_spp": cfg.gt_spp, "gt_frame_s": ref_frame_s, "gt_time_ratio": ref_frame_s / ref_frame_s,
+                  "gt_spp": cfg.gt_spp, "gt_frame_s": ref_frame_s, "gt_time_ratio": _ratio(ref_frame_s, ref_frame_s, timed),
                   "gt_self_err": 0.0, "gt_self_psnr": math.inf, "gt_ref_err_est": math.nan}]
         for spp in cfg.gt_error_values():
             path = folder / f"{_gt_name(spp)}.json"
@@ -656,13 +657,25 @@ def collect_gt_rows(cfg: StudyConfig, out: Path) -> list[dict[str, Any]]:
             err = gt_error(gt, ref_gt)
             frame_s = float(row["gt_render_s"]) / cfg.windows
             block.append({"scene": scene_label(scene), "light": light, "run": f"gt spp={spp}", "knob": "gt", "gt_spp": spp,
-                          "gt_frame_s": frame_s, "gt_time_ratio": frame_s / ref_frame_s, **err,
+                          "gt_frame_s": frame_s, "gt_time_ratio": _ratio(frame_s, ref_frame_s, timed), **err,
                           "gt_ref_err_est": err["gt_self_err"] * math.sqrt(spp / (spp + cfg.gt_spp))})
-        front = pareto_front([(r["gt_frame_s"], r["gt_self_err"]) for r in block])
+        front = pareto_front([(r["gt_frame_s"] if timed else math.nan, r["gt_self_err"]) for r in block])
         for r, f in zip(block, front):
             r["pareto_gt"] = f
         rows += block
     return rows
+
+
+#: The reference run's time (render and sensor, s) below which the study gives no ratios of time:
+#: a render's time varies by 10-30 ms from one call to the next on the 2-core machine (more when
+#: it is shared), so a reference of a few ms gave speed-ups of inf and a Pareto front drawn out of
+#: that noise (issue 40); at 0.25 s the noise is at most about 10 % of the reference.
+MIN_TIMED_S = 0.25
+
+
+def _ratio(a: float, b: float, timed: bool = True) -> float:
+    """a / b where both are times worth dividing, else NaN (shown as n/a, never on a front)."""
+    return a / b if timed and b > 0 and math.isfinite(a) and math.isfinite(b) else math.nan
 
 
 def pareto_front(points: Sequence[tuple[float, float]]) -> list[bool]:
@@ -756,6 +769,7 @@ def collect_rows(cfg: StudyConfig, out: Path, runs: Sequence[RunSpec] | None = N
         # the sample rule's ratio (NaN until the study is run again: it renders only the probes)
         mc_ratio = float(probe["mc_ratio"]) if probe.get("key") == _mc_key(cfg, scene, light) else math.nan
         block = []
+        untimed_said = False
         for spec in runs:
             p = folder / f"{_slug(spec.name)}.json"
             if not p.exists():
@@ -768,6 +782,12 @@ def collect_rows(cfg: StudyConfig, out: Path, runs: Sequence[RunSpec] | None = N
             if row["render_reused"]:
                 row["render_s"] = ref_render
             total, ref_total = row["render_s"] + row["simulate_s"], ref_render + ref["simulate_s"]
+            timed = ref_total >= MIN_TIMED_S and total > 0  # else the ratios would be the machine's timing noise
+            if not timed and not untimed_said:
+                log.warning("%s %s: the reference took %.3f s, below the %.1f s a ratio of times needs (a render's "
+                            "time varies by tens of ms from call to call): no time ratios and no Pareto front; use "
+                            "a larger --height/--width or more --windows", scene, light, ref_total, MIN_TIMED_S)
+                untimed_said = True
             m = stream_metrics(data["packed"], ref_npz["packed"], cfg)
             recon = (ref_recon if spec.knob == "reference" else
                      cached_recon_scores(folder, spec.name, row["key"], ref["key"], data["packed"], gt, cfg))
@@ -775,8 +795,10 @@ def collect_rows(cfg: StudyConfig, out: Path, runs: Sequence[RunSpec] | None = N
                 "scene": scene_label(scene), "light": light, "ref_y_median": y_median, "ref_mc_ratio": mc_ratio,
                 "ref_spp": cfg.ref_spp, "run": spec.name, "knob": spec.knob,
                 "render_s": row["render_s"], "simulate_s": row["simulate_s"], "total_s": total,
-                "render_ratio": row["render_s"] / ref_render, "simulate_ratio": row["simulate_s"] / ref["simulate_s"],
-                "time_ratio": total / ref_total, "speedup": ref_total / total, "renders": row["renders"],
+                "render_ratio": _ratio(row["render_s"], ref_render, timed),
+                "simulate_ratio": _ratio(row["simulate_s"], ref["simulate_s"], timed),
+                "time_ratio": _ratio(total, ref_total, timed), "speedup": _ratio(ref_total, total, timed),
+                "renders": row["renders"],
                 **m, "gt_err": float(np.mean([rel_rmse(a, b) for a, b in zip(data["y_centres"], gt)])),
                 "same_session": same, "render_reused": row["render_reused"],
                 "recon_tfp_span": recon["recon_tfp_span"], "recon_note": recon["recon_note"],
@@ -848,8 +870,8 @@ def markdown_table(rows: Sequence[dict[str, Any]], gt_rows: Sequence[dict[str, A
                 recon = " | ".join(
                     f"{_fmt(r.get(f'{a}_gt_psnr'), '{:.2f}')} | {_fmt(r.get(f'{a}_gt_dpsnr'), '{:+.2f}')}"
                     + ("*" if r.get(f"pareto_{a}") else "") for a in RECON_AXES)
-                parts.append(f"| {name} | {r['render_s']:.2f} | {r['simulate_s']:.3f} | {r['time_ratio']:.3f} | "
-                             f"{r['speedup']:.1f} | {r['rate_err']:.3f} | {r['rate_bias']:+.3f} | {r['isi_w1']:.3f} | "
+                parts.append(f"| {name} | {r['render_s']:.2f} | {r['simulate_s']:.3f} | {_fmt(r['time_ratio'], '{:.3f}')} | "
+                             f"{_fmt(r['speedup'], '{:.1f}')} | {r['rate_err']:.3f} | {r['rate_bias']:+.3f} | {r['isi_w1']:.3f} | "
                              f"{r['tfp_psnr']:.1f} | {r['tfp_ssim']:.3f} | {r['gt_err']:.3f} | {recon} |")
             floor = {a: block[0].get(f"{a}_gt_floor", math.nan) for a in RECON_AXES}
             notes = sorted({r.get("recon_note") for r in block if r.get("recon_note")})
