@@ -138,6 +138,18 @@ def output_file(text: str) -> Path:
     return p
 
 
+def output_file_in(default_name: str):
+    """argparse type: a file to write, or a folder to write `default_name` in (an existing folder,
+    or a name ending in "/"), as the commands whose -o is a folder take it."""
+    def parse(text: str) -> Path:
+        p = Path(text)
+        if p.is_dir() or text.endswith(("/", "\\")):
+            return output_file(str(p / default_name))
+        return output_file(text)
+    parse.__name__ = "output file"  # argparse names the type in its errors
+    return parse
+
+
 def output_dir(text: str) -> Path:
     """A folder to write in: an existing folder, or one that can be made (not an existing file)."""
     p = Path(text)

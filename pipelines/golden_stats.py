@@ -14,7 +14,7 @@ import math
 import sys
 from typing import Any
 
-from pipelines.argtypes import seed_int, camera_spec, existing_file, load_camera, output_file, positive_int
+from pipelines.argtypes import seed_int, camera_spec, existing_file, load_camera, output_file_in, positive_int
 from spikesim import golden
 
 
@@ -168,8 +168,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                       help="measure and write a new reference to -o (the mean over --seeds replicate seeds)")
     mode.add_argument("--power", action="store_true",
                       help="measure the check's detection rate for changes of each noise term")
-    p.add_argument("-o", "--output", type=output_file,
-                   help="with --write: the reference file to write (written whole: temporary file, then rename)")
+    p.add_argument("-o", "--output", type=output_file_in("golden_stats.json"),
+                   help="with --write: the reference file to write (written whole: temporary file, then rename; "
+                        "a folder: golden_stats.json in it)")
     p.add_argument("--seeds", type=positive_int,
                    help=f"with --write: replicate seeds of the reference (default {len(golden.REFERENCE_SEEDS)}); "
                         "with --power: seeds per change (default 4)")

@@ -19,7 +19,7 @@ import numpy as np
 import torch
 
 from model.threads import set_cpu_threads
-from pipelines.argtypes import add_threads_argument, nonnegative_int, output_file, positive_int
+from pipelines.argtypes import add_threads_argument, nonnegative_int, output_file_in, positive_int
 from pipelines.inspect_cmd import header_columns_arg, open_stream
 from spikesim import outputs
 from spikesim.config_io import standard_json
@@ -121,7 +121,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("panel", help="methods side by side on a recording without ground truth, with no-reference measures",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("input", help=".dat spike stream")
-    p.add_argument("-o", "--out", type=output_file, required=True, help="the panel PNG to write")
+    p.add_argument("-o", "--out", type=output_file_in("panel.png"), required=True,
+                   help="the panel PNG to write (a folder: panel.png in it)")
     p.add_argument("--methods", nargs="+", default=["tfp", "tfp:205", "lrrep"],
                    help="methods as evaluate takes them (tfp, tfi, stp, snm, tfp:N, lrrep, checkpoint paths; label=spec)")
     p.add_argument("--frame", type=nonnegative_int, help="which window to show (default: the middle one)")

@@ -134,6 +134,11 @@ def test_panel_measures_every_method_on_the_same_pixels(tmp_path, capsys) -> Non
     assert image.width > 2 * 64 and image.height > 64
     rc, err = run_cli(["panel", dat, "--frame", 7, "-o", tmp_path / "q.png"], capsys)
     assert rc == 2 and "numbered 0..2" in one_line(err)
+    # -o a folder, as the other commands take it: panel.png in it (it used to be "is a directory")
+    (tmp_path / "figs").mkdir()
+    assert main(["panel", str(dat), "--methods", "tfp", "-o", str(tmp_path / "figs")]) == 0
+    assert main(["panel", str(dat), "--methods", "tfp", "-o", str(tmp_path / "new") + "/"]) == 0
+    assert Image.open(tmp_path / "figs" / "panel.png").width > 64 and (tmp_path / "new" / "panel.png").is_file()
 
 
 def test_tables_lead_with_aligned_psnr_and_never_bold_a_floor() -> None:

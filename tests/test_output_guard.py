@@ -235,6 +235,15 @@ def test_golden_write_names_the_target_not_its_temporary_file(tmp_path, monkeypa
     assert code == 2 and f"{target}:" in line and ".part" not in line, line
 
 
+def test_golden_write_into_a_folder_names_its_file(tmp_path, capsys):
+    from pipelines.argtypes import output_file_in
+    (tmp_path / "refs").mkdir()
+    parse = output_file_in("golden_stats.json")
+    assert parse(str(tmp_path / "refs")) == tmp_path / "refs" / "golden_stats.json"
+    assert parse(str(tmp_path / "made") + "/") == tmp_path / "made" / "golden_stats.json"
+    assert parse(str(tmp_path / "ref.json")) == tmp_path / "ref.json"
+
+
 def test_golden_write_refuses_a_link(tmp_path, outside, capsys):
     (tmp_path / "ref.json").symlink_to(outside / "keep.txt")
     code, err = run_cli(["golden", "--write", "--seeds", "1", "--backend", "numpy", "-o", tmp_path / "ref.json"],
