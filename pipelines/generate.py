@@ -81,8 +81,8 @@ _PRESET_OPTIONS = {"height": "height", "width": "width", "spp": "spp", "gt_spp":
 def settings_from_args(args: argparse.Namespace) -> ResolvedSettings:
     """The preset, scene file, settings file, flags and quality, merged (spikesim.generation.settings)."""
     flags = {"--" + dest.replace("_", "-"): {field: getattr(args, dest)} for dest, field in _PRESET_OPTIONS.items()}
-    return resolve_settings(args.kind, args.preset, xml=args.xml, settings_file=args.render_settings, flags=flags,
-                            quality=args.quality, camera=args.camera)
+    return resolve_settings(args.kind, args.preset or "small", xml=args.xml, settings_file=args.render_settings,
+                            flags=flags, quality=args.quality, camera=args.camera, preset_given=args.preset is not None)
 
 
 def _estimate_only(args: argparse.Namespace, jobs: list, device: str, resolved: ResolvedSettings) -> int:
@@ -219,8 +219,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("generate", help="generate LLR, RLLR or a user dataset (resumable, parallel)")
     p.add_argument("kind", choices=["llr", "rllr", "scene"],
                    help="llr: the five LLR scenes; rllr: random 3D scenes, darkened; scene: your own --xml")
-    p.add_argument("--preset", choices=sorted(PRESETS), default="small",
-                   help="dataset size: small (a quick check) or paper (the paper's sizes)")
+    p.add_argument("--preset", choices=sorted(PRESETS), default=None,
+                   help="dataset size: small (a quick check; the default) or paper (the paper's sizes); a user "
+                        "scene given none keeps small's size with its ground truth at 64 spp, not small's grainy 16")
     p.add_argument("-o", "--out", type=Path, required=True, help="dataset root (resumable: rerun to continue)")
     p.add_argument("--seed", type=seed_int, default=0,
                    help="dataset seed; each scene's seed derives from it, the scene's name and its light")

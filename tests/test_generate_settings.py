@@ -51,6 +51,20 @@ def test_a_user_scene_keeps_its_film_and_spp_over_the_preset(tmp_path):
     assert job.render["resolution"] == [50, 80]
 
 
+def test_a_user_scene_without_a_preset_gets_a_ground_truth_the_network_cannot_beat(tmp_path):
+    """The small preset's 16-spp ground truth is grainy (24-38 dB from a 128-spp one); a user who
+    asked for no preset gets 64 spp and is told why; one who asked for small gets small's."""
+    from spikesim.generation.settings import USER_SCENE_GT_SPP
+    xml = user_scene(tmp_path)
+    unasked = resolve_settings("scene", "small", xml=xml, preset_given=False).table()["gt_spp"]
+    assert unasked["value"] == USER_SCENE_GT_SPP == 64 and "without --preset" in unasked["from"]
+    asked = resolve_settings("scene", "small", xml=xml).table()["gt_spp"]
+    assert (asked["value"], asked["from"]) == (16, "preset small")
+    assert resolve_settings("llr", "small", preset_given=False).table()["gt_spp"]["value"] == 16  # the bundled sets keep theirs
+    flag = resolve_settings("scene", "small", xml=xml, preset_given=False, flags={"--gt-spp": {"gt_spp": 8}})
+    assert flag.table()["gt_spp"]["value"] == 8
+
+
 def test_flags_and_a_settings_file_override_the_scene_file_and_say_so(tmp_path):
     xml = user_scene(tmp_path)
     settings = tmp_path / "render.json"

@@ -163,9 +163,18 @@ def scene_layers(xml: str | Path | None, camera: str | Path | None = None) -> li
     return layers
 
 
+#: The ground truth's samples for a user's scene when no preset is asked for. The small preset's 16
+#: (sized for the tests and the demo) leave visible Monte Carlo grain: a 16-spp ground truth is
+#: 24-38 dB from a 128-spp one on the LLR scenes, a 64-spp one 29-43 dB (docs/tradeoff.md section
+#: 6), above what the networks score, so the truth's own error stays below theirs.
+USER_SCENE_GT_SPP = 64
+USER_SCENE_GT_ORIGIN = "a user scene without --preset (docs/tradeoff.md: 16 spp is grainy)"
+
+
 def resolve_settings(kind: str, preset: str | Preset = "small", xml: str | Path | None = None,
                      settings_file: str | Path | None = None, flags: Mapping[str, Any] | None = None,
-                     quality: str | None = None, camera: str | Path | None = None) -> ResolvedSettings:
+                     quality: str | None = None, camera: str | Path | None = None,
+                     preset_given: bool = True) -> ResolvedSettings:
     """Merge the layers (see the module's docstring). `flags` maps a flag as the user wrote it
     ("--spp") to {setting: value} (None: not given). A quality's render knobs are reported as
     coming from it, and planned with: the jobs record the values their renderer is given. A
@@ -174,6 +183,8 @@ def resolve_settings(kind: str, preset: str | Preset = "small", xml: str | Path 
         raise ValueError(f"kind={kind!r}; expected one of {sorted(set(KIND_SETTINGS) - {'command'})}")
     base = PRESETS[preset] if isinstance(preset, str) else preset
     layers: list[tuple[str, Mapping[str, Any] | None]] = [(f"preset {base.name}", base.values())]
+    if kind.startswith("scene") and not preset_given and base.render.gt_spp < USER_SCENE_GT_SPP:
+        layers.append((USER_SCENE_GT_ORIGIN, {"gt_spp": USER_SCENE_GT_SPP}))
     layers += scene_layers(xml if kind.startswith("scene") else None, camera)
     if settings_file is not None:
         layers.append((f"--render-settings {settings_file}", settings_file_values(settings_file)))
@@ -216,5 +227,5 @@ def resolve_command_settings(xml: str | Path, defaults: Mapping[str, Any], camer
     return ResolvedSettings(None, values, origins, "command")
 
 
-__all__ = ["ResolvedSettings", "resolve_settings", "resolve_command_settings", "scene_file_settings",
+__all__ = ["USER_SCENE_GT_SPP", "ResolvedSettings", "resolve_settings", "resolve_command_settings", "scene_file_settings",
            "scene_layers", "settings_file_values", "KIND_SETTINGS"]
