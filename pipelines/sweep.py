@@ -43,6 +43,9 @@ METRIC_KEYS = HEADLINE + ("ssim", "psnr", "psnr_8bit", "ssim_8bit", "psnr_norm",
 WINDOW = 41
 #: Saturation is reached where this percentile of the ground truth reaches y = 1.
 SATURATION_PERCENTILE = 99.0
+#: The frame size and samples of a sweep where neither a flag, nor --xml's film and sampler, nor a
+#: camera file sets them: the demo's 64 x 100, 2 spp per step, a 32-spp ground truth.
+SWEEP_DEFAULTS = {"height": 64, "width": 100, "spp": 2, "gt_spp": 32}
 #: A scene's rendered frames are held in memory (one render, every level scales it): at most this.
 MAX_FRAMES_BYTES = 4 << 30
 
@@ -333,9 +336,19 @@ def run(args: argparse.Namespace) -> int:
     if args.xml is not None and args.scenes:
         raise ValueError("give --scenes (bundled scenes) or --xml (your own), not both")
     scenes = [str(args.xml)] if args.xml is not None else (args.scenes or ["ball", "car", "cook", "fan", "rotate"])
-    camera = load_camera(args.camera).replace(height=args.height, width=args.width)
+    from spikesim.generation.settings import resolve_command_settings
+    # the frame size and samples, each with its origin: the defaults, then (for --xml) the scene's film and
+    # sampler, a camera file's size, then the flags, as render and generate scene decide them
+    resolved = resolve_command_settings(args.xml, SWEEP_DEFAULTS, camera=args.camera, flags={
+        "--height": {"height": args.height}, "--width": {"width": args.width}, "--spp": {"spp": args.spp},
+        "--gt-spp": {"gt_spp": args.gt_spp}})
+    values = resolved.values
+    if not args.quiet:
+        print("[sweep] settings: " + ", ".join(f"{k} {values[k]} ({resolved.origins[k]})" for k in SWEEP_DEFAULTS),
+              file=sys.stderr)
+    camera = load_camera(args.camera or "realistic").replace(height=values["height"], width=values["width"])
     result = run_sweep(scenes, args.methods, levels, light=args.light, camera=camera, windows=args.windows,
-                       spp=args.spp, gt_spp=args.gt_spp, seed=args.seed, backend=args.backend, out=Path(args.out),
+                       spp=values["spp"], gt_spp=values["gt_spp"], seed=args.seed, backend=args.backend, out=Path(args.out),
                        draw_plot=not args.no_plot, progress=not args.quiet)
     if args.json:
         from spikesim.config_io import standard_json
@@ -361,13 +374,16 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--lux-max", type=positive_float, default=3000.0,
                    help="brightest level, lx at the subject (3000: past the saturation of the LLR scenes)")
     p.add_argument("--levels", type=positive_int, default=9, help="log-spaced light levels (9)")
-    p.add_argument("--height", type=positive_int, default=64, help="frame rows (64, the demo's)")
-    p.add_argument("--width", type=positive_int, default=100, help="frame columns (100)")
+    p.add_argument("--height", type=positive_int, help="frame rows (default: --xml's film or a camera file's, else 64, "
+                                                        "the demo's)")
+    p.add_argument("--width", type=positive_int, help="frame columns (default: --xml's film or a camera file's, else 100)")
     p.add_argument("--windows", type=positive_int, default=5, help="41-step windows per scene (5)")
-    p.add_argument("--spp", type=positive_int, default=2, help="samples per pixel of each step's render (2)")
-    p.add_argument("--gt-spp", type=positive_int, default=32, help="samples per pixel of the ground truth (32)")
-    p.add_argument("--camera", type=camera_spec, default="realistic",
-                   help="realistic, measured, noiseless, scsim or a camera file (default: realistic)")
+    p.add_argument("--spp", type=positive_int, help="samples per pixel of each step's render (default: --xml's sampler, "
+                                                     "else 2)")
+    p.add_argument("--gt-spp", type=positive_int, help="samples per pixel of the ground truth (default 32)")
+    p.add_argument("--camera", type=camera_spec, default=None,
+                   help="realistic, measured, noiseless, scsim or a camera file, whose height and width are used "
+                        "(default: realistic)")
     p.add_argument("--backend", choices=BACKENDS, default="auto", help="sensor implementation (default: auto)")
     p.add_argument("--seed", type=seed_int, default=0, help="seed of the renders and the sensor")
     p.add_argument("-o", "--out", type=Path, required=True, help="folder for sweep.csv, sweep.md, sweep.json, sweep.png")

@@ -96,6 +96,25 @@ def test_sweep_command_writes_its_tables(tmp_path):
     assert (out / "sweep.png").stat().st_size > 1000
 
 
+def test_sweep_of_a_users_scene_keeps_its_film_and_samples_and_a_camera_files_size(tmp_path):
+    """--xml: the scene's film (40 x 25) and sampler (16 spp) unless a flag says otherwise, as the
+    README says a scene keeps them; a camera file's height and width are used, not ignored."""
+    base = [sys.executable, "-m", "pipelines.cli", "sweep", "--xml", "tests/data/plain_scene/scene.xml", "--levels",
+            "2", "--windows", "1", "--gt-spp", "2", "--methods", "tfp", "--threads", "1", "--no-plot"]
+    r = subprocess.run(base + ["--spp", "1", "-o", str(tmp_path / "a")], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert "height 25 (scene file scene.xml), width 40 (scene file scene.xml), spp 1 (--spp)" in r.stderr
+    cam = json.loads((tmp_path / "a" / "sweep.json").read_text())["camera"]
+    assert (cam["height"], cam["width"]) == (25, 40)
+    camera_file = tmp_path / "cam.json"
+    camera_file.write_text(json.dumps({**SpikeCamera.realistic().to_dict(), "height": 12, "width": 20}))
+    r = subprocess.run(base + ["--camera", str(camera_file), "--spp", "1", "-o", str(tmp_path / "b")],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    cam = json.loads((tmp_path / "b" / "sweep.json").read_text())["camera"]
+    assert (cam["height"], cam["width"]) == (12, 20) and "height 12 (--camera cam.json)" in r.stderr
+
+
 def test_render_scene_refuses_frames_beyond_memory():
     with pytest.raises(ValueError, match="GiB of memory"):
         render_scene("fan", "normal", SpikeCamera.realistic(height=2000, width=4000), num_windows=100, spp=1,
