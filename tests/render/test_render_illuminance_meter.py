@@ -55,7 +55,7 @@ def test_light_power_factor_scales_the_meter(make_scene):
     xml = make_scene(PLANE.format(reflectance=0.5), lights={"normal": {"emitters": [LAMP]}}, integrator="path")
     one = SceneRenderer(xml, variant="mono", spp=1, resolution=(5, 8)).metered_illuminance()
     tenth = SceneRenderer(xml, variant="mono", spp=1, resolution=(5, 8), light_power_factor=0.1).metered_illuminance()
-    assert tenth.total_lux == pytest.approx(0.1 * one.total_lux, rel=1e-6)  # same seeds: the same samples
+    assert tenth.total_lux == pytest.approx(0.1 * one.total_lux, rel=1e-4)  # same seeds: the same samples, summed in any order
 
 
 #: A plain scene (its own emitter): a ball's front under a lamp straight above it, in a corner whose
