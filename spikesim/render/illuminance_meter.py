@@ -18,6 +18,10 @@ is rendered at the subject:
   Colours become their luminance reflectance under the lighting's spectra (mono.py), which is how a
   mono renderer carries inter-reflections: exact for grey surfaces, an approximation for coloured
   ones.
+- the subject must lie on a surface, as the view centre does (the point the camera's central ray
+  hits). A light file's subject is a nominal point, where its powers are stated (the LLR files put
+  theirs on the road under the car, 4 mm inside a table top, 17 mm inside the fan's hub), so the
+  meter is not used there (SceneRenderer.subject_illuminance).
 - it is rendered twice: with the scene's integrator (total) and with a path tracer of depth 2
   (direct light only, occlusion included). Each is the mean of `repeats` independent renders; the
   standard error is their spread / sqrt(repeats).
@@ -62,14 +66,11 @@ class MeteredIlluminance:
     direct_se_lux: float
     samples: int
     """Meter samples per figure (repeats x samples per render)."""
-    lifted_by: float = 0.0
-    """How far (scene units) the meter was moved along the normal out of the object the subject
-    point lies in (`surface_at_subject`); 0 on an open surface."""
 
     def describe(self) -> dict[str, Any]:
         return {"total_illuminance_lux": self.total_lux, "total_illuminance_se_lux": self.total_se_lux,
                 "metered_direct_illuminance_lux": self.direct_lux, "metered_direct_illuminance_se_lux": self.direct_se_lux,
-                "meter_samples": self.samples, "meter_lifted_by": self.lifted_by,
+                "meter_samples": self.samples,
                 "meter": "a white Lambertian disk on the subject read by a radiancemeter, E = pi L, photopic "
                          "(spikesim.render.illuminance_meter)"}
 
@@ -136,31 +137,9 @@ def _read(root: ET.Element, samples: int, repeats: int, seed: int) -> tuple[floa
     return float(vals.mean()), se
 
 
-def surface_at_subject(scene: Any, at: Any, normal: Any, max_distance: float = 0.5) -> tuple[np.ndarray, float]:
-    """The surface point the meter lies on, and how far it is from `at` along `normal`.
-
-    A light file's subject is a nominal point ("the table top at z = 0.9"); the table's surface may
-    be a few millimetres above it, and a meter placed inside the table reads nothing. A ray from `at`
-    along the normal that first meets a back face (a surface facing away from the ray) within
-    `max_distance` (scene units) started inside an object: the meter moves out to that face. A
-    subject on an open surface stays where it is (distance 0)."""
-    p = np.asarray(at, dtype=np.float64).reshape(3)
-    n = np.asarray(normal, dtype=np.float64).reshape(3)
-    n = n / np.linalg.norm(n)
-    ray = mi.Ray3f(mi.Point3f(*[float(x) for x in p]), mi.Vector3f(*[float(x) for x in n]))
-    si = scene.ray_intersect(ray)
-    if not bool(np.asarray(si.is_valid()).ravel()[0]):
-        return p, 0.0
-    t = float(np.asarray(si.t).ravel()[0])
-    hit_n = np.asarray(si.n, dtype=np.float64).ravel()[:3]
-    if t <= max_distance and float(hit_n @ n) > 0:  # a back face: the ray left an object
-        return p + t * n, t
-    return p, 0.0
-
-
 def meter_illuminance(xml_path: Path, lighting: LightingCondition, at: Any, normal: Any, *, device: str = "llvm",
                       samples: int = 1024, repeats: int = 4, seed: int = 0,
-                      geometry: MeterGeometry = MeterGeometry(), lifted_by: float = 0.0) -> MeteredIlluminance:
+                      geometry: MeterGeometry = MeterGeometry()) -> MeteredIlluminance:
     """The illuminance on a surface at `at` facing `normal` in the scene `xml_path` under
     `lighting`, metered (module docstring). Leaves Mitsuba's variant as it found it."""
     from .scene import prepare_xml  # scene.py's loader; imported here, as scene.py does not need the meter
@@ -183,7 +162,7 @@ def meter_illuminance(xml_path: Path, lighting: LightingCondition, at: Any, norm
     finally:
         if before is not None:
             use_variant(before)
-    return MeteredIlluminance(total, total_se, direct, direct_se, samples * repeats, lifted_by)
+    return MeteredIlluminance(total, total_se, direct, direct_se, samples * repeats)
 
 
-__all__ = ["meter_illuminance", "surface_at_subject", "MeteredIlluminance", "MeterGeometry", "PhotopicResponse", "METER_ID"]
+__all__ = ["meter_illuminance", "MeteredIlluminance", "MeterGeometry", "PhotopicResponse", "METER_ID"]

@@ -32,7 +32,7 @@ from .projection import PinholeCamera
 from .mono import spectrum_mix
 from .scene import SceneFiles, load_scene, prepare_xml, scene_lighting, with_subject
 from .scene_checks import check_camera, check_frame
-from .illuminance_meter import MeteredIlluminance, meter_illuminance, surface_at_subject
+from .illuminance_meter import MeteredIlluminance, meter_illuminance
 
 #: What `SceneRenderer.subject_illuminance` reports, in the words a dataset record uses.
 SUBJECT_DIRECT = "direct, computed at the light file's subject (no occlusion, no inter-reflection)"
@@ -299,9 +299,7 @@ class SceneRenderer:
         if self.lighting.subject is None:
             return None
         if self._metered is None:
-            at, lifted = surface_at_subject(self.scene, *self.lighting.subject)
-            m = meter_illuminance(self.files.xml, self.lighting, at, self.lighting.subject[1], device=self.device,
-                                  lifted_by=lifted)
+            m = meter_illuminance(self.files.xml, self.lighting, *self.lighting.subject, device=self.device)
             f = self.light_power_factor
             self._metered = dataclasses.replace(m, total_lux=m.total_lux * f, total_se_lux=m.total_se_lux * f,
                                                 direct_lux=m.direct_lux * f, direct_se_lux=m.direct_se_lux * f)

@@ -171,7 +171,8 @@ def prepare_xml(xml_path: Path, variant: str, lighting: LightingCondition, pixel
 def view_centre_subject(scene: Any, sensor_id: str) -> tuple[tuple[float, ...], tuple[float, ...]] | None:
     """The subject when a light file names none: the surface point the camera sees at the centre
     of its image (rest pose), with its normal turned toward the camera; None if the central ray
-    hits nothing. Where a photographer would meter, and where `subject_illuminance_lux` reports."""
+    hits nothing or an emitter. Where a photographer would meter, and where `subject_illuminance_lux`
+    reports."""
     import numpy as np
 
     sensor = next(s for s in scene.sensors() if s.id() == sensor_id)
@@ -179,6 +180,8 @@ def view_centre_subject(scene: Any, sensor_id: str) -> tuple[tuple[float, ...], 
     si = scene.ray_intersect(ray)
     if not bool(np.asarray(si.is_valid()).ravel()[0]):
         return None
+    if bool(np.asarray(si.shape.is_emitter()).ravel()[0]):
+        return None  # a lamp's own face: the light on it means nothing (it read 0 lx while the frame saturated)
     p = np.asarray(si.p, dtype=np.float64).ravel()[:3]
     n = np.asarray(si.n, dtype=np.float64).ravel()[:3]
     d = np.asarray(ray.d, dtype=np.float64).ravel()[:3]

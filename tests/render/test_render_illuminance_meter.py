@@ -14,7 +14,7 @@ import pytest
 
 from render_testing import PLANE
 from spikesim.render import SceneRenderer
-from spikesim.render.illuminance_meter import PhotopicResponse, meter_illuminance, surface_at_subject
+from spikesim.render.illuminance_meter import PhotopicResponse, meter_illuminance
 from spikesim.render.renderer import SUBJECT_DIRECT, SUBJECT_METERED
 from spikesim.render import spectra
 
@@ -75,9 +75,9 @@ def test_bounced_light_only_is_metered_not_zero():
     assert r.subject_illuminance() == (m.total_lux, SUBJECT_METERED)
 
 
-def test_nominal_subject_inside_a_slab_is_lifted_to_its_top(make_scene):
-    """A light file's subject point 5 mm inside a table top: the meter moves to the top face, where
-    the lamp straight above gives I / d^2; in place it would read 0 (inside the slab)."""
+def test_a_light_files_subject_keeps_its_computed_figure_and_is_not_metered(make_scene):
+    """A light file's subject is a nominal point (here 5 mm inside a table top, as the LLR files put
+    theirs): a meter there reads nothing, so the scene keeps the figure its powers are stated by."""
     slab = """
   <shape type="cube" id="table"><transform name="to_world"><scale x="1" y="1" z="0.01"/><translate z="-0.01"/>
     </transform><bsdf type="diffuse"><spectrum name="reflectance" value="0.5"/></bsdf></shape>"""
@@ -85,15 +85,20 @@ def test_nominal_subject_inside_a_slab_is_lifted_to_its_top(make_scene):
     lights = {"normal": {"emitters": [lamp], "subject": {"at": [0.0, 0.0, -0.005], "normal": [0, 0, 1]}}}
     xml = make_scene(slab, lights=lights, integrator="path")
     r = SceneRenderer(xml, variant="mono", spp=1, resolution=(5, 8))
-    point, lifted = surface_at_subject(r.scene, *r.lighting.subject)
-    assert lifted == pytest.approx(0.005, abs=1e-4) and point[2] == pytest.approx(0.0, abs=1e-4)
-    m = r.metered_illuminance()
-    assert m.lifted_by == lifted
-    assert _close(m.direct_lux, m.direct_se_lux, 40.0 / 2.0 ** 2), m
-    inside = meter_illuminance(xml, r.lighting, [0.0, 0.0, -0.005], [0, 0, 1])
-    assert inside.total_lux == 0.0
-    # a light file's subject keeps its computed figure: the level its lamps were set by
+    assert meter_illuminance(xml, r.lighting, [0.0, 0.0, -0.005], [0, 0, 1]).total_lux == 0.0  # inside the slab
     assert r.subject_illuminance() == (pytest.approx(40.0 / 2.005 ** 2), SUBJECT_DIRECT)
+    subject = r.describe()["light"]["subject"]
+    assert subject["illuminance"] == SUBJECT_DIRECT and "total_illuminance_lux" not in subject
+
+
+def test_a_view_centre_on_a_lamp_is_no_subject(make_scene):
+    """The camera looks straight at an area light: the light on the lamp's own face means nothing (it
+    recorded 0 lx while the frame saturated), so there is no subject to meter."""
+    panel = """
+  <shape type="rectangle" id="panel"><emitter type="area"><rgb name="radiance" value="1"/></emitter></shape>"""
+    xml = make_scene(panel, lights={"normal": {"emitters": [{"id": "panel"}]}})
+    r = SceneRenderer(xml, variant="mono", spp=1, resolution=(5, 8))
+    assert r.lighting.subject is None and r.subject_illuminance() == (None, "none")
 
 
 def test_area_lamp_matches_its_form_factor(make_scene):
