@@ -439,6 +439,25 @@ def data_identity(train_scenes: Sequence[Scene], val_scenes: Sequence[Scene]) ->
     return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()[:16]
 
 
+def data_content(train_scenes: Sequence[Scene], val_scenes: Sequence[Scene]) -> str:
+    """What the scenes hold, as a digest of each scene's checksum record (the sha256 of every file
+    its dataset wrote); a scene without one (made in memory) counts by its name. `data_identity`
+    sees names, sizes and job digests only, so a stream swapped between two scenes and the records
+    remade kept it, and a resume trained and validated on other data (issue 40, round 5). Kept
+    apart from `data_identity` so that checkpoints written before it still resume."""
+    def one(sc: Scene) -> list[Any]:
+        path = getattr(getattr(sc, "scene", sc), "path", None)  # a TimeSlice's scene's
+        files = None
+        if isinstance(path, Path) and (path / "checksums.json").is_file():
+            try:
+                files = json.loads((path / "checksums.json").read_text()).get("files")
+            except (OSError, ValueError, AttributeError):
+                files = "unreadable"
+        return [sc.name, files]
+    doc = {"train": [one(s) for s in train_scenes], "val": [one(s) for s in val_scenes]}
+    return hashlib.sha256(json.dumps(doc, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
 def _total_steps(tc: Any, batches_per_epoch: int) -> int:
     total = tc.epochs * batches_per_epoch
     return min(total, tc.max_steps) if tc.max_steps is not None else total
@@ -570,8 +589,8 @@ def _train(experiment: ExperimentConfig, train_scenes: Sequence[Scene], val_scen
     run = _build_run(experiment, dev, dist, init_state)
     train_ds, val_ds = _datasets(experiment, train_scenes, val_scenes)
     epoch, batch_in_epoch, step, best, saved = _start_or_resume(out, resume, experiment, run, dev, dist, overwrite)
-    identity = data_identity(train_scenes, val_scenes)
-    if resume and saved.get("data_identity") not in (None, identity):
+    identity, content = data_identity(train_scenes, val_scenes), data_content(train_scenes, val_scenes)
+    if resume and (saved.get("data_identity") not in (None, identity) or saved.get("data_content") not in (None, content)):
         # best.pt would compare scores from other validation data, and the schedule continue on other samples
         now = f"{len(train_scenes)} training + {len(val_scenes)} validation"
         what = (f"the same number of scenes ({now}) with other content or frames (a dataset regenerated in place?)"
@@ -617,7 +636,7 @@ def _train(experiment: ExperimentConfig, train_scenes: Sequence[Scene], val_scen
                                                 "budget_elapsed_s": budget.elapsed_s + time.perf_counter() - started}
             save_checkpoint(path, run.model, experiment, run.opt, run.sched, run.scaler, epoch, step,
                             extra={"batch_in_epoch": batch_in_epoch, "best_val_psnr": best, **record,
-                                   "data_identity": identity,
+                                   "data_identity": identity, "data_content": content,
                                    "data_scenes": f"{len(train_scenes)} training + {len(val_scenes)} validation",
                                    **({"init_weights": init_record} if init_record else {})})
 

@@ -563,8 +563,10 @@ def open_dataset(root: str | Path, checksums: bool = True) -> list[SceneRecord]:
     a dataset once costs about what this check does) its sha256, so that a swapped stream, a swapped
     or rewritten ground-truth image or a truncated file is refused naming the damage instead of
     being scored or trained on. Scene folders the manifest does not list (a copy under a new name,
-    another run's scene) are not read, and a warning names them. Without a manifest (scenes written
-    by `write_scene` alone) every complete scene folder is read."""
+    another run's scene) are not read, and a warning names them. Without a manifest (a generate run
+    cut short, or scenes written by `write_scene` alone) every scene folder with a meta.json is
+    read, each checked the same way against its own checksums.json, with a warning that the set may
+    be incomplete."""
     root = Path(root)
     if not root.is_dir():
         raise FileNotFoundError(f"dataset folder {root} does not exist")
@@ -583,8 +585,21 @@ def open_dataset(root: str | Path, checksums: bool = True) -> list[SceneRecord]:
                           f"are not in its {MANIFEST} and are not read", stacklevel=2)
         scenes = [SceneRecord.open(root / name) for name in listed]
     else:
-        scenes = [SceneRecord.open(d) for d in sorted(root.iterdir())
-                  if d.is_dir() and not d.name.startswith(".") and (d / META).exists()]
+        # no manifest: a first run that was cut short (generate writes the manifest last) or scenes
+        # written by write_scene alone. Each scene's own checksums.json is its record, checked as the
+        # manifest would be: a stream swapped between two scenes was read silently (issue 40, round 5)
+        names = [d.name for d in sorted(root.iterdir()) if d.is_dir() and not d.name.startswith(".") and (d / META).exists()]
+        problems = [p for name in names for p in check_scene(root, name, checksums)]
+        if problems:
+            shown = "; ".join(problems[:4]) + (f"; and {len(problems) - 4} more" if len(problems) > 4 else "")
+            raise DatasetDamagedError(f"{root}: scenes differ from their own {CHECKSUMS} (the folder has no {MANIFEST}): "
+                                      f"{shown}; regenerate the damaged scenes with the same generate command")
+        if names:
+            import warnings
+            warnings.warn(f"{root} has no {MANIFEST} (a generate run that has not finished, or scenes written one by "
+                          f"one): its {len(names)} scene(s) were checked against their own {CHECKSUMS}, but the set may "
+                          "be incomplete; rerun the generate command to finish it", stacklevel=2)
+        scenes = [SceneRecord.open(root / name) for name in names]
     if not scenes:
         raise FileNotFoundError(f"{root} holds no scene folders (each needs {META})")
     return scenes

@@ -79,3 +79,35 @@ def test_generate_refuses_to_add_one_kind_of_dataset_to_another(pattern_dataset,
     jobs = plan_llr(PRESETS["small"], scenes=["fan"])
     with pytest.raises(ValueError, match="is a rllr dataset.*another -o"):
         generate(jobs, root, workers=1, show_progress=False, info={"kind": "llr"})
+
+
+def test_without_a_manifest_each_scene_is_checked_against_its_own_record(pattern_dataset, tmp_path):
+    """A first generate run cut short leaves finished scenes and no manifest: a stream swapped
+    between two of them was scored with rc 0 (issue 40, round 5). Each scene's checksums.json is
+    its record then, and the reader says the set may be incomplete."""
+    root = _copy(pattern_dataset, tmp_path)
+    (root / "manifest.json").unlink()
+    with pytest.warns(UserWarning, match="no manifest.json.*may be incomplete"):
+        assert [s.name for s in open_dataset(root)] == ["rllr_0000", "rllr_0001"]
+    a, b = root / "rllr_0000" / "spikes.dat", root / "rllr_0001" / "spikes.dat"
+    tmp = a.read_bytes()
+    a.write_bytes(b.read_bytes())
+    b.write_bytes(tmp)
+    with pytest.raises(DatasetDamagedError, match="own checksums.json.*rllr_0000/spikes.dat"):
+        open_dataset(root)
+
+
+def test_the_training_content_digest_sees_what_the_identity_does_not(pattern_dataset, tmp_path):
+    """train --resume compares both: a stream swapped and the records remade keeps the names, sizes
+    and job digests (data_identity), not the files' hashes (data_content)."""
+    import json
+    from model.training import data_content, data_identity
+    root = _copy(pattern_dataset, tmp_path)
+    before = open_dataset(root)
+    ident, content = data_identity(before, []), data_content(before, [])
+    for name in ("rllr_0000", "rllr_0001"):  # as a hand-edited set would be: each record remade for its new files
+        rec = json.loads((root / name / "checksums.json").read_text())
+        rec["files"]["spikes.dat"]["sha256"] = "0" * 64 if name == "rllr_0000" else "1" * 64
+        (root / name / "checksums.json").write_text(json.dumps(rec))
+    after = open_dataset(root, checksums=False)
+    assert data_identity(after, []) == ident and data_content(after, []) != content
