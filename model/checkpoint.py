@@ -136,8 +136,11 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
             state = torch.load(path, map_location=map_location, weights_only=True)
     except pickle.UnpicklingError as exc:
         raise ValueError(f"{path}: not a checkpoint of this project: {_refusal(exc, path)}") from None
-    except (RuntimeError, EOFError, ValueError, TypeError, AttributeError, KeyError, IndexError) as exc:
-        reason = "the file is empty" if path.stat().st_size == 0 else f"unreadable ({_first_line(exc)})"
+    except (RuntimeError, EOFError, ValueError, TypeError, AttributeError, KeyError, IndexError, OSError) as exc:
+        # OSError: a zip archive cut short at some sizes fails in torch's reader as "[Errno 22] Invalid
+        # argument", naming no file (issue 40, round 5)
+        reason = ("the file is empty" if path.stat().st_size == 0 else
+                  f"unreadable, cut short or corrupt ({_first_line(exc)})")
         raise ValueError(f"{path}: not a checkpoint of this project: {reason}") from None
     return _checked_state(path, state)
 

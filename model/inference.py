@@ -35,6 +35,7 @@ def check_spike_array(spikes: Any) -> torch.Tensor:
             raise ValueError(f"spikes: not an array ({exc})") from None
         if arr.dtype == object or arr.dtype.kind in "USV":
             raise ValueError(f"spikes: expected a 0/1 or bool array, got dtype {arr.dtype}")
+        arr = np.ascontiguousarray(arr)  # a flipped view (np.flip, [:, ::-1]) has negative strides torch refuses
         s = torch.as_tensor(arr.view(np.uint8) if arr.dtype == np.bool_ else arr)
         if arr.dtype == np.bool_:
             s = s.bool()
@@ -54,6 +55,24 @@ def check_spike_array(spikes: Any) -> torch.Tensor:
     return s != 0
 
 
+def _check_reader_args(**given: Any) -> None:
+    """The keyword arguments' types, each named: `flip="false"` was taken as True (a non-empty
+    string), `height=0` as "not given", `chunk="x"` as a TypeError from deep inside (issue 40,
+    round 5)."""
+    for name in ("flip", "drop_partial"):
+        v = given[name]
+        if v is not None and not isinstance(v, (bool, np.bool_)):
+            raise ValueError(f"{name}: expected True, False or None, got {v!r}")
+    for name in ("height", "width"):
+        v = given[name]
+        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1):
+            raise ValueError(f"{name}: expected a positive number of pixels or None, got {v!r}")
+    for name, low in (("threads", 0), ("chunk", 1)):
+        v = given[name]
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < low:
+            raise ValueError(f"{name}: expected an integer >= {low}, got {v!r}")
+
+
 def reconstruct(spikes: Any, method: str = "lrrep", window: int = 41, threads: int = 0, chunk: int = 8,
                 device: str = "cpu", height: int | None = None, width: int | None = None,
                 header_columns: int | str | None = "auto", flip: bool | None = None,
@@ -66,6 +85,9 @@ def reconstruct(spikes: Any, method: str = "lrrep", window: int = 41, threads: i
     `evaluate` takes (lrrep, tfp, tfi, tfp:N, a checkpoint path, label=spec). `device` (cpu, cuda,
     cuda:N, mps, auto) is checked for every method, a device this machine lacks refused naming it;
     the window averages (tfp, tfi, tfp:N) compute on the CPU whatever it is."""
+    _check_reader_args(height=height, width=width, flip=flip, drop_partial=drop_partial, threads=threads, chunk=chunk)
+    if not isinstance(method, str) or not method.strip():
+        raise ValueError(f"method: expected a method spec (lrrep, tfp, tfi, tfp:N, a checkpoint path), got {method!r}")
     if isinstance(spikes, (str, Path)):
         from spikesim.stream import open_stream  # what `reconstruct FILE.dat` takes, with the same defaults
         reader, _ = open_stream(Path(spikes), height, width, flip, header_columns, drop_partial)

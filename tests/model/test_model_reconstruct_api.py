@@ -134,3 +134,32 @@ def test_a_device_this_machine_lacks_is_named_for_every_method(device, says):
     for method in ("tfp", "lrrep"):
         with pytest.raises((ValueError, UnavailableError), match=says):
             model.reconstruct(s, method=method, device=device)
+
+
+def test_a_flipped_view_is_reconstructed_as_its_copy():
+    """np.flip and [:, ::-1] give views with negative strides, which torch refused with its own
+    message (issue 40, round 5)."""
+    s = np.random.default_rng(1).random((41, 8, 10)) < 0.3
+    flipped = np.flip(s, 1)
+    assert any(st < 0 for st in flipped.strides)
+    np.testing.assert_array_equal(model.reconstruct(flipped, method="tfp"),
+                                  model.reconstruct(flipped.copy(), method="tfp"))
+
+
+@pytest.mark.parametrize("kwargs, says", [
+    ({"flip": "false"}, "flip: expected True, False or None"),  # was taken as True: the image upside down
+    ({"height": 0}, "height: expected a positive"),             # was taken as "not given"
+    ({"height": "16"}, "height: expected a positive"),
+    ({"chunk": "x"}, "chunk: expected an integer"),
+    ({"threads": "a"}, "threads: expected an integer"),
+    ({"method": None}, "method: expected a method spec"),
+])
+def test_keyword_arguments_of_the_wrong_kind_are_named(kwargs, says, tmp_path):
+    s = np.random.default_rng(2).random((41, 8, 10)) < 0.3
+    with pytest.raises(ValueError, match=says):
+        model.reconstruct(s, **({"method": "tfp"} | kwargs))
+
+
+def test_load_pretrained_names_a_device_it_does_not_know():
+    with pytest.raises(ValueError, match="'gpu' is not a device"):
+        model.load_pretrained("lrrep", device="gpu")
