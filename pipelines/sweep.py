@@ -20,10 +20,12 @@ its ground truth reaches one spike per step, the brightest light at which the st
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
 import io
 import json
 import math
+import os
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -125,7 +127,7 @@ def render_scene(scene: str, light: str, camera: Any, num_windows: int, spp: int
                              settings=RenderSettings(spp=spp, gt_spp=gt_spp, seed=seed))
     lux, kind = renderer.subject_illuminance()
     if lux is None or not lux > 0:
-        why = ("the camera's view centre hits nothing" if lux is None else
+        why = ("the camera's view centre hits nothing, or an emitter" if lux is None else
                f"the illuminance there is {lux:.3g} lx ({kind})")
         raise ValueError(f"{scene}: light {light!r} has no subject to meter ({why}; a lights.json can name one with "
                          "'subject'), so the sweep's light levels are not defined")
@@ -287,44 +289,48 @@ def run_sweep(scenes: Sequence[str] = ("ball", "car", "cook", "fan", "rotate"), 
         out = Path(out)
         for name in RESULT_FILES:
             writable(out, name)  # a link where results go: refused before the work
-    sources = []
-    for s in scenes:
-        if str(s).lower().endswith(".xml"):
-            SceneFiles.resolve(str(s))  # a missing file is named before rendering
-            sources.append((str(s), Path(s).parent.name))
-        else:
-            sources.append((bundled_scene(s), s))
-    rendered = []
-    for i, (scene, name) in enumerate(sources):
-        rendered.append(render_scene(scene, light, camera, windows, spp, gt_spp, seed + i, name=name,
-                                     progress=progress and sys.stderr.isatty()))
-        if progress:
-            r = rendered[-1]
-            print(f"[sweep] rendered {name}: {r.subject_lux:.4g} lx at the subject under {light!r} "
-                  f"({r.subject_lux_kind}), "
-                  f"saturation edge {r.saturation_lux:.4g} lx", file=sys.stderr)
-    rows = sweep(rendered, levels, method_objs, camera, seed=seed, backend=backend, progress=progress)
-    saturation = float(np.median([r.saturation_lux for r in rendered]))
-    md = markdown(rows, names, saturation)
-    record = {"levels_lux": levels.tolist(), "saturation_lux": saturation,
-              "scenes": {r.name: {"subject_lux": r.subject_lux, "subject_lux_is": r.subject_lux_kind,
-                                   "saturation_lux": r.saturation_lux} for r in rendered},
-              "methods": names, "camera": camera.to_dict(), "windows": windows, "spp": spp,
-              "gt_spp": gt_spp, "seed": seed, "light": light,
-              "not_best_below_saturation": {m: losing_levels(rows, m, saturation) for m in names}}
-    if out is not None:
-        buf = io.StringIO(newline="")
-        w = csv.DictWriter(buf, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
-        with output_folder(out):
+    with contextlib.ExitStack() as held:
+        if out is not None:  # the folder is this run's until it ends: two sweeps wrote a mix of each other's tables
+            from spikesim.generation.lock import output_lock
+            held.enter_context(output_folder(out))
+            held.enter_context(output_lock(out, f"sweep (pid {os.getpid()})", what="sweep run"))
+        sources = []
+        for s in scenes:
+            if str(s).lower().endswith(".xml"):
+                SceneFiles.resolve(str(s))  # a missing file is named before rendering
+                sources.append((str(s), Path(s).parent.name))
+            else:
+                sources.append((bundled_scene(s), s))
+        rendered = []
+        for i, (scene, name) in enumerate(sources):
+            rendered.append(render_scene(scene, light, camera, windows, spp, gt_spp, seed + i, name=name,
+                                         progress=progress and sys.stderr.isatty()))
+            if progress:
+                r = rendered[-1]
+                print(f"[sweep] rendered {name}: {r.subject_lux:.4g} lx at the subject under {light!r} "
+                      f"({r.subject_lux_kind}), "
+                      f"saturation edge {r.saturation_lux:.4g} lx", file=sys.stderr)
+        rows = sweep(rendered, levels, method_objs, camera, seed=seed, backend=backend, progress=progress)
+        saturation = float(np.median([r.saturation_lux for r in rendered]))
+        md = markdown(rows, names, saturation)
+        record = {"levels_lux": levels.tolist(), "saturation_lux": saturation,
+                  "scenes": {r.name: {"subject_lux": r.subject_lux, "subject_lux_is": r.subject_lux_kind,
+                                       "saturation_lux": r.saturation_lux} for r in rendered},
+                  "methods": names, "camera": camera.to_dict(), "windows": windows, "spp": spp,
+                  "gt_spp": gt_spp, "seed": seed, "light": light,
+                  "not_best_below_saturation": {m: losing_levels(rows, m, saturation) for m in names}}
+        if out is not None:
+            buf = io.StringIO(newline="")
+            w = csv.DictWriter(buf, fieldnames=list(rows[0]))
+            w.writeheader()
+            w.writerows(rows)
             atomic_write_text(writable(out, "sweep.csv"), buf.getvalue())
             atomic_write_text(writable(out, "sweep.md"), md)
             atomic_write_json(writable(out, "sweep.json"), record, indent=1)
             if draw_plot:
                 plot(rows, names, saturation, writable(out, "sweep.png"),
                      f"{', '.join(r.name for r in rendered)} at {camera.height} x {camera.width}, {windows} windows")
-    return SweepResult(rows, record, md)
+        return SweepResult(rows, record, md)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 from pathlib import Path
 from typing import Any
 
@@ -43,6 +44,10 @@ def cmd_tradeoff(args: argparse.Namespace) -> int:
         from spikesim.render.scene_files import SceneFiles
         SceneFiles.resolve(str(args.xml))  # a missing file is named before anything renders
     scenes = (str(args.xml),) if args.xml is not None else tuple(args.scenes or DEFAULT_SCENES)
+    for flag, given in (("--scenes", scenes), ("--light", tuple(args.light))):
+        twice = [v for i, v in enumerate(given) if v in given[:i]]
+        if twice:  # every row appeared once per repeat in the tables (issue 40, round 5)
+            raise ValueError(f"{flag}: {', '.join(dict.fromkeys(twice))} given twice (each is studied once)")
     cfg = StudyConfig.of(scenes=scenes, lights=tuple(args.light),
                       resolution=(args.height, args.width), windows=args.windows, ref_spp=args.ref_spp, gt_spp=args.gt_spp,
                       seed=args.seed, backend=args.backend, device=args.device, knobs=tuple(args.knobs),
@@ -53,6 +58,14 @@ def cmd_tradeoff(args: argparse.Namespace) -> int:
         log.info("--gt-error-spp %s: not below --gt-spp %d, skipped", " ".join(map(str, skipped)), cfg.gt_spp)
     out = Path(args.out)
     require("matplotlib", "plot", "the trade study's plot")  # before any run, not after hours of them
+    from spikesim.generation.lock import output_lock
+    from spikesim.outputs import output_folder
+    with output_folder(out), output_lock(out, f"tradeoff (pid {os.getpid()})", what="tradeoff run"):
+        return _study(args, cfg, out)
+
+
+def _study(args: argparse.Namespace, cfg: StudyConfig, out: Path) -> int:
+    """The study in its folder, which this run holds."""
     if args.report_only:
         rows = collect_rows(cfg, out)
         if not rows:

@@ -115,6 +115,19 @@ def test_sweep_of_a_users_scene_keeps_its_film_and_samples_and_a_camera_files_si
     assert (cam["height"], cam["width"]) == (12, 20) and "height 12 (--camera cam.json)" in r.stderr
 
 
+def test_a_sweep_into_a_folder_in_use_is_refused_before_it_renders(tmp_path):
+    """Two sweeps into one -o both finished with rc 0 and left one run's tables (issue 40, round 5)."""
+    from pipelines.sweep import run_sweep
+    from spikesim.generation.lock import OutputLockedError, output_lock
+    out = tmp_path / "sw"
+    out.mkdir()
+    with output_lock(out, "sweep other (pid 4242)", what="sweep run"):
+        with pytest.raises(OutputLockedError, match="another sweep run.*4242"):
+            run_sweep(["fan"], ["tfp"], [1.0, 10.0], camera=SpikeCamera.realistic(height=8, width=12), windows=1,
+                      spp=1, gt_spp=2, out=out)
+    assert list(out.iterdir()) == []
+
+
 def test_render_scene_refuses_frames_beyond_memory():
     with pytest.raises(ValueError, match="GiB of memory"):
         render_scene("fan", "normal", SpikeCamera.realistic(height=2000, width=4000), num_windows=100, spp=1,

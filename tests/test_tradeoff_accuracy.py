@@ -69,6 +69,21 @@ def test_tradeoff_flags_of_the_new_axes_are_checked(tmp_path, capsys):
         assert code == 2 and "Traceback" not in err and "error:" in lines[-1] and flag in lines[-1], err
 
 
+def test_tradeoff_refuses_a_scene_or_light_given_twice_and_a_folder_in_use(tmp_path, capsys):
+    """`--scenes fan fan --light low low` wrote every row four times (issue 40, round 5); a second
+    study into a folder in use mixed two runs' tables."""
+    for argv, says in ((["--scenes", "fan", "fan"], "--scenes: fan given twice"),
+                       (["--scenes", "fan", "--light", "low", "low"], "--light: low given twice")):
+        code, err = run_cli(["tradeoff", *argv, "-o", tmp_path / "t", "--quiet"], capsys)
+        assert code == 2 and says in err and "Traceback" not in err, err
+    assert not (tmp_path / "t").exists()
+    from spikesim.generation.lock import output_lock
+    (tmp_path / "busy").mkdir()
+    with output_lock(tmp_path / "busy", "tradeoff other (pid 4242)", what="tradeoff run"):
+        code, err = run_cli(["tradeoff", "--scenes", "fan", "-o", tmp_path / "busy", "--quiet"], capsys)
+    assert code == 2 and "another tradeoff run" in err and "4242" in err, err
+
+
 # ---- scores, without rendering -------------------------------------------------------------------
 def _scene(windows: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """A smooth image drifting sideways, as (ground truth at the window centres, stream packed)."""
