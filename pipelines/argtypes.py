@@ -29,6 +29,16 @@ def positive_int(text: str) -> int:
     return v
 
 
+def window_steps(text: str) -> int:
+    """--window: an odd number of readout steps >= 1, so that a window has a centre step (its
+    ground truth's; model.reconstruct takes the same rule)."""
+    v = positive_int(text)
+    if v % 2 == 0:
+        raise argparse.ArgumentTypeError(f"must be an odd number of steps (a window's centre is its ground-truth "
+                                         f"step; 41 for the shipped networks), got {text}")
+    return v
+
+
 def float_in(lo: float, hi: float, what: str):
     """argparse type: a number in [lo, hi] (a chance, a percentile), the error naming `what`."""
     def parse(text: str) -> float:

@@ -31,7 +31,7 @@ from model.evaluation import (ALL, CONDITIONS, CSV_FIELDS, DEFAULT_OUT, RESULT_F
                               scores_json, write_results)
 from model.methods import Method, method_from_spec
 from model.threads import set_cpu_threads
-from pipelines.argtypes import add_threads_argument, existing_file, nonnegative_int, positive_float, positive_int
+from pipelines.argtypes import add_threads_argument, existing_file, nonnegative_int, positive_float, positive_int, window_steps
 from pipelines.inspect_cmd import header_columns_arg
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
@@ -161,7 +161,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--scenes", nargs="+", help="only these scenes")
     p.add_argument("-o", "--out", help=f"folder for metrics.csv and metrics.md (with --data or --spikezoo, default "
                                         f"{DEFAULT_OUT} unless --json; with --dat, written only when -o is given)")
-    p.add_argument("--window", type=positive_int, default=41, help="readout steps per window")
+    p.add_argument("--window", type=window_steps, default=41, help="readout steps per window")
     p.add_argument("--chunk", type=positive_int, default=8, help="windows held in memory by a network")
     p.add_argument("--device", default="auto", help="auto (CUDA when present), cpu, cuda, cuda:N or mps")
     add_threads_argument(p)

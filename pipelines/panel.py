@@ -19,7 +19,7 @@ import numpy as np
 import torch
 
 from model.threads import set_cpu_threads
-from pipelines.argtypes import add_threads_argument, nonnegative_int, output_file_in, positive_int
+from pipelines.argtypes import add_threads_argument, nonnegative_int, output_file_in, positive_int, window_steps
 from pipelines.inspect_cmd import header_columns_arg, open_stream
 from spikesim import outputs
 from spikesim.config_io import standard_json
@@ -128,7 +128,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--frame", type=nonnegative_int, help="which window to show (default: the middle one)")
     p.add_argument("--start", type=nonnegative_int, default=0, help="first step of the first window")
     p.add_argument("--num-windows", type=positive_int, help="windows read (default: every whole window)")
-    p.add_argument("--window", type=positive_int, default=41, help="readout steps per window")
+    p.add_argument("--window", type=window_steps, default=41, help="readout steps per window")
     p.add_argument("--height", type=positive_int, help="rows (default: as recorded, else 250)")
     p.add_argument("--width", type=positive_int, help="columns without header (default: as recorded, else 400)")
     p.add_argument("--header-columns", type=header_columns_arg, default="auto",

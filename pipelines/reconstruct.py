@@ -31,7 +31,7 @@ import torch
 from model.methods import method_from_spec
 from model.streaming import StepWindows
 from model.threads import set_cpu_threads
-from pipelines.argtypes import add_threads_argument, nonnegative_int, positive_float, positive_int
+from pipelines.argtypes import add_threads_argument, nonnegative_int, positive_float, positive_int, window_steps
 from pipelines.inspect_cmd import header_columns_arg, open_stream
 from spikesim._optional import require
 from spikesim.errors import UnavailableError
@@ -269,7 +269,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                       help="rows stored top-down (SPCS/SCSim/LR-Rep authors); default: as recorded, else rows stored bottom-up (flip)")
     p.add_argument("--start", type=nonnegative_int, default=0, help="first step of the first window")
     p.add_argument("--num-windows", type=positive_int, help="frames to make (default: as many as fit)")
-    p.add_argument("--window", type=positive_int, default=41,
+    p.add_argument("--window", type=window_steps, default=41,
                    help="steps per window for tfp/tfi/stp/snm (a model uses its own)")
     p.add_argument("--chunk", type=positive_int, default=8, help="windows held in memory by a network")
     p.add_argument("--device", default="auto", help="auto (CUDA when present), cpu, cuda, cuda:N or mps")

@@ -305,7 +305,8 @@ def check_stream_record(info: dict[str, Any], source: str | Path) -> dict[str, A
     """`info` (a sidecar or a dataset meta.json) unchanged when every field a reader uses has the
     right type and range, else a ValueError naming `source` and the field: height and width
     integers in 1..MAX_SIDE (a JSON `true` is not an integer), header_columns and num_steps
-    integers >= 0, flip a JSON true/false (the string "no" is not false), a readout period
+    integers >= 0, flip a JSON true/false (the string "no" is not false), gt_steps a list of steps
+    within num_steps, a readout period
     (top level or the camera's) a positive finite number of seconds, at most 1, and the camera a
     JSON object."""
     def bad(field: str, value: Any, expected: str) -> ValueError:
@@ -320,6 +321,13 @@ def check_stream_record(info: dict[str, Any], source: str | Path) -> dict[str, A
             raise bad(key, info[key], "an integer >= 0" + (f", at most {top}" if top else ""))
     if info.get("flip") is not None and not isinstance(info["flip"], bool):
         raise bad("flip", info["flip"], "true or false")
+    if "gt_steps" in info:  # a dataset scene's: null was a TypeError deep in a reader, "20" a misleading centre error
+        steps = info["gt_steps"]
+        n = info.get("num_steps")
+        if not (isinstance(steps, list) and all(_is_int(g) and g >= 0 for g in steps)
+                and (not _is_int(n) or all(g < n for g in steps))):
+            raise bad("gt_steps", steps, "a list of step numbers (integers from 0" + (f" to {n - 1}" if _is_int(n) else "")
+                      + ")")
     camera = info.get("camera")
     if camera is not None and not isinstance(camera, dict):
         raise bad("camera", camera, "an object")

@@ -51,6 +51,10 @@ BAD_FIELDS = [
     ("header_columns", {"header_columns": -1}),
     ("header_columns", {"header_columns": True}),
     ("num_steps", {"num_steps": -3}),
+    ("gt_steps", {"gt_steps": None}),   # was a TypeError traceback in evaluate and train
+    ("gt_steps", {"gt_steps": "20"}),   # was "no ground-truth step is the centre ..."
+    ("gt_steps", {"gt_steps": [1.5]}),
+    ("gt_steps", {"gt_steps": [N]}),    # past the stream's last step
 ]
 
 

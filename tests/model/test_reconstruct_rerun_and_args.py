@@ -73,7 +73,7 @@ def test_geometry_comes_from_the_sidecar(dat, tmp_path):
 
 
 @pytest.mark.parametrize("flag, value", [
-    ("--fps", 0), ("--gamma", 0), ("--gamma", -1), ("--window", 0), ("--start", -1), ("--percentile", 101),
+    ("--fps", 0), ("--gamma", 0), ("--gamma", -1), ("--window", 0), ("--window", 40), ("--start", -1), ("--percentile", 101),
     ("--percentile", 0), ("--height", 0), ("--width", -4), ("--header-columns", -1),
     ("--header-columns", "x"), ("--scale", 0), ("--chunk", 0), ("--num-windows", 0), ("--threads", -1),
     ("--fps", "nan")])
