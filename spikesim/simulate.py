@@ -151,6 +151,9 @@ class BatchSimulator:
     """
 
     def __init__(self, camera: SpikeCamera, seeds: Sequence[int], backend: str = "auto", chunk_steps: int = 256):
+        if not isinstance(camera, SpikeCamera):  # Simulator("realistic") was an AttributeError from deep inside
+            raise TypeError(f"camera: expected a SpikeCamera (e.g. SpikeCamera.preset({camera!r}) or "
+                            f"SpikeCamera.realistic(height=..., width=...)), got {type(camera).__name__}")
         seeds = list(seeds)
         if not seeds:
             raise ValueError("a batch needs at least one seed")

@@ -127,3 +127,9 @@ def test_resetting_by_the_fired_level_keeps_the_charge_the_comparator_noise_left
     b = Simulator(quiet.replace(reset_rule="fired"), backend="numpy", seed=1).run(constant_frames(0.3, 500, 8, 8))
     assert a == b
     assert np.isfinite(rates["fired"])
+
+
+def test_a_simulator_of_a_camera_name_says_how_to_make_the_camera():
+    from spikesim.simulate import Simulator
+    with pytest.raises(TypeError, match=r"SpikeCamera.preset\('realistic'\)"):
+        Simulator("realistic")
