@@ -239,19 +239,24 @@ def write_scene(root: str | Path, name: str, stream: SpikeStream | Path, ground_
         raise FileExistsError(f"scene folder {root / name} already exists")
     tmp = inside_root(root, f".{name}.part", follow=False)
     remove_inside(root, f".{name}.part")
+    if not isinstance(stream, SpikeStream) and ("height" not in meta or "width" not in meta):
+        raise ValueError(f"scene {name}: meta needs 'height' and 'width' when the stream is a file")
     (tmp / GT_DIR).mkdir(parents=True)
+    moved: list[tuple[Path, Path]] = []  # files moved in, moved back if the scene is refused
+
+    def move_in(src: Path, dst: Path) -> None:
+        os.replace(src, dst)
+        moved.append((Path(src), dst))
     try:
         if isinstance(stream, SpikeStream):
             write_dat(tmp / SPIKES, stream, flip=flip)
             h, w, n = stream.height, stream.width, stream.num_steps
         else:
-            os.replace(stream, tmp / SPIKES)
-            if "height" not in meta or "width" not in meta:
-                raise ValueError(f"scene {name}: meta needs 'height' and 'width' when the stream is a file")
+            move_in(stream, tmp / SPIKES)
             h, w = int(meta["height"]), int(meta["width"])
             n = DatReader(tmp / SPIKES, h, w, flip=flip).num_steps
         if twin is not None:
-            os.replace(twin, tmp / TWIN_SPIKES)
+            move_in(twin, tmp / TWIN_SPIKES)
             if (got := DatReader(tmp / TWIN_SPIKES, h, w, flip=flip).num_steps) != n:
                 raise ValueError(f"scene {name}: the twin stream has {got} steps, the stream {n}")
             if not isinstance(meta.get("twin"), dict):
@@ -275,6 +280,9 @@ def write_scene(root: str | Path, name: str, stream: SpikeStream | Path, ground_
         _write_json(tmp / CHECKSUMS, {"layout_version": LAYOUT_VERSION, "files": _file_checksums(tmp)})
         os.replace(tmp, final)
     except BaseException:
+        for src, dst in reversed(moved):  # a refused scene gives the caller's files back (it deleted them)
+            if dst.exists() and not src.exists():
+                os.replace(dst, src)
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return SceneRecord.open(final)

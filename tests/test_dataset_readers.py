@@ -111,3 +111,17 @@ def test_the_training_content_digest_sees_what_the_identity_does_not(pattern_dat
         (root / name / "checksums.json").write_text(json.dumps(rec))
     after = open_dataset(root, checksums=False)
     assert data_identity(after, []) == ident and data_content(after, []) != content
+
+
+def test_a_refused_scene_gives_back_the_stream_file_it_was_handed(tmp_path):
+    """write_scene moved the caller's .dat into its work folder, refused the scene (no height in
+    meta, a ground truth of the wrong shape) and deleted the folder with the file (round six)."""
+    from spikesim.stream import write_dat
+    dat = write_dat(tmp_path / "mine.dat", SpikeStream.from_bool(np.zeros((41, 8, 12), bool)), flip=False)
+    data = dat.read_bytes()
+    with pytest.raises(ValueError, match="meta needs 'height'"):
+        write_scene(tmp_path / "root", "s1", dat, {20: np.zeros((8, 12), np.float32)}, meta={}, flip=False)
+    with pytest.raises(ValueError, match="has shape"):
+        write_scene(tmp_path / "root", "s1", dat, {20: np.zeros((12, 8), np.float32)},
+                    meta={"height": 8, "width": 12}, flip=False)
+    assert dat.read_bytes() == data and not (tmp_path / "root" / "s1").exists()
