@@ -139,6 +139,12 @@ class _Frames:
         self._device = None
 
 
+#: The fields a stream's sidecar records itself (`BatchSimulator._describe` and `run_to_dat`):
+#: `extra` may not set them.
+SIDECAR_FIELDS = frozenset({"camera", "seed", "backend", "height", "width", "spikesim_version", "num_steps", "flip",
+                            "keyframe_every"})
+
+
 class BatchSimulator:
     """Turn irradiance frames (y, expected spikes per step) of S streams into S spike streams.
 
@@ -297,6 +303,20 @@ class BatchSimulator:
         paths = [Path(p) for p in paths]
         if len(paths) != self.num_streams:
             raise ValueError(f"{len(paths)} output paths for {self.num_streams} streams")
+        extra = dict(extra or {})
+        taken = sorted(set(extra) & SIDECAR_FIELDS)
+        if taken:  # they overwrote the geometry (transposed frames), or failed after the .dat was replaced
+            raise ValueError(f"extra: {', '.join(taken)} {'is' if len(taken) == 1 else 'are'} the stream's own record "
+                             f"({', '.join(sorted(SIDECAR_FIELDS))}), not extra fields")
+        from spikesim.config_io import standard_json
+        try:
+            standard_json(extra)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"extra: not plain JSON ({exc})") from None
+        from spikesim.stream import sidecar_path
+        for p in paths:
+            if sidecar_path(p).is_dir():
+                raise IsADirectoryError(f"{sidecar_path(p)}: is a directory, where the stream's record goes")
         cam = self.camera
         writers = [DatWriter(p, cam.height, cam.width, flip=flip) for p in paths]
         try:
@@ -309,6 +329,8 @@ class BatchSimulator:
                         break
                 for s, writer in enumerate(writers):
                     writer.write(SpikeStream(packed[s, :n], cam.height, cam.width))
+            for p in paths:  # an old record never stands beside a new stream: without one, readers ask for the size
+                sidecar_path(p).unlink(missing_ok=True)
             written = [w.close() for w in writers]
         except BaseException:
             for w in writers:
@@ -316,7 +338,7 @@ class BatchSimulator:
             raise
         for s, p in enumerate(written):
             write_sidecar(p, self._describe(s, num_steps=writers[s].num_steps, flip=flip,
-                                            keyframe_every=keyframe_every, **(extra or {})))
+                                            keyframe_every=keyframe_every, **extra))
         return written
 
     def describe(self, stream: int = 0, **extra: Any) -> dict[str, Any]:

@@ -110,3 +110,23 @@ def test_a_reader_without_geometry_reads_what_is_recorded_beside_the_stream(tmp_
     plain.write_bytes(dat.read_bytes())  # no sidecar: 250 x 400 is assumed, and the error says what to do
     with pytest.raises(ValueError, match="geometry is likely wrong: give height, width and header_columns"):
         DatReader(plain)
+
+
+def test_run_to_dat_keeps_its_own_record_and_never_a_stale_one(tmp_path):
+    """extra={'height': 12, 'width': 8} overwrote the geometry (readers returned transposed
+    frames); extra={'flip': 1} failed after the new .dat had replaced the old one, beside the old
+    sidecar (round six). Both are refused before anything is written."""
+    import json
+
+    from spikesim.camera import SpikeCamera
+    from spikesim.simulate import Simulator
+    from spikesim.stream import sidecar_path
+    sim = Simulator(SpikeCamera.realistic(height=8, width=12), backend="numpy", seed=0)
+    frames = [np.full((8, 12), 0.2, np.float32)] * 5
+    dat = sim.run_to_dat(frames, tmp_path / "ok.dat", flip=False, extra={"note": "kept"})
+    before = (dat.read_bytes(), sidecar_path(dat).read_text())
+    for bad in ({"height": 12, "width": 8}, {"flip": True}, {"keyframe_every": 1}):
+        with pytest.raises(ValueError, match="the stream's own record"):
+            sim.run_to_dat(frames, dat, flip=False, extra=bad)
+    assert (dat.read_bytes(), sidecar_path(dat).read_text()) == before
+    assert json.loads(sidecar_path(dat).read_text())["note"] == "kept"
