@@ -146,6 +146,9 @@ def render_scene(scene: str, light: str, camera: Any, num_windows: int, spp: int
         frames[i] = f
     gts = {c: np.asarray(renderer.ground_truth(c), dtype=np.float32)
            for c in (i * WINDOW + WINDOW // 2 for i in range(num_windows))}
+    from spikesim.render.scene_checks import check_lit
+    # as generate refuses it: a black truth scored inf dB and SSIM 1 at every level (round six)
+    check_lit(renderer.files.xml, max(float(g.max()) for g in gts.values()), len(gts), renderer.lighting)
     return RenderedScene(name or Path(scene).stem, frames, gts, float(lux), kind)
 
 
@@ -170,11 +173,14 @@ def sweep(rendered: Sequence[RenderedScene], levels: Sequence[float], methods: S
     total = len(rendered) * len(levels)
     for k, (sc, lux) in enumerate((sc, lux) for sc in rendered for lux in levels):
         level = simulate_level(sc, float(lux), camera, seed, backend)
+        # every frame one value once clipped at saturation (a scene saturated all over): any constant scores
+        # a perfect fit, so every method read inf dB and SSIM 1, in bold (round six); the scores are undefined
+        flat = all(float(np.ptp(np.clip(g, 0.0, SATURATION_Y))) == 0.0 for g in level.gt.values())
         for score in evaluate_scene(level, methods, WINDOW):
             rows.append({"scene": sc.name, "lux": float(lux), "method": score.method, "frames": score.frames,
                          "mean_y": float(np.mean([g.mean() for g in level.gt.values()])),
-                         "saturated": bool(lux >= sc.saturation_lux),
-                         **{m: score.value(m) for m in METRIC_KEYS}})
+                         "saturated": bool(lux >= sc.saturation_lux), "ground_truth_constant": flat,
+                         **{m: (math.nan if flat else score.value(m)) for m in METRIC_KEYS}})
         if progress:
             best = max(rows[-len(methods):], key=lambda r: r["psnr_aligned"])
             print(f"[sweep] {k + 1}/{total} {sc.name} at {lux:.3g} lx: best {best['method']} "
@@ -187,7 +193,10 @@ def summary(rows: Sequence[dict[str, Any]], metric: str) -> dict[str, dict[float
     out: dict[str, dict[float, list[float]]] = {}
     for r in rows:
         out.setdefault(r["method"], {}).setdefault(r["lux"], []).append(r[metric])
-    return {m: {lux: float(np.mean(v)) for lux, v in sorted(d.items())} for m, d in out.items()}
+    def mean(v: list[float]) -> float:  # a scene whose truth is constant at a level has no score there
+        finite = [x for x in v if math.isfinite(x)]
+        return float(np.mean(finite)) if finite else math.nan
+    return {m: {lux: mean(v) for lux, v in sorted(d.items())} for m, d in out.items()}
 
 
 def losing_levels(rows: Sequence[dict[str, Any]], method: str, saturation_lux: float) -> list[float]:
@@ -212,8 +221,9 @@ def markdown(rows: Sequence[dict[str, Any]], methods: Sequence[str], saturation_
                   "|---|" + "---|" * len(methods)]
         for lux in luxes:
             vals = [table[m][lux] for m in methods]
-            best = max(vals)
-            cells = [("**" + fmt.format(v) + "**") if v == best else fmt.format(v) for v in vals]
+            best = max((v for v in vals if math.isfinite(v)), default=None)
+            cells = ["n/a" if not math.isfinite(v) else ("**" + fmt.format(v) + "**") if v == best else fmt.format(v)
+                     for v in vals]
             mark = " (saturated)" if lux >= saturation_lux else ""
             lines.append(f"| {lux:.3g}{mark} | " + " | ".join(cells) + " |")
         lines.append("")
@@ -285,6 +295,9 @@ def run_sweep(scenes: Sequence[str] = ("ball", "car", "cook", "fan", "rotate"), 
         raise ValueError(f"method names must be unique, got {names}; name them with label=spec")
     from spikesim.camera import SpikeCamera
     camera = camera if camera is not None else SpikeCamera.realistic(height=64, width=100)
+    if min(camera.height, camera.width) < 11:  # before the renders, not after them (round six)
+        raise ValueError(f"a {camera.height} x {camera.width} frame: the aligned SSIM's 11 x 11 window needs frames of "
+                         "at least 11 x 11 (--height, --width)")
     if out is not None:
         out = Path(out)
         for name in RESULT_FILES:

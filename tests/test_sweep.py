@@ -123,9 +123,33 @@ def test_a_sweep_into_a_folder_in_use_is_refused_before_it_renders(tmp_path):
     out.mkdir()
     with output_lock(out, "sweep other (pid 4242)", what="sweep run"):
         with pytest.raises(OutputLockedError, match="another sweep run.*4242"):
-            run_sweep(["fan"], ["tfp"], [1.0, 10.0], camera=SpikeCamera.realistic(height=8, width=12), windows=1,
+            run_sweep(["fan"], ["tfp"], [1.0, 10.0], camera=SpikeCamera.realistic(height=12, width=16), windows=1,
                       spp=1, gt_spp=2, out=out)
     assert list(out.iterdir()) == []
+
+
+def test_a_black_truth_is_refused_and_a_constant_one_has_no_scores(tmp_path):
+    """A floor turned away from the camera (black truth) and a level where every pixel saturates
+    (one value) scored inf dB and SSIM 1 for every method, in bold (round six)."""
+    from pipelines.sweep import markdown, run_sweep
+    from spikesim.render.errors import SceneError
+    cam = SpikeCamera.realistic(height=12, width=16)
+    with pytest.raises(ValueError, match="at least 11 x 11"):
+        run_sweep(["fan"], ["tfp"], [1.0, 10.0], camera=SpikeCamera.realistic(height=8, width=12), windows=1)
+    text = open("tests/data/plain_scene/scene.xml").read().replace(
+        '<shape type="rectangle" id="floor">',
+        '<shape type="rectangle" id="floor"><transform name="to_world"><rotate x="1" angle="180"/></transform>')
+    (tmp_path / "back").mkdir()
+    (tmp_path / "back" / "scene.xml").write_text(text)
+    with pytest.raises(SceneError, match="ground truth is black"):
+        render_scene(str(tmp_path / "back" / "scene.xml"), "normal", cam, num_windows=1, spp=1, gt_spp=2, seed=0)
+    result = run_sweep(["tests/data/plain_scene/scene.xml"], ["tfp", "mean"], [1.0, 1e6], camera=cam, windows=1,
+                       spp=1, gt_spp=2)
+    bright = [r for r in result.rows if r["lux"] == 1e6]
+    assert bright and all(r["ground_truth_constant"] and np.isnan(r["psnr_aligned"]) for r in bright)
+    dim = [r for r in result.rows if r["lux"] == 1.0]
+    assert all(not r["ground_truth_constant"] and np.isfinite(r["psnr_aligned"]) for r in dim)
+    assert "| n/a | n/a |" in result.markdown and "inf" not in result.markdown
 
 
 def test_render_scene_refuses_frames_beyond_memory():
