@@ -119,6 +119,16 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
+    import os
+
+    from spikesim.generation.lock import output_lock
+    # the folder is this run's until it ends: two renders into one -o left one's frames unlisted
+    # beside the other's record, and every later render there was refused (round six)
+    with output_folder(args.out), output_lock(args.out, f"render {args.scene} (pid {os.getpid()})", what="render run"):
+        return _run(args)
+
+
+def _run(args: argparse.Namespace) -> int:
     from pipelines.render_folder import check_output_folder
     from spikesim.render import Exposure, RenderSettings, SceneRenderer
     from spikesim.render.scene_files import SceneFiles
@@ -137,8 +147,7 @@ def run(args: argparse.Namespace) -> int:
     if not args.json:
         print(resolved.summary())
     kind = "gt" if args.ground_truth else ("preview" if renderer.variant == "rgb" else "frames")
-    with output_folder(args.out):  # a failed first run leaves no new empty folder
-        meta, written = _render_into(args, renderer, kind, previous, resolved.table())
+    meta, written = _render_into(args, renderer, kind, previous, resolved.table())
     if args.json:
         print(json.dumps({**meta, "files": written}, indent=2, default=str))
     elif args.quiet:

@@ -214,6 +214,9 @@ class BatchSimulator:
         k = int(keyframe_every)
         if isinstance(keyframe_every, bool) or k != keyframe_every or k < 1:
             raise ValueError(f"keyframe_every must be a positive integer, got {keyframe_every!r}")
+        if max_frames is not None and (isinstance(max_frames, bool) or not isinstance(max_frames, (int, np.integer))
+                                       or max_frames < 0):
+            raise ValueError(f"max_frames must be an integer >= 0 or None, got {max_frames!r}")
         if self._keyframe_every is not None and self._pending is not None and k != self._keyframe_every:
             raise ValueError(f"keyframe_every changed from {self._keyframe_every} to {k} in the middle of a stream")
         self._keyframe_every = k

@@ -103,3 +103,25 @@ def test_a_frame_of_another_size_names_how_to_make_a_camera_of_that_size():
         Simulator(SpikeCamera.realistic(), backend="numpy").run(np.zeros((2, 64, 100), np.float32))
     small = Simulator(SpikeCamera.realistic(height=64, width=100), backend="numpy").run(np.zeros((2, 64, 100), np.float32))
     assert small.num_steps == 2
+
+
+def test_api_arguments_of_the_wrong_kind_are_named():
+    """Round six: max_frames=-1 ran as 'no limit', SceneRenderer(camera="realistic") was an
+    AttributeError deep inside, ground_truth(spp=0) took the default and spp=-1 was Dr.Jit's error."""
+    import numpy as np
+    import pytest
+
+    from spikesim.camera import SpikeCamera
+    from spikesim.render import SceneRenderer
+    from spikesim.simulate import Simulator
+    sim = Simulator(SpikeCamera.realistic(height=8, width=12), backend="numpy")
+    with pytest.raises(ValueError, match="max_frames must be an integer >= 0"):
+        sim.run([np.zeros((8, 12), np.float32)] * 3, max_frames=-1)
+    with pytest.raises(TypeError, match=r"SpikeCamera.preset\('realistic'\)"):
+        SceneRenderer("tests/data/plain_scene/scene.xml", camera="realistic")
+    r = SceneRenderer("tests/data/plain_scene/scene.xml", variant="mono", spp=1, resolution=(5, 8))
+    for bad in (0, -1, 1.5, "4", True):
+        with pytest.raises(ValueError, match="must be a positive integer"):
+            r.ground_truth(0, spp=bad)
+        with pytest.raises(ValueError, match="must be a positive integer"):
+            r.render_step(0, spp=bad)

@@ -106,3 +106,15 @@ def test_simulate_needs_the_recorded_keyframe_spacing(tmp_path, xml, capsys):
     assert "its frames are steps 8 apart (render.json); give --keyframe-every 8" in capsys.readouterr().err
     assert _simulate(d, tmp_path / "s.dat", "--keyframe-every", "8") == 0
     assert DatReader(tmp_path / "s.dat", 8, 12).num_steps == 17
+
+
+def test_a_render_into_a_folder_in_use_is_refused(tmp_path, capsys):
+    """Two renders into one -o both ended rc 0: one's record, the other's frames beside it, and every
+    later render there refused (round six)."""
+    from spikesim.generation.lock import output_lock
+    out = tmp_path / "rr"
+    out.mkdir()
+    with output_lock(out, "render other (pid 4242)", what="render run"):
+        rc = main(["render", "tests/data/plain_scene/scene.xml", "--steps", "0", "--spp", "1", "-o", str(out)])
+    assert rc == 2 and "another render run" in capsys.readouterr().err
+    assert main(["render", "tests/data/plain_scene/scene.xml", "--steps", "0", "--spp", "1", "-o", str(out)]) == 0

@@ -75,7 +75,11 @@ class SceneRenderer:
                  exposure: Exposure | None = None, motion: str | Path | None = None,
                  lights: str | Path | None = None, settings: RenderSettings | None = None,
                  light_power_factor: float = 1.0, **overrides: Any):
-        film = {"resolution": (int(camera.height), int(camera.width))} if hasattr(camera, "height") else None
+        if camera is not None and not all(hasattr(camera, k) for k in ("height", "width", "readout_period_s",
+                                                                        "threshold_electrons")):
+            raise TypeError(f"camera: expected a spikesim.camera.SpikeCamera (e.g. SpikeCamera.preset({camera!r})), "
+                            f"got {type(camera).__name__}")  # "realistic" was an AttributeError deep inside
+        film = {"resolution": (int(camera.height), int(camera.width))} if camera is not None else None
         values, _ = merge_layers([("camera", film), ("settings", settings.to_dict() if settings else None),
                                   ("arguments", {"variant": variant, "spp": spp, "resolution": resolution,
                                                  "seed": seed, **overrides})])
@@ -216,7 +220,7 @@ class SceneRenderer:
 
     def render_step(self, step: int, spp: int | None = None) -> np.ndarray:
         """y at step `step` (float32 (H, W)), with `spp` samples per render (default: settings.spp)."""
-        return self._to_y(step, self._film(self._check_step(step), spp or self.settings.spp, _FRAMES))
+        return self._to_y(step, self._film(self._check_step(step), self._spp(spp, self.settings.spp), _FRAMES))
 
     def render_step_device(self, step: int, spp: int | None = None) -> Any:
         """y at step `step` as a flat Dr.Jit array of H W values (row-major) that stays on the
@@ -225,7 +229,7 @@ class SceneRenderer:
         the frame); checking here would cost a device sync per frame."""
         if self.variant == "rgb":
             raise ValueError("the rgb variant renders previews only (preview_rgb); use 'mono' or 'spectral' for y")
-        film = self._film_tensor(self._check_step(step), spp or self.settings.spp, _FRAMES)
+        film = self._film_tensor(self._check_step(step), self._spp(spp, self.settings.spp), _FRAMES)
         channels = film.shape[2]
         values = film.array
         if channels != 1:  # the y channel is the first of each pixel
@@ -246,7 +250,7 @@ class SceneRenderer:
     def ground_truth(self, step: int, spp: int | None = None) -> np.ndarray:
         """Ground-truth y at step `step`: the same mean over the readout period, with `spp`
         (default gt_spp) samples per pixel in all, spread over its motion-blur renders."""
-        return self._to_y(step, self._film(self._check_step(step), spp or self.settings.gt_spp, _GROUND_TRUTH,
+        return self._to_y(step, self._film(self._check_step(step), self._spp(spp, self.settings.gt_spp), _GROUND_TRUTH,
                                            per_image=True))
 
     def frames(self, start_step: int = 0, num_steps: int = 1, keyframe_every: int | None = None,
@@ -275,7 +279,7 @@ class SceneRenderer:
         """Linear RGB (H, W, 3) scaled like y (luminance ~ y), for pictures; needs variant="rgb"."""
         if self.variant != "rgb":
             raise ValueError("preview_rgb needs variant='rgb' (RGB renders are for previews only)")
-        return self._film(self._check_step(step), spp or self.settings.gt_spp, _PREVIEW,
+        return self._film(self._check_step(step), self._spp(spp, self.settings.gt_spp), _PREVIEW,
                           per_image=True) * self._gain[..., None]
 
     def _to_y(self, step: int, film: np.ndarray) -> np.ndarray:
@@ -284,6 +288,16 @@ class SceneRenderer:
         y = film[..., 0] * self._gain
         check_frame(self.files.xml, step, y, self.lighting)
         return np.maximum(y, 0.0).astype(np.float32, copy=False)
+
+    @staticmethod
+    def _spp(spp: Any, default: int) -> int:
+        """A call's samples per pixel: None for the settings', else a positive integer (0 silently took
+        the default, -1 was Dr.Jit's own error, 1.5 and "4" were taken; round six)."""
+        if spp is None:
+            return default
+        if isinstance(spp, bool) or not isinstance(spp, (int, np.integer)) or spp < 1:
+            raise ValueError(f"spp={spp!r} must be a positive integer (None: the settings' {default})")
+        return int(spp)
 
     @staticmethod
     def _check_step(step: int) -> int:
