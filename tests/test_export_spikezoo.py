@@ -265,3 +265,10 @@ def test_a_window_longer_than_every_stream_is_refused_naming_steps(texture_data,
     line = _refused(capsys, ["export", texture_data, "--format", "spikezoo", "--steps", "1001", "-o", tmp_path / "zoo"])
     assert "1001-step window" in line and "--steps" in line
     assert not (tmp_path / "zoo").exists()
+
+
+@pytest.mark.parametrize("rate", ["1e300", "2", "0", "1e-9", "nan"])
+def test_a_rate_no_png_can_hold_is_refused(rate, tmp_path, capsys):
+    """--rate 1e300 wrote every ground truth as 0, rc 0 (round six): a rate is a y in 1e-6..1."""
+    rc, err = run_cli(["export", tmp_path / "none", "--format", "spikezoo", "-o", tmp_path / "o", "--rate", rate], capsys)
+    assert rc == 2 and "argument --rate" in err and not (tmp_path / "o").exists()
