@@ -62,6 +62,16 @@ def open_scenes(root: str | Path | Sequence[str | Path]) -> list[Scene]:
     return scenes
 
 
+def shared_scenes(a: Sequence[Scene], b: Sequence[Scene]) -> list[str]:
+    """Names of the scenes of `a` that are also in `b`: the same folder on disk (a renamed copy in
+    another root is another folder, which the datasets' own checks cover)."""
+    def where(sc: Scene) -> Path | None:
+        path = getattr(getattr(sc, "scene", sc), "path", None)  # a TimeSlice's scene's
+        return Path(path).resolve() if isinstance(path, (str, Path)) else None
+    theirs = {p for p in map(where, b) if p is not None}
+    return [sc.name for sc in a if (p := where(sc)) is not None and p in theirs]
+
+
 class RenamedScene:
     """A scene under another name (open_scenes of several roots); everything else is the scene's."""
 

@@ -159,6 +159,12 @@ def cmd_compare(args: argparse.Namespace) -> int:
     else:
         train_scenes = open_scenes(next(iter(data.values())))
         check_samples(args.configs, train_scenes)
+    from model.data import shared_scenes
+    for label, scenes in (train_scenes.items() if by_data else [(str(next(iter(data.values()))), train_scenes)]):
+        if both := shared_scenes(test_scenes, scenes):  # training scenes' scores reported as held out (round six)
+            raise ValueError(f"--test-data: {len(both)} scene(s) are also in --data {label} ({', '.join(both[:3])}"
+                             f"{' ...' if len(both) > 3 else ''}): a comparison scores held-out scenes; give other "
+                             "test data")
     out = Path(args.out)
     from spikesim.generation.lock import output_lock
     from spikesim.outputs import output_folder

@@ -15,7 +15,7 @@ import dataclasses
 from pathlib import Path
 
 from model.config import LR_SCHEDULES, ExperimentConfig, available_configs, load_config
-from model.data import open_scenes, split_scenes
+from model.data import open_scenes, shared_scenes, split_scenes
 from model.precision import PRECISIONS, resolve_precision
 from model.training import resolve_device, run_training
 from model.threads import set_cpu_threads
@@ -74,6 +74,10 @@ def cmd_train(args: argparse.Namespace) -> int:
     scenes = open_scenes(args.data)
     if args.val_data:
         train_scenes, val_scenes = scenes, open_scenes(args.val_data)
+        if both := shared_scenes(train_scenes, val_scenes):  # best.pt chose by training-set scores (round six)
+            raise ValueError(f"--val-data: {len(both)} scene(s) are also in --data ({', '.join(both[:3])}"
+                             f"{' ...' if len(both) > 3 else ''}): validation on training scenes measures "
+                             "nothing held out; give other scenes, or no --val-data (a split of --data)")
     else:
         train_scenes, val_scenes = split_scenes(scenes, exp.train.val_fraction, exp.train.val_scenes, exp.train.seed,
                                                 window=exp.model.window, num_windows=exp.train.num_windows)

@@ -230,9 +230,10 @@ def test_a_span_longer_than_the_stream_is_said(caplog):
 def test_compare_keeps_a_run_only_for_the_run_it_would_train(tmp_path, capsys):
     _write_dataset(tmp_path / "train", ["a_normal", "b_low"], 0)
     _write_dataset(tmp_path / "other", ["a_normal"], 5)
+    _write_dataset(tmp_path / "test", ["c_low"], 6)
     e = _config(tmp_path / "e.json", "e")
     out = tmp_path / "cmp"
-    argv = ["compare", "--data", str(tmp_path / "train"), "--test-data", str(tmp_path / "train"), "--configs", f"E={e}",
+    argv = ["compare", "--data", str(tmp_path / "train"), "--test-data", str(tmp_path / "test"), "--configs", f"E={e}",
             "--max-steps", "1", "--quiet", "--threads", "1", "--out", str(out)]
     assert main(argv) == 0
     capsys.readouterr()

@@ -190,11 +190,12 @@ def test_a_second_compare_into_a_folder_in_use_is_refused_before_training(tmp_pa
     """Two compares into one folder would train the same runs and write each other's tables."""
     from spikesim.generation.lock import output_lock
     _write_dataset(tmp_path / "d", ["a_low", "b_normal"], 0)
+    _write_dataset(tmp_path / "t", ["c_low"], 1)
     e = _config(tmp_path / "e.json", "e")
     out = tmp_path / "o"
     out.mkdir()
     with output_lock(out, "compare other (pid 4242)", what="compare run"):
-        assert main(["compare", "--data", str(tmp_path / "d"), "--test-data", str(tmp_path / "d"), "--max-steps", "1",
+        assert main(["compare", "--data", str(tmp_path / "d"), "--test-data", str(tmp_path / "t"), "--max-steps", "1",
                      "--device", "cpu", "--quiet", "--out", str(out), "--configs", f"E={e}", "--seeds", "0", "1",
                      "2"]) == 2
     err = capsys.readouterr().err
@@ -210,3 +211,17 @@ def test_compare_data_labels_are_checked_in_the_parser(spec, says, tmp_path, cap
                  "--configs", "lrrep_finetune"]) == 2
     assert says in capsys.readouterr().err and not (tmp_path / "o").exists()
     assert cmp.data_spec("x=y=z") == ("x", Path("y=z"))
+
+
+def test_compare_and_train_refuse_to_score_training_scenes_as_held_out(tmp_path, capsys):
+    """compare --test-data D --data D and train --val-data D --data D ran, rc 0, and reported
+    training-set scores as test and validation scores (round six)."""
+    _write_dataset(tmp_path / "d", ["a_low", "b_normal"], 0)
+    e = _config(tmp_path / "e.json", "e")
+    assert main(["compare", "--data", str(tmp_path / "d"), "--test-data", str(tmp_path / "d"), "--max-steps", "1",
+                 "--device", "cpu", "--quiet", "--out", str(tmp_path / "o"), "--configs", f"E={e}"]) == 2
+    err = capsys.readouterr().err
+    assert "--test-data: 2 scene(s) are also in --data" in err and not (tmp_path / "o").exists()
+    assert main(["train", "--config", str(e), "--data", str(tmp_path / "d"), "--val-data", str(tmp_path / "d"),
+                 "--max-steps", "1", "--device", "cpu", "--out", str(tmp_path / "r")]) == 2
+    assert "--val-data: 2 scene(s) are also in --data" in capsys.readouterr().err
