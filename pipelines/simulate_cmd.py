@@ -115,8 +115,12 @@ def frames_size(path: Path) -> tuple[int, int] | None:
     that the reader's own error names what is wrong."""
     try:
         if path.is_dir():
+            from pipelines.render_folder import listed_frames
             from spikesim.imageio import read_exr
-            shape = read_exr(exr_files(path)[0]).shape
+            # a render folder's frames sit under its kind folder, listed by its record (round six: a 16 x 24
+            # render folder was read as 250 x 400); a folder of one's own EXRs holds them directly
+            files = listed_frames(path, 1) or exr_files(path)
+            shape = read_exr(files[0]).shape
         else:
             shape = np.load(path, mmap_mode="r").shape[1:]
     except (OSError, ValueError, EOFError, IndexError):

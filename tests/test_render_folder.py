@@ -118,3 +118,14 @@ def test_a_render_into_a_folder_in_use_is_refused(tmp_path, capsys):
         rc = main(["render", "tests/data/plain_scene/scene.xml", "--steps", "0", "--spp", "1", "-o", str(out)])
     assert rc == 2 and "another render run" in capsys.readouterr().err
     assert main(["render", "tests/data/plain_scene/scene.xml", "--steps", "0", "--spp", "1", "-o", str(out)]) == 0
+
+
+def test_simulate_takes_a_render_folders_frame_size(tmp_path, capsys):
+    """simulate --frames RENDERFOLDER of a 16 x 24 render was read as the default 250 x 400 and
+    refused, pointing to the Python API (round six)."""
+    out = tmp_path / "rf"
+    assert main(["render", "tests/data/plain_scene/scene.xml", "--steps", "0:3", "--spp", "1", "--height", "16",
+                 "--width", "24", "-o", str(out), "--quiet"]) == 0
+    assert main(["simulate", "--frames", str(out), "--backend", "numpy", "-o", str(tmp_path / "s.dat"), "--quiet"]) == 0
+    info = json.loads((tmp_path / "s.dat.json").read_text())
+    assert (info["height"], info["width"], info["num_steps"]) == (16, 24, 3)
