@@ -67,6 +67,12 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"-o {args.out}: a camera file is TOML; name it *.toml")
     if args.out.exists() and not args.overwrite:
         raise FileExistsError(f"-o {args.out}: the file exists (--overwrite to replace it)")
+    if len(args.flat) > 2:
+        raise ValueError(f"--flat: given {len(args.flat)} times; calibrate combines one or two flats (two light levels)")
+    given = [p for p in (args.dark, *args.flat) if p is not None]  # a flat may also serve as the --scene
+    same = [p for i, p in enumerate(given) if any(p.resolve() == q.resolve() for q in given[:i])]
+    if same:  # one recording counted as two independent ones: its errors came out too small (round six)
+        raise ValueError(f"{same[0]}: given twice; --dark and each --flat must be different recordings")
     base = load_camera(args.camera)
     if args.readout_period_s is not None:
         base = base.replace(readout_period_s=args.readout_period_s)

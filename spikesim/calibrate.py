@@ -42,6 +42,9 @@ HOT_PIXEL_Z = 5.0
 #: Above this mean rate (spikes per step) a flat is too bright: a pixel cannot fire twice in a
 #: step, so the rate stops following the light (saturation at 1).
 FLAT_MAX_RATE = 0.5
+#: Above this mean rate (spikes per step) a "dark" recording is lit: 0.05 is 2,000 Hz of dark
+#: current at the 25 us readout, 20 times the published camera's 94 Hz.
+DARK_MAX_RATE = 0.05
 #: Side of the median filter that gives each pixel of a scene its neighbourhood's rate (as
 #: pipelines/real_camera.py's rate map).
 NEIGHBOURHOOD_PX = 9
@@ -137,6 +140,10 @@ def fit_dark(dark: HalfRates, readout_period_s: float) -> DarkFit:
     n = int(keep.sum())
     mean = float(r[keep].mean())
     where = f"{Path(dark.path).name} ({dark.steps} steps, dark)"
+    if mean > DARK_MAX_RATE:  # a lit recording given as dark was fitted as 8,096 Hz of dark current (round six)
+        raise ValueError(f"{dark.path}: a dark recording fires {mean:.3g} spikes per step on average, more than "
+                         f"{DARK_MAX_RATE:g} ({DARK_MAX_RATE / readout_period_s:,.0f} Hz of dark current, 20 times the "
+                         "published 94 Hz): it is lit; record it with the lens capped")
     if mean <= 0:
         return DarkFit([Fitted("dark_current_hz", 0.0, 1.0 / (dark.steps * n * readout_period_s), where),
                         Fitted("dark_current_spread", 0.0, 0.0, where)], hot, dark)

@@ -100,6 +100,13 @@ def test_calibrate_writes_a_camera_file_the_other_commands_take(tmp_path, capsys
     Simulator(cam, seed=2).run_to_dat((np.full((16, 24), 0.9, np.float32) for _ in range(400)), bright)
     assert main(["calibrate", "--flat", str(bright), "-o", str(tmp_path / "b.toml")]) == 2
     assert "too bright" in capsys.readouterr().err and not (tmp_path / "b.toml").exists()
+    # round six: a lit recording as --dark (fitted as 8,096 Hz), one flat given twice (its errors shrank
+    # as if two), three flats (the help says two)
+    flat = str(tmp_path / "flat.dat")
+    for argv, says in ((["--dark", flat], "it is lit"), (["--flat", flat, "--flat", flat], "given twice"),
+                       (["--flat", flat, "--flat", str(bright), "--flat", str(tmp_path / "dark.dat")], "given 3 times")):
+        assert main(["calibrate", *argv, "-o", str(tmp_path / "c.toml")]) == 2
+        assert says in capsys.readouterr().err and not (tmp_path / "c.toml").exists()
 
 
 @pytest.mark.parametrize("fraction, spread", [(0.0, 0.0), (0.12, 0.40), (0.05, 0.30)])
