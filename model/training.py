@@ -593,8 +593,17 @@ def _train(experiment: ExperimentConfig, train_scenes: Sequence[Scene], val_scen
     if resume and (saved.get("data_identity") not in (None, identity) or saved.get("data_content") not in (None, content)):
         # best.pt would compare scores from other validation data, and the schedule continue on other samples
         now = f"{len(train_scenes)} training + {len(val_scenes)} validation"
-        what = (f"the same number of scenes ({now}) with other content or frames (a dataset regenerated in place?)"
-                if saved.get("data_scenes") == now else f"{saved.get('data_scenes', '?')} scenes, not the {now} given now")
+        order = [[s.name for s in train_scenes], [s.name for s in val_scenes]]
+        was = saved.get("data_order")
+        if isinstance(was, list) and was != order and [sorted(x) for x in was] == [sorted(x) for x in order]:
+            # the same scenes in another order: the run's samples follow the order, so it is refused, but
+            # "other content (regenerated in place?)" sent users looking for damage (round six)
+            what = ("the same scenes in another order (the samples follow it): give --data and --val-data in the "
+                    "order the run began with")
+        elif saved.get("data_scenes") == now:
+            what = f"the same number of scenes ({now}) with other content or frames (a dataset regenerated in place?)"
+        else:
+            what = f"{saved.get('data_scenes', '?')} scenes, not the {now} given now"
         raise ValueError(f"--resume: {out / 'last.pt'} trained on other data: {what}; resume "
                          "with the same --data and --val-data, or start a new run from its weights (--init "
                          f"{out / 'last.pt'})")
@@ -638,6 +647,7 @@ def _train(experiment: ExperimentConfig, train_scenes: Sequence[Scene], val_scen
                             extra={"batch_in_epoch": batch_in_epoch, "best_val_psnr": best, **record,
                                    "data_identity": identity, "data_content": content,
                                    "data_scenes": f"{len(train_scenes)} training + {len(val_scenes)} validation",
+                                   "data_order": [[s.name for s in train_scenes], [s.name for s in val_scenes]],
                                    **({"init_weights": init_record} if init_record else {})})
 
     def last_step() -> int:

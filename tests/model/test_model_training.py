@@ -323,3 +323,11 @@ def test_a_huge_epoch_is_not_held_in_memory(scenes, tmp_path):
     peak = tracemalloc.get_traced_memory()[1]
     tracemalloc.stop()
     assert summary["steps"] == 2 and peak < 200 * 2 ** 20
+
+
+def test_resume_on_the_same_scenes_in_another_order_says_so(scenes, tmp_path):
+    """Refused (the samples follow the order), but it said "other content (regenerated in place?)"."""
+    run_training(tiny_experiment(max_steps=2), scenes[:2], scenes[2:], tmp_path, device="cpu", progress=False)
+    with pytest.raises(ValueError, match="the same scenes in another order"):
+        run_training(tiny_experiment(max_steps=4), scenes[1::-1], scenes[2:], tmp_path, device="cpu", resume=True,
+                     progress=False)
