@@ -28,6 +28,7 @@ import hashlib
 import os
 import re
 import shutil
+import stat
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable
@@ -563,6 +564,34 @@ class DatasetDamagedError(ValueError):
     """A dataset whose files are not the ones its manifest records (spikesim verify names each)."""
 
 
+class DatasetBusyError(OSError):
+    """A `generate` run is writing the dataset now: what a reader would see changes under it."""
+
+
+def writer_of(root: str | Path) -> str | None:
+    """The run writing dataset `root` now (the pid and command its lock file records), or None.
+    A shared, non-blocking flock on the lock file fails only while a writer holds it; nothing is
+    created or changed (spikesim.generation.lock)."""
+    import fcntl
+    path = Path(root) / LOCK_FILE
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | getattr(os, "O_NONBLOCK", 0))
+    except OSError:  # no lock file (no run writes), or a link: not a lock this package made
+        return None
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            return None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        except BlockingIOError:
+            text = os.pread(fd, 4096, 0).decode("utf-8", "replace").strip()
+            return text.splitlines()[0] if text else "a process that has not recorded its pid yet"
+        fcntl.flock(fd, fcntl.LOCK_UN)
+        return None
+    finally:
+        os.close(fd)
+
+
 def open_dataset(root: str | Path, checksums: bool = True) -> list[SceneRecord]:
     """The scenes of the dataset at `root`, as its record lists them.
 
@@ -578,6 +607,9 @@ def open_dataset(root: str | Path, checksums: bool = True) -> list[SceneRecord]:
     root = Path(root)
     if not root.is_dir():
         raise FileNotFoundError(f"dataset folder {root} does not exist")
+    if (writer := writer_of(root)) is not None:  # a reader saw files replaced under it (round six)
+        raise DatasetBusyError(f"{root}: a generate run is writing it now ({writer}); read it when that run has "
+                               "finished")
     if (root / MANIFEST).exists():
         check = check_dataset(root, checksums)
         if check.problems:
@@ -613,7 +645,7 @@ def open_dataset(root: str | Path, checksums: bool = True) -> list[SceneRecord]:
     return scenes
 
 
-__all__ = ["SceneRecord", "DatasetCheck", "DatasetDamagedError", "write_scene", "write_manifest", "read_manifest", "read_scene_checksums",
+__all__ = ["SceneRecord", "DatasetCheck", "DatasetDamagedError", "DatasetBusyError", "writer_of", "write_scene", "write_manifest", "read_manifest", "read_scene_checksums",
            "check_scene", "check_dataset", "verify", "open_dataset", "inside_root", "check_scene_name",
            "holds_only_scene_files", "scene_folders", "remove_inside", "gt_name", "MANIFEST", "SPIKES", "META", "GT_DIR",
            "CHECKSUMS", "LOCK_FILE", "SATURATION_Y", "SATURATION_WARN_FRACTION", "saturated_fraction",

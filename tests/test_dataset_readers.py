@@ -125,3 +125,17 @@ def test_a_refused_scene_gives_back_the_stream_file_it_was_handed(tmp_path):
         write_scene(tmp_path / "root", "s1", dat, {20: np.zeros((12, 8), np.float32)},
                     meta={"height": 8, "width": 12}, flip=False)
     assert dat.read_bytes() == data and not (tmp_path / "root" / "s1").exists()
+
+
+def test_a_dataset_a_generate_run_is_writing_is_not_read(pattern_dataset, tmp_path):
+    """train read files a running generate --overwrite was replacing, and failed on a file that
+    existed a moment later (round six)."""
+    from spikesim.dataset import DatasetBusyError, writer_of
+    from spikesim.generation.lock import output_lock
+    root = _copy(pattern_dataset, tmp_path)
+    assert writer_of(root) is None
+    with output_lock(root, "generate rllr (pid 4242)"):
+        assert "4242" in writer_of(root)
+        with pytest.raises(DatasetBusyError, match="a generate run is writing it now.*4242"):
+            open_dataset(root)
+    assert [s.name for s in open_dataset(root)] == ["rllr_0000", "rllr_0001"]
