@@ -183,10 +183,15 @@ class SceneRecord:
     def ground_truth(self, step: int) -> np.ndarray:
         """y at `step` (expected spikes per step); an image holding a negative or non-finite value is
         a ValueError naming its file (light is never negative: a damaged or edited image)."""
+        if isinstance(step, bool) or not isinstance(step, (int, np.integer)):  # 20.5 read step 20 (round six)
+            raise TypeError(f"scene {self.name}: a step is an integer, got {step!r}")
         if int(step) not in set(self.gt_steps):
             raise KeyError(f"scene {self.name} has no ground truth at step {step}")
         path = self.path / GT_DIR / gt_name(step)
         img = read_exr(path)
+        if img.shape != (self.height, self.width):  # a meta.json with height and width swapped named no file
+            raise ValueError(f"{path}: a {img.shape[0]} x {img.shape[1]} image, where {self.path / META} gives "
+                             f"{self.height} x {self.width}")
         if not np.isfinite(img).all() or (img.size and float(img.min()) < 0):
             bad = int((~np.isfinite(img)).sum()) + int((np.nan_to_num(img, nan=0.0) < 0).sum())
             raise ValueError(f"{path}: {bad} ground-truth value(s) are negative or not finite (NaN or infinite); "

@@ -325,9 +325,9 @@ def check_stream_record(info: dict[str, Any], source: str | Path) -> dict[str, A
         steps = info["gt_steps"]
         n = info.get("num_steps")
         if not (isinstance(steps, list) and all(_is_int(g) and g >= 0 for g in steps)
-                and (not _is_int(n) or all(g < n for g in steps))):
-            raise bad("gt_steps", steps, "a list of step numbers (integers from 0" + (f" to {n - 1}" if _is_int(n) else "")
-                      + ")")
+                and (not _is_int(n) or all(g < n for g in steps)) and len(set(steps)) == len(steps)):
+            raise bad("gt_steps", steps, "a list of distinct step numbers (integers from 0"
+                      + (f" to {n - 1}" if _is_int(n) else "") + ")")
     camera = info.get("camera")
     if camera is not None and not isinstance(camera, dict):
         raise bad("camera", camera, "an object")

@@ -139,3 +139,18 @@ def test_a_dataset_a_generate_run_is_writing_is_not_read(pattern_dataset, tmp_pa
         with pytest.raises(DatasetBusyError, match="a generate run is writing it now.*4242"):
             open_dataset(root)
     assert [s.name for s in open_dataset(root)] == ["rllr_0000", "rllr_0001"]
+
+
+def test_a_ground_truth_of_another_size_than_its_record_names_both(tmp_path):
+    import json
+    spikes = SpikeStream.from_bool(np.zeros((41, 8, 12), bool))
+    write_scene(tmp_path, "s", spikes, {20: np.zeros((8, 12), np.float32)}, meta={}, flip=False)
+    meta = json.loads((tmp_path / "s" / "meta.json").read_text())
+    meta["height"], meta["width"] = 12, 8  # swapped by hand
+    (tmp_path / "s" / "meta.json").write_text(json.dumps(meta))
+    from spikesim.dataset import SceneRecord
+    scene = SceneRecord.open(tmp_path / "s")
+    with pytest.raises(ValueError, match=r"step_000020.exr: a 8 x 12 image, where .*meta.json gives 12 x 8"):
+        scene.ground_truth(20)
+    with pytest.raises(TypeError, match="a step is an integer"):
+        scene.ground_truth(20.5)

@@ -55,6 +55,7 @@ BAD_FIELDS = [
     ("gt_steps", {"gt_steps": "20"}),   # was "no ground-truth step is the centre ..."
     ("gt_steps", {"gt_steps": [1.5]}),
     ("gt_steps", {"gt_steps": [N]}),    # past the stream's last step
+    ("gt_steps", {"gt_steps": [1, 1]}),
 ]
 
 
