@@ -92,7 +92,15 @@ def reconstruct(spikes: Any, method: str = "lrrep", window: int = 41, threads: i
         from spikesim.stream import open_stream  # what `reconstruct FILE.dat` takes, with the same defaults
         reader, _ = open_stream(Path(spikes), height, width, flip, header_columns, drop_partial)
         spikes = reader.read().unpack()
+    else:  # an array carries its own size and orientation: what only a file needs is refused, not ignored
+        for name, value, default in (("flip", flip, None), ("header_columns", header_columns, "auto"),
+                                     ("drop_partial", drop_partial, False)):
+            if value != default:
+                raise ValueError(f"{name}: applies to a .dat path; an array is read as it is (row 0 at the top)")
     s = check_spike_array(spikes)
+    for name, value, got in (("height", height, s.shape[1]), ("width", width, s.shape[2])):
+        if value is not None and value != got:
+            raise ValueError(f"{name}={value}, but the array's frames are {s.shape[1]} x {s.shape[2]}")
     if not (isinstance(window, int) and not isinstance(window, bool) and window >= 1 and window % 2 == 1):
         raise ValueError(f"window: expected an odd number of steps >= 1 (41 for the shipped networks), got {window!r}")
     m = s.shape[0] // window

@@ -153,6 +153,9 @@ def test_a_flipped_view_is_reconstructed_as_its_copy():
     ({"chunk": "x"}, "chunk: expected an integer"),
     ({"threads": "a"}, "threads: expected an integer"),
     ({"method": None}, "method: expected a method spec"),
+    ({"height": 9}, "height=9, but the array's frames are 8 x 10"),   # was ignored for an array
+    ({"header_columns": 16}, "applies to a .dat path"),
+    ({"flip": True}, "applies to a .dat path"),
 ])
 def test_keyword_arguments_of_the_wrong_kind_are_named(kwargs, says, tmp_path):
     s = np.random.default_rng(2).random((41, 8, 10)) < 0.3
