@@ -141,6 +141,7 @@ def reconstruct_file(path: Path, out: Path, method_spec: str = "tfp", height: in
     # one run per folder: two runs into one -o left one run's frames under the other's reconstruct.json
     with output_folder(out), output_lock(out, f"reconstruct {path} (pid {os.getpid()})", what="reconstruct run"):
         check_outputs(out)  # a link where an output goes: refused before any work
+        check_ownership(out)  # and a file of the user's where one goes
         with writing(out):
             stage = Path(tempfile.mkdtemp(prefix=".reconstruct.", suffix=".part", dir=out))
         try:
@@ -207,6 +208,28 @@ def check_outputs(out: Path) -> None:
     if png.is_dir():
         for old in png.glob(PNG_PATTERN):
             writable(out, PNG_DIR, old.name)
+
+
+def check_ownership(out: Path) -> None:
+    """A rerun replaces only what an earlier reconstruct run wrote, as its reconstruct.json lists:
+    a user's own frames.npy in the folder (the README's simulate --frames example makes one) was
+    deleted, a png/step_*.png of theirs removed (round seven). Anything else is refused, named."""
+    listed: set[str] = set()
+    record = out / "reconstruct.json"
+    if record.is_file():
+        try:
+            outputs = json.loads(record.read_text()).get("outputs", [])
+            listed = {str(x) for x in outputs} if isinstance(outputs, list) else set()
+        except (OSError, ValueError, AttributeError):
+            listed = set()
+    theirs = [name for name in OUTPUT_FILES if name != "reconstruct.json" and (out / name).exists() and name not in listed]
+    png = out / PNG_DIR
+    if png.is_dir() and PNG_DIR not in listed:
+        theirs += [f"{PNG_DIR}/{p.name}" for p in sorted(png.glob(PNG_PATTERN))]
+    if theirs:
+        shown = ", ".join(theirs[:3]) + (f" and {len(theirs) - 3} more" if len(theirs) > 3 else "")
+        raise FileExistsError(f"{out}: holds {shown}, which no reconstruct.json there says a reconstruct run wrote; "
+                              "a run would replace or remove them: choose another --out, or move them")
 
 
 def replace_outputs(stage: Path, out: Path) -> None:

@@ -153,3 +153,30 @@ def test_a_second_reconstruct_into_a_folder_in_use_is_refused(tmp_path):
             reconstruct_file(dat, out, "tfp", 12, 16, 0, False, gif=False, mp4=False, progress=False)
     summary = reconstruct_file(dat, out, "tfp", 12, 16, 0, False, gif=False, mp4=False, progress=False)
     assert summary["frames"] == 2 and not (out / ".spikesim.lock").exists()
+
+
+def test_reconstruct_never_replaces_a_file_no_earlier_run_wrote(tmp_path):
+    """The README's simulate --frames frames.npy, then reconstruct -o . deleted the user's frames.npy;
+    a png/step_000999.png of theirs was removed (round seven). A rerun still replaces its own."""
+    import numpy as np
+
+    from pipelines.reconstruct import reconstruct_file
+    from spikesim.stream import SpikeStream, write_dat
+    dat = tmp_path / "s.dat"
+    write_dat(dat, SpikeStream.from_bool(np.random.default_rng(0).random((82, 12, 16)) < 0.2), flip=False)
+    out = tmp_path / "here"
+    out.mkdir()
+    np.save(out / "frames.npy", np.zeros((2, 12, 16), np.float32))
+    mine = (out / "frames.npy").read_bytes()
+    with pytest.raises(FileExistsError, match="frames.npy, which no reconstruct.json"):
+        reconstruct_file(dat, out, "tfp", 12, 16, 0, False, gif=False, mp4=False, progress=False)
+    assert (out / "frames.npy").read_bytes() == mine
+    (out / "frames.npy").unlink()
+    (out / "png").mkdir()
+    (out / "png" / "step_000999.png").write_bytes(b"mine")
+    with pytest.raises(FileExistsError, match="png/step_000999.png"):
+        reconstruct_file(dat, out, "tfp", 12, 16, 0, False, gif=False, mp4=False, progress=False)
+    (out / "png" / "step_000999.png").unlink()
+    reconstruct_file(dat, out, "tfp", 12, 16, 0, False, gif=False, mp4=False, save_npy=True, progress=False)
+    summary = reconstruct_file(dat, out, "tfp", 12, 16, 0, False, gif=False, mp4=False, progress=False)  # its own
+    assert summary["frames"] == 2 and not (out / "frames.npy").exists()
