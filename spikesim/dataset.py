@@ -240,6 +240,8 @@ def write_scene(root: str | Path, name: str, stream: SpikeStream | Path, ground_
     """
     root = Path(root)
     check_scene_name(name)
+    if not isinstance(flip, bool):  # flip="false" was written, then the scene refused to open: every read failed
+        raise ValueError(f"scene {name}: flip must be True or False, got {flip!r}")
     final = inside_root(root, name, follow=False)
     if final.exists() or final.is_symlink():
         raise FileExistsError(f"scene folder {root / name} already exists")
@@ -271,10 +273,17 @@ def write_scene(root: str | Path, name: str, stream: SpikeStream | Path, ground_
         steps = []
         saturation = _SaturationCount()
         for step, img in items:
+            if isinstance(step, bool) or not isinstance(step, (int, np.integer)):  # 20.7 was stored as 20
+                raise ValueError(f"scene {name}: a ground truth step is an integer, got {step!r}")
+            if int(step) in steps:
+                raise ValueError(f"scene {name}: ground truth step {step} given twice")
             if np.asarray(img).shape != (h, w):
                 raise ValueError(f"scene {name}: ground truth at step {step} has shape {np.asarray(img).shape}, stream is {h}x{w}")
             if not 0 <= int(step) < n:
                 raise ValueError(f"scene {name}: ground truth step {step} outside the stream's {n} steps")
+            arr = np.asarray(img)
+            if not np.isfinite(arr).all() or (arr.size and float(np.nanmin(arr)) < 0):  # a reader refuses it later
+                raise ValueError(f"scene {name}: ground truth at step {step} holds negative or non-finite values")
             with outputs.writing(root / name / GT_DIR / gt_name(step), stage=tmp):  # a full disk names the file
                 write_exr(tmp / GT_DIR / gt_name(step), img)
             saturation.add(img)
@@ -282,6 +291,7 @@ def write_scene(root: str | Path, name: str, stream: SpikeStream | Path, ground_
         full_meta = {**meta, "name": name, "height": h, "width": w, "num_steps": n, "flip": flip,
                      "gt_steps": sorted(steps), "gt_saturation": saturation.record(),
                      "layout_version": LAYOUT_VERSION}
+        check_stream_record(full_meta, root / name / META)  # what SceneRecord.open checks, before the rename
         _write_json(tmp / META, full_meta)
         _write_json(tmp / CHECKSUMS, {"layout_version": LAYOUT_VERSION, "files": _file_checksums(tmp)})
         os.replace(tmp, final)

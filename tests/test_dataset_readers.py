@@ -64,12 +64,15 @@ def test_a_scene_copied_under_a_new_name_is_not_read(pattern_dataset, tmp_path):
 
 def test_negative_or_nan_ground_truth_is_refused_naming_the_image(tmp_path):
     spikes = SpikeStream.from_bool(np.zeros((41, 8, 8), bool))
+    from spikesim.imageio import write_exr
     for value in (-0.5, np.nan):
         root = tmp_path / f"v{value}"
-        write_scene(root, "s", spikes, {20: np.full((8, 8), value, np.float32)}, meta={})
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            (scene,) = open_dataset(root)
+        write_scene(root, "s", spikes, {20: np.zeros((8, 8), np.float32)}, meta={})
+        write_exr(root / "s" / "gt" / "step_000020.exr", np.full((8, 8), value, np.float32))  # damaged after writing
+        with pytest.raises(DatasetDamagedError, match="step_000020.exr"):  # the dataset's record sees the edit
+            open_dataset(root)
+        from spikesim.dataset import SceneRecord
+        scene = SceneRecord.open(root / "s")  # and the scene's reader sees what the image holds
         with pytest.raises(ValueError, match=r"gt/.*negative or not finite"):
             scene.ground_truth(20)
 
@@ -154,3 +157,23 @@ def test_a_ground_truth_of_another_size_than_its_record_names_both(tmp_path):
         scene.ground_truth(20)
     with pytest.raises(TypeError, match="a step is an integer"):
         scene.ground_truth(20.5)
+
+
+@pytest.mark.parametrize("gt, flip, says", [
+    ([(20, "ok"), (20, "ok")], False, "step 20 given twice"),
+    ([(20.7, "ok")], False, "is an integer"),
+    ([(True, "ok")], False, "is an integer"),
+    ([(20, "nan")], False, "negative or non-finite"),
+    ([(20, "ok")], "false", "flip must be True or False"),
+])
+def test_a_scene_write_scene_refuses_leaves_nothing_and_gives_the_stream_back(gt, flip, says, tmp_path):
+    """Round seven: duplicate steps or flip="false" were written, the folder renamed into place, then
+    refused on opening, so every read of the dataset failed; the user's .dat stayed inside it."""
+    from spikesim.stream import write_dat
+    dat = write_dat(tmp_path / "mine.dat", SpikeStream.from_bool(np.zeros((41, 8, 12), bool)), flip=False)
+    images = {"ok": np.zeros((8, 12), np.float32), "nan": np.full((8, 12), np.nan, np.float32)}
+    with pytest.raises(ValueError, match=says):
+        write_scene(tmp_path / "root", "s", dat, [(step, images[k]) for step, k in gt],
+                    meta={"height": 8, "width": 12}, flip=flip)
+    assert dat.exists() and not (tmp_path / "root" / "s").exists()
+    assert not (tmp_path / "root").exists() or not any(p.name.startswith(".s") for p in (tmp_path / "root").iterdir())
