@@ -4,7 +4,6 @@ left unread instead of scored or trained on."""
 from __future__ import annotations
 
 import shutil
-import warnings
 
 import numpy as np
 import pytest
