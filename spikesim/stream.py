@@ -131,6 +131,19 @@ def open_temp_beside(path: str | Path, suffix: str = ".part") -> tuple[Any, Path
     return open(tmp, "wb"), tmp
 
 
+def _check_geometry_args(height: Any, width: Any, flip: Any, who: str, optional: bool = False) -> None:
+    """A stream's height and width are positive integers and flip a bool (None where `optional`:
+    the recorded value): flip="false" was taken as True, height=0 as "not given", "12" as a
+    TypeError from deep inside (round seven)."""
+    for name, v in (("height", height), ("width", width)):
+        if optional and v is None:
+            continue
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+            raise ValueError(f"{who}: {name} must be a positive integer{' or None' if optional else ''}, got {v!r}")
+    if not (isinstance(flip, (bool, np.bool_)) or (optional and flip is None)):
+        raise ValueError(f"{who}: flip must be True or False{' or None' if optional else ''}, got {flip!r}")
+
+
 class DatWriter:
     """Append packed frames to a `.dat` file; it appears under its name only on `close()`.
 
@@ -141,6 +154,7 @@ class DatWriter:
 
     def __init__(self, path: str | Path, height: int, width: int, flip: bool = True):
         self.path = Path(path)
+        _check_geometry_args(height, width, flip, "DatWriter")
         self.height, self.width, self.flip = height, width, flip
         self._file, self._tmp = open_temp_beside(self.path)
         self.num_steps = 0
@@ -161,6 +175,11 @@ class DatWriter:
                 self._file.flush()
                 os.fsync(self._file.fileno())
                 self._file.close()
+                # a sidecar beside the file it replaces describes the old stream: readers took the new one
+                # with the old geometry (round seven); a writer that records one writes it after this
+                side = sidecar_path(self.path)
+                if side.is_file() and not side.is_symlink():
+                    side.unlink()
                 os.replace(self._tmp, outputs.check_not_link(self.path))
         except BaseException:
             self.abort()
@@ -205,6 +224,9 @@ class DatReader:
         """height, width, flip None: as recorded beside the stream (its `.dat.json` sidecar or a
         dataset's meta.json), else the PKU camera's 250 x 400 with rows bottom-up."""
         self.path = Path(path)
+        _check_geometry_args(height, width, flip, "DatReader", optional=True)
+        if isinstance(header_columns, bool) or not isinstance(header_columns, (int, np.integer)):
+            raise ValueError(f"DatReader: header_columns must be an integer >= 0, got {header_columns!r}")
         height, width, flip = stream_geometry(self.path, height, width, flip)
         if height <= 0 or width <= 0 or header_columns < 0:
             raise ValueError(f"bad frame geometry height={height} width={width} header_columns={header_columns}")

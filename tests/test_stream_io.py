@@ -130,3 +130,21 @@ def test_run_to_dat_keeps_its_own_record_and_never_a_stale_one(tmp_path):
             sim.run_to_dat(frames, dat, flip=False, extra=bad)
     assert (dat.read_bytes(), sidecar_path(dat).read_text()) == before
     assert json.loads(sidecar_path(dat).read_text())["note"] == "kept"
+
+
+def test_a_stream_written_over_another_drops_the_old_ones_record(tmp_path):
+    """write_dat over a 16 x 24 stream left its sidecar: the new 12 x 32 stream (same bytes per
+    frame) was read as 16 x 24 (round seven). flip must be a bool, sizes positive integers."""
+    from spikesim.stream import DatReader, DatWriter, open_stream, sidecar_path, write_dat, write_sidecar
+    path = write_dat(tmp_path / "x.dat", SpikeStream.from_bool(np.zeros((5, 16, 24), bool)), flip=False)
+    write_sidecar(path, {"height": 16, "width": 24, "flip": False})
+    write_dat(path, SpikeStream.from_bool(np.ones((5, 12, 32), bool)), flip=False)
+    assert not sidecar_path(path).exists()
+    with pytest.raises(ValueError):
+        open_stream(path, None, None, None, "auto", False)  # no record: asks for the size, never the old one
+    for bad in ({"flip": "false"}, {"height": 0}, {"height": "12"}):
+        with pytest.raises(ValueError, match="must be"):
+            DatWriter(tmp_path / "y.dat", **{"height": 4, "width": 8, "flip": False, **bad})
+    for bad in ({"flip": "no"}, {"height": 0}, {"height": 12.0}):
+        with pytest.raises(ValueError, match="must be"):
+            DatReader(path, **{"width": 32, **bad})
