@@ -225,3 +225,14 @@ def test_compare_and_train_refuse_to_score_training_scenes_as_held_out(tmp_path,
     assert main(["train", "--config", str(e), "--data", str(tmp_path / "d"), "--val-data", str(tmp_path / "d"),
                  "--max-steps", "1", "--device", "cpu", "--out", str(tmp_path / "r")]) == 2
     assert "--val-data: 2 scene(s) are also in --data" in capsys.readouterr().err
+
+
+def test_a_copy_of_the_training_set_is_no_held_out_data(tmp_path, capsys):
+    """`cp -r d copy; train --data d --val-data copy` reported training scores as validation (round seven)."""
+    import shutil
+    _write_dataset(tmp_path / "d", ["a_low", "b_normal"], 0)
+    shutil.copytree(tmp_path / "d", tmp_path / "copy")
+    e = _config(tmp_path / "e.json", "e")
+    assert main(["train", "--config", str(e), "--data", str(tmp_path / "d"), "--val-data", str(tmp_path / "copy"),
+                 "--max-steps", "1", "--device", "cpu", "--out", str(tmp_path / "r")]) == 2
+    assert "--val-data: 2 scene(s) are also in --data" in capsys.readouterr().err
