@@ -70,9 +70,16 @@ def run(args: argparse.Namespace) -> int:
     if len(args.flat) > 2:
         raise ValueError(f"--flat: given {len(args.flat)} times; calibrate combines one or two flats (two light levels)")
     given = [p for p in (args.dark, *args.flat) if p is not None]  # a flat may also serve as the --scene
-    same = [p for i, p in enumerate(given) if any(p.resolve() == q.resolve() for q in given[:i])]
+    from spikesim.dataset import sha256_file
+
+    def same_recording(p: Path, q: Path) -> bool:  # by path, link or content (a copy passed in round seven)
+        if p.resolve() == q.resolve():
+            return True
+        return p.stat().st_size == q.stat().st_size and sha256_file(p) == sha256_file(q)
+    same = [p for i, p in enumerate(given) if any(same_recording(p, q) for q in given[:i])]
     if same:  # one recording counted as two independent ones: its errors came out too small (round six)
-        raise ValueError(f"{same[0]}: given twice; --dark and each --flat must be different recordings")
+        raise ValueError(f"{same[0]}: given twice (the same recording, by path or content); --dark and each --flat "
+                         "must be different recordings")
     base = load_camera(args.camera)
     if args.readout_period_s is not None:
         base = base.replace(readout_period_s=args.readout_period_s)

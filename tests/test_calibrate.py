@@ -103,7 +103,10 @@ def test_calibrate_writes_a_camera_file_the_other_commands_take(tmp_path, capsys
     # round six: a lit recording as --dark (fitted as 8,096 Hz), one flat given twice (its errors shrank
     # as if two), three flats (the help says two)
     flat = str(tmp_path / "flat.dat")
+    import shutil
+    shutil.copy(flat, tmp_path / "copy.dat")
     for argv, says in ((["--dark", flat], "it is lit"), (["--flat", flat, "--flat", flat], "given twice"),
+                       (["--flat", flat, "--flat", str(tmp_path / "copy.dat")], "given twice"),
                        (["--flat", flat, "--flat", str(bright), "--flat", str(tmp_path / "dark.dat")], "given 3 times")):
         assert main(["calibrate", *argv, "-o", str(tmp_path / "c.toml")]) == 2
         assert says in capsys.readouterr().err and not (tmp_path / "c.toml").exists()
