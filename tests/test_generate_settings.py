@@ -205,3 +205,12 @@ def test_a_quality_with_adaptive_keyframes_says_so_where_the_spacing_is_reported
     from spikesim.generation.settings import resolve_settings
     assert "keyframe_every 1 (--quality balanced: adaptive" in resolve_settings("llr", quality="balanced").summary()
     assert "keyframe_every 1 (--quality reference)" in resolve_settings("llr", quality="reference").summary()
+
+
+def test_a_scene_without_a_ground_truth_step_is_refused_when_planned():
+    """generate rllr --steps 10 --gt-stride 41 wrote scenes with gt_steps [] (round seven)."""
+    import dataclasses
+    from spikesim.generation.plan import plan_rllr
+    job = plan_rllr(PRESETS["small"], count=1)[0]
+    with pytest.raises(ValueError, match="no ground-truth step in its 10 steps"):
+        dataclasses.replace(job, num_steps=10, gt_steps=())

@@ -149,6 +149,10 @@ class SceneJob:
         bad = [s for s in self.gt_steps if not 0 <= s < self.num_steps]
         if bad:
             raise ValueError(f"job {self.name}: ground-truth steps {bad[:5]} outside [0, {self.num_steps})")
+        if not self.gt_steps:  # --steps 10 --gt-stride 41 wrote scenes every reader refused later (round seven)
+            raise ValueError(f"job {self.name}: no ground-truth step in its {self.num_steps} steps (ground truth sits on "
+                             f"{WINDOW}-step window centres, step {WINDOW // 2} first at stride {WINDOW}): give more "
+                             "--steps or a smaller --gt-stride")
 
     @property
     def quality_settings(self) -> Any:
