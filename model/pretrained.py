@@ -92,9 +92,8 @@ def load_pretrained(name: str = "lrrep", device: str | torch.device = "cpu"
 
     GISI is clipped at the training horizon, as for any trained checkpoint (checkpoint.for_inference)."""
     path = pretrained_path(name)
-    if isinstance(device, str):  # "gpu" raised torch's own error; a device this machine lacks is named
-        from .training import resolve_device
-        device = resolve_device(device)
+    from .training import resolve_device
+    device = resolve_device(device)  # "gpu", 0, "cpu:1" blamed the weights or raised torch's own error
     model, experiment = model_from_checkpoint(path, device)
     fingerprint = state_fingerprint(model.state_dict())
     if fingerprint != PRETRAINED[name].weights_sha256:

@@ -64,13 +64,16 @@ def resolve_device(name: str) -> torch.device:
     UnavailableError, both naming --device."""
     from spikesim.errors import UnavailableError
 
+    if isinstance(name, torch.device):
+        name = str(name)
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     try:
-        dev = torch.device(name)
+        dev = torch.device(name) if isinstance(name, str) else None  # 0 was taken as CUDA device 0
     except (RuntimeError, ValueError, TypeError):
         dev = None
-    if dev is None or dev.type not in ("cpu", "cuda", "mps"):
+    if dev is None or dev.type not in ("cpu", "cuda", "mps") or (dev.type != "cuda" and dev.index not in (None, 0)):
+        # "cpu:1" and the meta device reached the loader, which then blamed the weights (round seven)
         raise ValueError(f"--device {name!r} is not a device; expected {DEVICES}")
     if dev.type == "cuda":
         if not torch.cuda.is_available():
