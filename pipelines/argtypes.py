@@ -29,6 +29,22 @@ def positive_int(text: str) -> int:
     return v
 
 
+#: The y a PNG's white may stand for (export --rate, evaluate --spikezoo --rate): a level is 1/255 of
+#: it, so a rate far above the saturation's y = 1 makes every image black (1e300 did, rc 0) and one
+#: below 1e-6 every lit pixel white.
+PNG_RATE_RANGE = (1e-6, 1.0)
+
+
+def png_rate(text: str) -> float:
+    """--rate: the y of a ground-truth PNG's white, in PNG_RATE_RANGE."""
+    v = positive_float(text)
+    lo, hi = PNG_RATE_RANGE
+    if not lo <= v <= hi:
+        raise argparse.ArgumentTypeError(f"must be a y in {lo:g}..{hi:g} (the saturation, y = 1, at most; "
+                                         f"Spike-Zoo's REDS use 0.6), got {text}")
+    return v
+
+
 def window_steps(text: str) -> int:
     """--window: an odd number of readout steps >= 1, so that a window has a centre step (its
     ground truth's; model.reconstruct takes the same rule)."""

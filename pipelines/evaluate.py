@@ -31,7 +31,8 @@ from model.evaluation import (ALL, CONDITIONS, CSV_FIELDS, DEFAULT_OUT, RESULT_F
                               scores_json, write_results)
 from model.methods import Method, method_from_spec
 from model.threads import set_cpu_threads
-from pipelines.argtypes import add_threads_argument, existing_file, nonnegative_int, positive_float, positive_int, window_steps
+from pipelines.argtypes import (add_threads_argument, existing_file, nonnegative_int, png_rate, positive_float,
+                                positive_int, window_steps)
 from pipelines.inspect_cmd import header_columns_arg
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
@@ -137,7 +138,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     src.add_argument("--spikezoo", help="a folder in Spike-Zoo's layout ({train,test}/spike/NAME.dat, gt/NAME.png), as "
                                         "spikesim export writes it: every pair, each at its key step")
     p.add_argument("--split", choices=("train", "test"), default="test", help="with --spikezoo: the split to score")
-    p.add_argument("--rate", type=positive_float,
+    p.add_argument("--rate", type=png_rate,
                    help="with --spikezoo, a folder without spikezoo.json: the y of the PNG's white "
                         "(default 0.6, Spike-Zoo's)")
     p.add_argument("--gt", type=existing_file, help="with --dat: the ground-truth image (PNG/JPEG/TIFF, EXR or .npy)")

@@ -19,27 +19,19 @@ from __future__ import annotations
 import argparse
 import sys
 
-from pipelines.argtypes import output_dir, positive_float, positive_int
+from pipelines.argtypes import output_dir, png_rate, positive_int
 
 FORMATS = ("spikezoo",)
 
 
-#: The rates --rate takes, y (spikes per step) for white: a PNG level is 1/255 of the rate, so a rate
-#: far above the saturation's y = 1 writes every ground truth as 0 (1e300 did, rc 0, and evaluate
-#: --spikezoo then blamed the stream, round six), and one below 1e-6 writes every lit pixel white.
-RATE_RANGE = (1e-6, 1.0)
-
-
 def rate_arg(text: str) -> float | None:
-    """--rate: "auto" (a rate per scene) or a number in RATE_RANGE."""
+    """--rate: "auto" (a rate per scene) or a y in argtypes.PNG_RATE_RANGE."""
     if text == "auto":
         return None
-    v = positive_float(text)
-    lo, hi = RATE_RANGE
-    if not lo <= v <= hi:
-        raise argparse.ArgumentTypeError(f"must be auto or a y in {lo:g}..{hi:g} (the saturation, y = 1, at most; "
-                                         f"Spike-Zoo's REDS use 0.6), got {text}")
-    return v
+    try:
+        return png_rate(text)
+    except argparse.ArgumentTypeError as exc:
+        raise argparse.ArgumentTypeError(f"must be auto or {str(exc).removeprefix('must be ')}") from None
 
 
 def run(args: argparse.Namespace) -> int:
