@@ -166,11 +166,16 @@ def output_file(text: str) -> Path:
 
 def output_file_in(default_name: str):
     """argparse type: a file to write, or a folder to write `default_name` in (an existing folder,
-    or a name ending in "/"), as the commands whose -o is a folder take it."""
+    or a name ending in "/"), as the commands whose -o is a folder take it. The file's suffix is
+    `default_name`'s: a camera file given as -o was overwritten with a PNG or JSON (round seven)."""
+    suffix = Path(default_name).suffix
+
     def parse(text: str) -> Path:
         p = Path(text)
         if p.is_dir() or text.endswith(("/", "\\")):
             return output_file(str(p / default_name))
+        if p.suffix.lower() != suffix:
+            raise argparse.ArgumentTypeError(f"{text}: this writes a {suffix} file; name it *{suffix} (or give a folder)")
         return output_file(text)
     parse.__name__ = "output file"  # argparse names the type in its errors
     return parse

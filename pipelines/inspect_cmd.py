@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from pipelines.argtypes import nonnegative_int, positive_float, positive_int
+from pipelines.argtypes import nonnegative_int, output_file_in, positive_float, positive_int
 from spikesim.stream import (DatReader, check_recorded_layout, detect_header_columns, open_stream, read_sidecar,
                              recorded_geometry, stream_geometry)
 
@@ -256,7 +256,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="window for TFP preview and per-window dark fraction")
     p.add_argument("--readout-period-s", type=positive_float,
                    help="seconds per readout step, for rates in Hz (default: as recorded, else 25e-6)")
-    p.add_argument("--preview", type=Path, help="save a TFP preview PNG of the middle window")
+    p.add_argument("--preview", type=output_file_in("preview.png"),
+                   help="save a TFP preview PNG of the middle window (*.png, or a folder: preview.png in it)")
     p.add_argument("--enhance", action="store_true",
                    help="stretch the preview to its 99.5th percentile (display only; a dark one is stretched anyway)")
     p.add_argument("--json", action="store_true", help="print JSON")

@@ -227,12 +227,25 @@ def test_golden_write_names_the_target_not_its_temporary_file(tmp_path, monkeypa
     os.chmod(tmp_path / "ro", 0o500)
     try:
         if os.access(tmp_path / "ro", os.W_OK):  # root writes anywhere: /proc is never writable
-            target = "/proc/version"
+            target = "/proc/ref.json"
         code, err = run_cli(["golden", "--write", "--seeds", "1", "--backend", "numpy", "-o", target], capsys)
     finally:
         os.chmod(tmp_path / "ro", 0o700)
     line = one_line(err)
     assert code == 2 and f"{target}:" in line and ".part" not in line, line
+
+
+def test_a_file_of_another_kind_is_not_written_over(tmp_path, capsys):
+    """golden --write -o, panel -o and inspect --preview wrote JSON or a PNG over a camera file
+    (round seven): the name must have the suffix of what is written."""
+    import argparse
+
+    from pipelines.argtypes import output_file_in
+    (tmp_path / "victim.toml").write_text("height = 4\n")
+    for default in ("golden_stats.json", "panel.png", "preview.png"):
+        with pytest.raises(argparse.ArgumentTypeError, match="name it"):
+            output_file_in(default)(str(tmp_path / "victim.toml"))
+    assert (tmp_path / "victim.toml").read_text() == "height = 4\n"
 
 
 def test_golden_write_into_a_folder_names_its_file(tmp_path, capsys):
