@@ -190,7 +190,10 @@ VERIFY_EPILOG = (f"exit status: {VERIFY_INTACT} intact; {VERIFY_DAMAGED} damaged
 
 
 def run_verify(args: argparse.Namespace) -> int:
-    from spikesim.dataset import check_dataset
+    from spikesim.dataset import DatasetBusyError, check_dataset, writer_of
+    if (writer := writer_of(args.root)) is not None:  # it reported "intact with 1 extra file" mid-run (round seven)
+        raise DatasetBusyError(f"{args.root}: a generate run is writing it now ({writer}); verify it when that run "
+                               "has finished")
     found = check_dataset(args.root, checksums=not args.quick)
     status = VERIFY_DAMAGED if found.problems else (VERIFY_EXTRAS if found.extras else VERIFY_INTACT)
     if args.json:

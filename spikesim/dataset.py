@@ -564,6 +564,15 @@ def check_dataset(root: str | Path, checksums: bool = True) -> DatasetCheck:
         for rel, want in files.items():
             if (p := _file_problem(root, rel, want, checksums, rel)) is not None:
                 problems.append(p)
+        # the scene's own record is what a rerun of generate trusts: deleted or emptied, verify said "intact"
+        # while generate rebuilt the scene as damaged (round seven)
+        try:
+            own = {f"{scene}/{rel}": entry for rel, entry in read_scene_checksums(root, scene).items()}
+        except (OSError, ValueError) as exc:
+            problems.append(str(exc))
+        else:
+            if own != {rel: want for rel, want in files.items()}:
+                problems.append(f"{scene}/{CHECKSUMS}: differs from the manifest's record of the scene")
     listed = layout | {str(Path(rel).as_posix()) for files in manifest["scenes"].values() for rel in files}
     extras = [f"{rel}: extra, not in the manifest" for rel in _files_under(root) if rel not in listed]
     return DatasetCheck(scenes=len(manifest["scenes"]), problems=problems, extras=extras)

@@ -111,7 +111,9 @@ def test_the_training_content_digest_sees_what_the_identity_does_not(pattern_dat
         rec = json.loads((root / name / "checksums.json").read_text())
         rec["files"]["spikes.dat"]["sha256"] = "0" * 64 if name == "rllr_0000" else "1" * 64
         (root / name / "checksums.json").write_text(json.dumps(rec))
-    after = open_dataset(root, checksums=False)
+    (root / "manifest.json").unlink()  # the manifest would see the records disagree with it
+    with pytest.warns(UserWarning, match="no manifest.json"):
+        after = open_dataset(root, checksums=False)
     assert data_identity(after, []) == ident and data_content(after, []) != content
 
 
@@ -176,3 +178,13 @@ def test_a_scene_write_scene_refuses_leaves_nothing_and_gives_the_stream_back(gt
                     meta={"height": 8, "width": 12}, flip=flip)
     assert dat.exists() and not (tmp_path / "root" / "s").exists()
     assert not (tmp_path / "root").exists() or not any(p.name.startswith(".s") for p in (tmp_path / "root").iterdir())
+
+
+def test_verify_sees_a_scene_record_deleted_or_emptied(pattern_dataset, tmp_path):
+    """verify said "intact" while generate rebuilt the scene as damaged (round seven)."""
+    from spikesim.dataset import verify
+    root = _copy(pattern_dataset, tmp_path)
+    (root / "rllr_0000" / "checksums.json").unlink()
+    (root / "rllr_0001" / "checksums.json").write_text('{"files": {}}')
+    problems = " ".join(verify(root))
+    assert "rllr_0000/checksums.json: missing" in problems and "rllr_0001/checksums.json: does not record" in problems
