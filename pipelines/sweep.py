@@ -285,6 +285,23 @@ def run_sweep(scenes: Sequence[str] = ("ball", "car", "cook", "fan", "rotate"), 
     from spikesim.outputs import atomic_write_json, atomic_write_text, output_folder, writable
     from spikesim.render.scene_files import SceneFiles
 
+    # the library's own checks, as the command's parser makes them (round seven: [] raised StopIteration after
+    # the renders, "ball" was read as its letters, a level of -1 failed after rendering naming no level)
+    for name, given in (("scenes", scenes), ("methods", methods)):
+        if isinstance(given, (str, bytes)) or not isinstance(given, Sequence) or not given:
+            raise ValueError(f"{name}: expected a non-empty list, got {given!r}")
+    if levels is not None:
+        if isinstance(levels, (str, bytes)):
+            raise ValueError(f"levels: expected lux values, got {levels!r}")
+        try:
+            levels = [float(v) for v in levels]
+        except (TypeError, ValueError):
+            raise ValueError(f"levels: expected lux values, got {levels!r}") from None
+        lo, hi = SWEEP_LUX_RANGE
+        if not levels or not all(lo <= v <= hi for v in levels):
+            raise ValueError(f"levels: expected at least one level, each in {lo:g}-{hi:g} lx, got {levels}")
+    if camera is not None and not all(hasattr(camera, k) for k in ("height", "width", "replace")):
+        raise TypeError(f"camera: expected a SpikeCamera (e.g. SpikeCamera.preset({camera!r})), got {type(camera).__name__}")
     levels = np.asarray(light_levels(0.1, 3000.0, 9) if levels is None else levels, dtype=np.float64)
     seen = [s for i, s in enumerate(scenes) if s in scenes[:i]]
     if seen:

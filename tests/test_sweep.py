@@ -186,3 +186,20 @@ def test_a_script_runs_a_sweep_without_the_command_line(tmp_path):
     assert all(r["ssim_aligned"] == pytest.approx(0.0, abs=1e-9) for r in result.rows if r["method"] == "mean")
     with pytest.raises(ValueError, match="fan given twice"):
         run_sweep(["fan", "fan"], ["tfp"], levels=[1.0, 100.0], camera=camera, windows=1, spp=1, gt_spp=2)
+
+
+@pytest.mark.parametrize("kwargs, says", [
+    ({"scenes": []}, "scenes: expected a non-empty list"),
+    ({"scenes": "ball"}, "scenes: expected a non-empty list"),
+    ({"methods": []}, "methods: expected a non-empty list"),
+    ({"levels": []}, "at least one level"),
+    ({"levels": [-1.0]}, "each in"),
+    ({"levels": [float("nan")]}, "each in"),
+    ({"levels": "10"}, "expected lux values"),
+    ({"camera": "realistic"}, "expected a SpikeCamera"),
+])
+def test_run_sweep_checks_its_arguments_before_rendering(kwargs, says):
+    from pipelines.sweep import run_sweep
+    args = {"scenes": ["fan"], "methods": ["tfp"], "levels": [1.0, 10.0], **kwargs}
+    with pytest.raises((ValueError, TypeError), match=says):
+        run_sweep(args.pop("scenes"), args.pop("methods"), args.pop("levels"), **args)
