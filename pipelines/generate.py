@@ -218,6 +218,21 @@ def run_verify(args: argparse.Namespace) -> int:
 MAX_RLLR_SCENES = 100_000
 
 
+#: The most steps one scene may have: 2.5 s at 40 kHz, 1.25 GB of spikes at 400 x 250. A million
+#: steps planned for 15 minutes before --estimate-only answered (round seven); a longer recording is
+#: several scenes.
+MAX_SCENE_STEPS = 100_000
+
+
+def scene_steps(text: str) -> int:
+    """--steps: a positive number of steps, at most MAX_SCENE_STEPS."""
+    v = positive_int(text)
+    if v > MAX_SCENE_STEPS:
+        raise argparse.ArgumentTypeError(f"at most {MAX_SCENE_STEPS:,} steps a scene (2.5 s at 40 kHz), got {text}; "
+                                         "a longer recording is several scenes")
+    return v
+
+
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("generate", help="generate LLR, RLLR or a user dataset (resumable, parallel)")
     p.add_argument("kind", choices=["llr", "rllr", "scene"],
@@ -264,9 +279,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "and lights files' names and x<factor> for other variants of the folder's scene)")
     add_light_power_factor_argument(p)
     p.add_argument("--windows", type=positive_int, help="41-step windows per scene (llr, scene)")
-    p.add_argument("--steps", type=positive_int,
-                   help="steps per RLLR scene (paper 1000), or of a user scene instead of --windows (default: the "
-                        "preset's RLLR steps once --gt-stride is given)")
+    p.add_argument("--steps", type=scene_steps,
+                   help=f"steps per RLLR scene (paper 1000; at most {MAX_SCENE_STEPS:,}), or of a user scene instead of "
+                        "--windows (default: the preset's RLLR steps once --gt-stride is given)")
     p.add_argument("--gt-stride", type=positive_int,
                    help="ground truth every this many steps of an RLLR scene (paper 1) or of a user scene given "
                         "--steps, on the centres of 41-step windows (stride 41: steps 20, 61, 102, ...; default: "

@@ -207,3 +207,9 @@ def test_lamp_levels_brighter_than_sunlight_are_refused_by_the_parser(tmp_path, 
     assert main(["generate", "rllr", "--preset", "small", "--count", "1", "--lamps-lux", "1e30", "1e30",
                  "-o", str(tmp_path / "d")]) == 2
     assert "brighter than any real light" in capsys.readouterr().err and not (tmp_path / "d").exists()
+
+
+def test_a_scene_longer_than_the_bound_is_refused_in_the_parser(tmp_path, capsys):
+    """--steps 1000000 planned for about 15 minutes before --estimate-only answered (round seven)."""
+    assert main(["generate", "rllr", "--steps", "1000000", "-o", str(tmp_path / "x"), "--estimate-only"]) == 2
+    assert "at most 100,000 steps a scene" in capsys.readouterr().err and not (tmp_path / "x").exists()
