@@ -734,7 +734,8 @@ def _train(experiment: ExperimentConfig, train_scenes: Sequence[Scene], val_scen
                 scores = validate(run.model, val_ds, dev)
                 logs.validation(epoch, step, scores)
                 bar.write(f"[train] step {step} of {last_step()} (epoch {epoch}, {batches_per_epoch} step(s) each): "
-                          f"loss {last_loss:.4f}, val aligned PSNR "
+                          + (f"loss {last_loss:.4f}, " if math.isfinite(last_loss) else "no step since the resume, ")
+                          + "val aligned PSNR "
                           f"{scores['psnr_aligned']:.2f} dB (TFP {scores['psnr_aligned_tfp']:.2f}), PSNR "
                           f"{scores['psnr']:.2f} dB (TFP {scores['psnr_tfp']:.2f}), SSIM {scores['ssim']:.4f}",
                           file=sys.stderr)
