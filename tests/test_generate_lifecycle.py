@@ -74,7 +74,7 @@ def test_sigterm_stops_the_run_says_so_and_leaves_no_work_folders(tmp_path, work
     root = tmp_path / "data"
     # long pattern scenes (minutes each), stopped once every worker has started one
     cmd = [sys.executable, "-m", "pipelines.cli", "generate", "rllr", "--pattern", "--count", "2", "--steps",
-           "1000000", "--gt-stride", "999999", "--height", "8", "--width", "8", "--quiet", "--workers", str(workers),
+           "100000", "--gt-stride", "99999", "--height", "128", "--width", "128", "--quiet", "--workers", str(workers),
            "-o", str(root)]
     run = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     kids = []

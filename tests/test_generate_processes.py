@@ -90,7 +90,7 @@ def test_workers_die_when_the_parent_is_killed(tmp_path):
     root = tmp_path / "data"
     # two long pattern scenes in two workers (about a minute each), killed once both have started
     cmd = [sys.executable, "-m", "pipelines.cli", "generate", "rllr", "--pattern", "--count", "2", "--workers", "2",
-           "--steps", "1000000", "--gt-stride", "999999", "--height", "8", "--width", "8", "--quiet", "-o", str(root)]
+           "--steps", "100000", "--gt-stride", "99999", "--height", "128", "--width", "128", "--quiet", "-o", str(root)]
     parent = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     kids = []
     try:
