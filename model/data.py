@@ -66,7 +66,8 @@ def open_scenes(root: str | Path | Sequence[str | Path]) -> list[Scene]:
 def shared_scenes(a: Sequence[Scene], b: Sequence[Scene]) -> list[str]:
     """Names of the scenes of `a` that are also in `b`: the same folder on disk, or a copy of one
     (the same spike stream, by the sha256 its checksum record gives: a copied dataset passed as
-    validation data was taken as held out, round seven)."""
+    validation data was taken as held out, round seven). Two time slices of one scene are shared
+    only where their steps overlap (split_by_time's parts share none)."""
     def keys(sc: Scene) -> set[Any]:
         path = getattr(getattr(sc, "scene", sc), "path", None)  # a TimeSlice's scene's
         if not isinstance(path, (str, Path)):
@@ -78,8 +79,15 @@ def shared_scenes(a: Sequence[Scene], b: Sequence[Scene]) -> list[str]:
         except (OSError, ValueError, KeyError, TypeError, AttributeError):
             pass
         return out
-    theirs = set().union(*map(keys, b)) if b else set()
-    return [sc.name for sc in a if keys(sc) & theirs]
+
+    def steps(sc: Scene) -> tuple[float, float]:
+        return (sc.start, sc.stop) if isinstance(sc, TimeSlice) else (-math.inf, math.inf)
+
+    theirs = [(keys(sc), steps(sc)) for sc in b]
+    def shared(sc: Scene) -> bool:
+        mine, (lo, hi) = keys(sc), steps(sc)
+        return any(mine & k and lo < their_hi and their_lo < hi for k, (their_lo, their_hi) in theirs)
+    return [sc.name for sc in a if shared(sc)]
 
 
 class RenamedScene:

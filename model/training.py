@@ -30,7 +30,7 @@ from torch.utils.data import DataLoader
 from .arch import build_model, count_parameters
 from .checkpoint import load_checkpoint, save_checkpoint, state_fingerprint
 from .config import ExperimentConfig
-from .data import Scene, SequenceDataset, TimeSlice
+from .data import Scene, SequenceDataset, TimeSlice, shared_scenes
 from .losses import SELF_SUPERVISED, SelfSupervisedObjective, build_loss
 from .metrics import psnr, psnr_aligned, ssim
 from .precision import autocast, grad_scaler, resolve_precision
@@ -568,6 +568,10 @@ def run_training(experiment: ExperimentConfig, train_scenes: Sequence[Scene], va
     checkpoint) starts a new run from those weights instead of a random draw: fine-tuning."""
     if init is not None and resume:
         raise ValueError("--init starts a run from other weights; --resume continues one from its own last.pt")
+    if both := shared_scenes(train_scenes, val_scenes):  # best.pt chosen by training-set scores (round six)
+        raise ValueError(f"validation scenes: {len(both)} are also training scenes ({', '.join(both[:3])}"
+                         f"{' ...' if len(both) > 3 else ''}): validation on training scenes measures nothing "
+                         "held out; give other scenes, or split one dataset by scene (model.data.split_scenes)")
     with output_folder(out_dir):
         if int(os.environ.get("RANK", "0")) != 0:  # under torchrun rank 0 holds the folder for every rank
             return _train(experiment, train_scenes, val_scenes, out_dir, device, resume, progress, overwrite, init)

@@ -236,3 +236,20 @@ def test_a_copy_of_the_training_set_is_no_held_out_data(tmp_path, capsys):
     assert main(["train", "--config", str(e), "--data", str(tmp_path / "d"), "--val-data", str(tmp_path / "copy"),
                  "--max-steps", "1", "--device", "cpu", "--out", str(tmp_path / "r")]) == 2
     assert "--val-data: 2 scene(s) are also in --data" in capsys.readouterr().err
+
+
+def test_run_training_refuses_training_scenes_as_validation_and_keeps_time_splits(tmp_path):
+    """The Python API took run_training(exp, scenes, scenes) and chose best.pt by training-set scores
+    (round seven, left low); one scene split in time (split_by_time) still trains."""
+    from model.config import load_config
+    from model.data import open_scenes, shared_scenes, split_by_time
+    from model.training import run_training
+    _write_dataset(tmp_path / "d", ["a_low", "b_normal"], 0)
+    scenes = open_scenes(tmp_path / "d")
+    exp = load_config(str(_config(tmp_path / "e.json", "e")))
+    with pytest.raises(ValueError, match="validation scenes: 1 are also training scenes"):
+        run_training(exp, scenes, scenes[1:], tmp_path / "r", "cpu", progress=False)
+    assert not (tmp_path / "r").exists()
+    parts = split_by_time(scenes[0], exp.model.window, 1, 0.5)
+    assert parts is not None and shared_scenes([parts[0]], [parts[1]]) == []
+    assert shared_scenes([parts[0]], [scenes[0]]) == [parts[0].name]
