@@ -128,6 +128,11 @@ def test_run_to_dat_keeps_its_own_record_and_never_a_stale_one(tmp_path):
     for bad in ({"height": 12, "width": 8}, {"flip": True}, {"keyframe_every": 1}):
         with pytest.raises(ValueError, match="the stream's own record"):
             sim.run_to_dat(frames, dat, flip=False, extra=bad)
+    # a NaN was written into the sidecar as the token NaN, which strict JSON readers refuse (round seven)
+    for bad, field in (({"a": float("nan")}, "a"), ({"b": [1.0, float("inf")]}, r"b\[1\]"),
+                       ({"c": {"d": (0.5, float("-inf"))}}, r"c.d\[1\]")):
+        with pytest.raises(ValueError, match=f"extra: {field} is .*numbers must be finite"):
+            sim.run_to_dat(frames, dat, flip=False, extra=bad)
     assert (dat.read_bytes(), sidecar_path(dat).read_text()) == before
     assert json.loads(sidecar_path(dat).read_text())["note"] == "kept"
 
