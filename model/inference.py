@@ -107,7 +107,7 @@ def reconstruct(spikes: Any, method: str = "lrrep", window: int = 41, threads: i
     if m < 1:
         raise ValueError(f"spikes: {s.shape[0]} steps hold no whole {window}-step window")
     from .training import resolve_device
-    device = str(resolve_device(device))  # "mps" blamed the weights and "gpu" raised torch's own error
+    device = str(resolve_device(device, "device"))  # "mps" blamed the weights and "gpu" raised torch's own error
     set_cpu_threads(threads)
     chosen = method_from_spec(method, window, chunk, device)
     source = TensorWindows((s[: m * window] != 0).reshape(m, window, *s.shape[1:]))

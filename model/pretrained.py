@@ -93,7 +93,7 @@ def load_pretrained(name: str = "lrrep", device: str | torch.device = "cpu"
     GISI is clipped at the training horizon, as for any trained checkpoint (checkpoint.for_inference)."""
     path = pretrained_path(name)
     from .training import resolve_device
-    device = resolve_device(device)  # "gpu", 0, "cpu:1" blamed the weights or raised torch's own error
+    device = resolve_device(device, "device")  # "gpu", 0, "cpu:1" blamed the weights or raised torch's own error
     model, experiment = model_from_checkpoint(path, device)
     fingerprint = state_fingerprint(model.state_dict())
     if fingerprint != PRETRAINED[name].weights_sha256:

@@ -58,12 +58,15 @@ def _worker_init(worker_id: int) -> None:
 DEVICES = "auto, cpu, cuda, cuda:N or mps"
 
 
-def resolve_device(name: str) -> torch.device:
+def resolve_device(name: str, what: str = "--device") -> torch.device:
     """The torch device for --device: auto (CUDA when torch sees one, else CPU), cpu, cuda,
     cuda:N or mps. A name torch does not know is a ValueError; a device this machine lacks is an
-    UnavailableError, both naming --device."""
+    UnavailableError, both naming `what`: the flag, or the Python argument (`device`)."""
     from spikesim.errors import UnavailableError
 
+    flag = what.startswith("--")
+    given = f"{what} {name}" if flag else f"{what}={name!r}"
+    instead = f"use {what} cpu or auto" if flag else f"use {what}='cpu' or 'auto'"
     if isinstance(name, torch.device):
         name = str(name)
     if name == "auto":
@@ -74,17 +77,18 @@ def resolve_device(name: str) -> torch.device:
         dev = None
     if dev is None or dev.type not in ("cpu", "cuda", "mps") or (dev.type != "cuda" and dev.index not in (None, 0)):
         # "cpu:1" and the meta device reached the loader, which then blamed the weights (round seven)
-        raise ValueError(f"--device {name!r} is not a device; expected {DEVICES}")
+        raise ValueError(f"{what} {name!r} is not a device; expected {DEVICES}" if flag else
+                         f"{given} is not a device; expected {DEVICES}")
     if dev.type == "cuda":
         if not torch.cuda.is_available():
             build = f"CUDA {torch.version.cuda}" if torch.version.cuda else "a CPU-only build"
-            raise UnavailableError(f"--device {name} asked for, but torch sees no CUDA device (torch "
-                                   f"{torch.__version__}, {build}); use --device cpu or auto")
+            raise UnavailableError(f"{given} asked for, but torch sees no CUDA device (torch "
+                                   f"{torch.__version__}, {build}); {instead}")
         if dev.index is not None and dev.index >= torch.cuda.device_count():
-            raise UnavailableError(f"--device {name} asked for, but torch sees only "
+            raise UnavailableError(f"{given} asked for, but torch sees only "
                                    f"{torch.cuda.device_count()} CUDA device(s)")
     if dev.type == "mps" and not torch.backends.mps.is_available():
-        raise UnavailableError(f"--device {name} asked for, but torch sees no MPS device; use --device cpu or auto")
+        raise UnavailableError(f"{given} asked for, but torch sees no MPS device; {instead}")
     return dev
 
 
@@ -587,7 +591,7 @@ def _train(experiment: ExperimentConfig, train_scenes: Sequence[Scene], val_scen
     from spikesim.progress import progress_bar
 
     out = Path(out_dir)
-    dist, dev = _Distributed.from_env(resolve_device(device))
+    dist, dev = _Distributed.from_env(resolve_device(device, "device"))
     tc = experiment.train
     if tc.batch_size % dist.world:
         raise ValueError(f"batch size {tc.batch_size} does not split over {dist.world} processes")

@@ -165,6 +165,18 @@ def test_keyword_arguments_of_the_wrong_kind_are_named(kwargs, says, tmp_path):
 
 @pytest.mark.parametrize("device", ["gpu", 0, "cpu:1", torch.device("meta")])
 def test_load_pretrained_names_a_device_it_does_not_know(device):
-    """"gpu" raised torch's own error, 0 and "cpu:1" blamed the shipped weights (rounds five, seven)."""
-    with pytest.raises(ValueError, match="is not a device"):
+    """"gpu" raised torch's own error, 0 and "cpu:1" blamed the shipped weights (rounds five, seven);
+    the message named the command's --device to a Python caller (round seven, low)."""
+    with pytest.raises(ValueError, match=r"^device=.* is not a device") as info:
         model.load_pretrained("lrrep", device=device)
+    assert "--device" not in str(info.value)
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="this machine has a CUDA device")
+def test_a_missing_gpu_is_named_as_the_argument_in_python_and_the_flag_on_the_command_line():
+    from model.training import resolve_device
+    from spikesim.errors import UnavailableError
+    with pytest.raises(UnavailableError, match=r"^device='cuda' asked for.*use device='cpu' or 'auto'"):
+        model.load_pretrained("lrrep", device="cuda")
+    with pytest.raises(UnavailableError, match=r"^--device cuda asked for.*use --device cpu or auto"):
+        resolve_device("cuda")
