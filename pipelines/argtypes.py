@@ -66,6 +66,18 @@ def float_in(lo: float, hi: float, what: str):
     return parse
 
 
+def readout_period_s(text: str) -> float:
+    """argparse type: a readout period a spike camera can have (spikesim.camera.READOUT_PERIOD_RANGE_S);
+    --readout-period-s 1e9 printed a 6-million-year stream at 0 Hz (round seven)."""
+    from spikesim.camera import READOUT_PERIOD_RANGE_S
+    lo, hi = READOUT_PERIOD_RANGE_S
+    v = _number(text, float)
+    if not lo <= v <= hi:
+        raise argparse.ArgumentTypeError(f"must be a readout period from {lo:g} to {hi:g} s (10 MHz to 1 Hz; "
+                                         f"spike cameras read out every 25e-6 s), got {text}")
+    return v
+
+
 def bounded_count(limit: int, what: str):
     """argparse type: an integer in 1..limit (a count whose plan is held in memory at once)."""
     def parse(text: str) -> int:

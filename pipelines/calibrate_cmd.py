@@ -23,7 +23,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from pipelines.argtypes import camera_spec, existing_file, load_camera, output_file, positive_float, positive_int
+from pipelines.argtypes import camera_spec, existing_file, load_camera, output_file, positive_int, readout_period_s
 from spikesim import outputs
 
 
@@ -144,7 +144,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--width", type=positive_int, help="columns (default: the stream's sidecar, else 400)")
     p.add_argument("--no-flip", action="store_true",
                    help="rows stored top-down (SPCS/SCSim); default: as recorded, else rows stored bottom-up (flip)")
-    p.add_argument("--readout-period-s", type=positive_float,
+    p.add_argument("--readout-period-s", type=readout_period_s,
                    help="the recordings' readout period in seconds (default: the starting camera's, 25e-6)")
     p.add_argument("--camera", type=camera_spec, default="realistic",
                    help="the camera whose other fields the file keeps (a preset or a camera file; default realistic)")

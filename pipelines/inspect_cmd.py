@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from pipelines.argtypes import nonnegative_int, output_file_in, positive_float, positive_int
+from pipelines.argtypes import nonnegative_int, output_file_in, positive_int, readout_period_s
 from spikesim.stream import (DatReader, check_recorded_layout, detect_header_columns, open_stream, read_sidecar,
                              recorded_geometry, stream_geometry)
 
@@ -210,11 +210,15 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _duration(seconds: float) -> str:
+    return f"{seconds:.4g} s" if seconds >= 1 else f"{seconds * 1e3:.4g} ms"
+
+
 def _print_summary(args: argparse.Namespace, s: dict[str, Any], flip: bool, period: float) -> None:
     print(f"{args.path}")
     print(f"  frames       {s['num_steps']} x {s['height']} x {s['width']} (flip={flip}), "
-          f"{s['duration_s'] * 1e3:.3f} ms at {1 / period:.0f} Hz")
-    print(f"  spikes       {s['spikes']}  mean rate {s['mean_rate_per_step']:.5f}/step = {s['mean_rate_hz']:.1f} Hz")
+          f"{_duration(s['duration_s'])} at {1 / period:,.0f} Hz")
+    print(f"  spikes       {s['spikes']}  mean rate {s['mean_rate_per_step']:.5f}/step = {s['mean_rate_hz']:.4g} Hz")
     pr = s["rate_percentiles_per_step"]
     print(f"  rate p1/p50/p99  {pr[1]:.5f} / {pr[50]:.5f} / {pr[99]:.5f} per step")
     key = f"dark_pixel_fraction_{args.window}_step_window"
@@ -254,7 +258,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--stop", type=positive_int, help="step after the last (default: the end; clipped to it)")
     p.add_argument("--window", type=positive_int, default=41,
                    help="window for TFP preview and per-window dark fraction")
-    p.add_argument("--readout-period-s", type=positive_float,
+    p.add_argument("--readout-period-s", type=readout_period_s,
                    help="seconds per readout step, for rates in Hz (default: as recorded, else 25e-6)")
     p.add_argument("--preview", type=output_file_in("preview.png"),
                    help="save a TFP preview PNG of the middle window (*.png, or a folder: preview.png in it)")

@@ -100,11 +100,23 @@ def dat(tmp_path):
 
 
 @pytest.mark.parametrize("flag, value", [("--start", -1), ("--window", 0), ("--stop", 0), ("--height", 0),
-                                         ("--width", -1), ("--readout-period-s", 0), ("--header-columns", -2),
+                                         ("--width", -1), ("--readout-period-s", 0), ("--readout-period-s", 1e9),
+                                         ("--readout-period-s", "1e-12"), ("--header-columns", -2),
                                          ("--header-columns", "x"), ("--window", "1.5")])
 def test_inspect_refuses_bad_values(flag, value, dat, capsys):
     code, err = run_cli(["inspect", dat, flag, value], capsys)
     assert code == 2 and "Traceback" not in err and f"argument {flag}" in err.strip().splitlines()[-1]
+
+
+def test_inspect_prints_a_slow_readout_in_seconds_and_hertz(dat, capsys):
+    """--readout-period-s 1e9 printed 205000000000000.000 ms at 0 Hz (round seven, low); a 1 s
+    readout, the slowest accepted, prints its duration in seconds and its rate as 1 Hz."""
+    capsys.readouterr()
+    assert main(["inspect", str(dat), "--readout-period-s", "1"]) == 0
+    out = capsys.readouterr().out
+    assert "50 x 10 x 24 (flip=True), 50 s at 1 Hz" in out, out
+    assert main(["inspect", str(dat)]) == 0
+    assert "1.25 ms at 40,000 Hz" in capsys.readouterr().out
 
 
 @pytest.mark.parametrize("extra, words", [(["--start", 50], ["--start 50", "s.dat", "50 frames"]),
