@@ -169,6 +169,8 @@ def write_png(path: str | Path, y: np.ndarray, gamma: float = 2.2, scale: float 
     from PIL import Image
 
     path = Path(path)
+    if path.suffix.lower() != ".png":  # PNG bytes under "x.jpg" were written, which viewers then refuse (round seven)
+        raise ValueError(f"{path}: write_png writes PNG data; name the file *.png")
     path.parent.mkdir(parents=True, exist_ok=True)
     img = to_display(y, gamma=gamma, scale=scale, percentile=percentile)
     # written whole (temporary file, then rename), never through a link; a failure names `path`

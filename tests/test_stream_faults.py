@@ -193,6 +193,16 @@ def test_failed_png_write_leaves_no_part_file(tmp_path, monkeypatch):
     assert list(tmp_path.iterdir()) == []
 
 
+def test_write_png_writes_only_under_a_png_name(tmp_path):
+    """PNG bytes were written under x.jpg (round seven, low); x.PNG is a PNG name too."""
+    from spikesim.imageio import write_png
+    for name in ("x.jpg", "x", "x.png.tmp"):
+        with pytest.raises(ValueError, match=r"write_png writes PNG data; name the file \*\.png"):
+            write_png(tmp_path / name, np.zeros((4, 4)))
+    assert list(tmp_path.iterdir()) == []
+    assert write_png(tmp_path / "x.PNG", np.zeros((4, 4))).read_bytes()[:4] == b"\x89PNG"
+
+
 def test_a_sidecar_recording_another_length_is_named(tmp_path):
     """A sidecar's num_steps of 5000 beside a 123-step file was read silently: a stale record."""
     from spikesim.stream import open_stream, write_dat, write_sidecar
