@@ -136,6 +136,10 @@ def reconstruct_file(path: Path, out: Path, method_spec: str = "tfp", height: in
     if start < 0 or available < 1:
         raise ValueError(f"{path}: {reader.num_steps} steps leave no full {window}-step window after --start {start}")
     n = available if num_windows is None else min(num_windows, available)
+    notes = []  # said in the record and on stderr: a run that made other than asked said nothing (round seven)
+    if num_windows is not None and num_windows > available:
+        notes.append(f"--num-windows {num_windows}: only {available} full {window}-step window(s) fit in "
+                     f"{reader.num_steps} steps after --start {start}; made {available}")
     source = StepWindows(lambda a, b: reader.read(a, b).unpack(), start, window, n)
     from spikesim.generation.lock import output_lock
     # one run per folder: two runs into one -o left one run's frames under the other's reconstruct.json
@@ -152,6 +156,10 @@ def reconstruct_file(path: Path, out: Path, method_spec: str = "tfp", height: in
                        "height": height, "width": width, "header_columns": header_columns, "flip": flip,
                        "display": {"enhance": enhance, "gamma": gamma, "scale": scale, "percentile": percentile},
                        "outputs": sorted([p.name for p in stage.iterdir()] + ["reconstruct.json"])}
+            if "frames.mp4" in summary["outputs"] and (height % 2 or width % 2):
+                notes.append(f"frames.mp4 is {height + height % 2} x {width + width % 2}: video needs even sides, so "
+                             f"the last row or column is repeated (the PNGs and the GIF are {height} x {width})")
+            summary["notes"] = notes
             with writing(out / "reconstruct.json"):
                 (stage / "reconstruct.json").write_text(json.dumps(summary, indent=2))
             replace_outputs(stage, out)
@@ -262,6 +270,8 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
                                device, args.enhance, args.gamma, args.scale,
                                args.percentile, args.fps, not args.no_gif, not args.no_mp4, args.save_npy,
                                progress=not args.quiet)
+    for note in summary.get("notes", []):
+        print(f"[reconstruct] note: {note}", file=sys.stderr)
     if args.json:
         print(json.dumps(summary, indent=2))
     else:  # the record is in the output folder; one line says what was made

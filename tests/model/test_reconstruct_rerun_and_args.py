@@ -180,3 +180,24 @@ def test_reconstruct_never_replaces_a_file_no_earlier_run_wrote(tmp_path):
     reconstruct_file(dat, out, "tfp", 12, 16, 0, False, gif=False, mp4=False, save_npy=True, progress=False)
     summary = reconstruct_file(dat, out, "tfp", 12, 16, 0, False, gif=False, mp4=False, progress=False)  # its own
     assert summary["frames"] == 2 and not (out / "frames.npy").exists()
+
+
+def test_a_run_that_makes_other_than_asked_says_so(tmp_path, capsys):
+    """--num-windows 9 where 5 fit made 5 frames silently; an odd-sided frame's MP4 was padded
+    silently (round seven, low). Both are said on stderr and kept in reconstruct.json."""
+    pytest.importorskip("imageio_ffmpeg")
+    from spikesim.stream import SpikeStream, write_dat
+    sc = make_scene("r", 11, 16, 7 * 5, brightness=0.3)
+    dat = write_dat(tmp_path / "s.dat", SpikeStream.from_bool(sc.spike_array))
+    out = tmp_path / "out"
+    code, err = run_cli(["reconstruct", dat, "--height", 11, "--width", 16, "--window", 7, "--num-windows", 9,
+                         "--out", out, "--quiet", "--no-gif"], capsys)
+    assert code == 0 and "Traceback" not in err
+    assert "note: --num-windows 9: only 5 full 7-step window(s) fit in 35 steps after --start 0; made 5" in err
+    assert "note: frames.mp4 is 12 x 16: video needs even sides" in err
+    record = json.loads((out / "reconstruct.json").read_text())
+    assert record["frames"] == 5 and len(record["notes"]) == 2
+    code, err = run_cli(["reconstruct", dat, "--height", 11, "--width", 16, "--window", 7, "--num-windows", 2,
+                         "--out", tmp_path / "o2", "--quiet", "--no-mp4"], capsys)
+    assert code == 0 and "note:" not in err
+    assert json.loads((tmp_path / "o2" / "reconstruct.json").read_text())["notes"] == []
