@@ -157,8 +157,22 @@ def test_a_second_scene_under_a_taken_name_is_refused_naming_both(tmp_path):
         return SceneJob(name="mine", source={"type": "pattern", "peak_y": peak}, camera=cam, render={},
                         num_steps=4, gt_steps=(0,))
     generate([job(0.2)], tmp_path, workers=1, show_progress=False)
-    with pytest.raises(FileExistsError, match=r"holds another scene, \{.*0\.2.*under the name this run gives \{.*0\.3"):
+    with pytest.raises(FileExistsError, match=r"holds another scene, \{.*0\.2.*under the name this run gives \{.*0\.3") as e:
         generate([job(0.3)], tmp_path, workers=1, show_progress=False)
+    # a generated set names its own folders: --name (generate scene's) is no way out (round seven, low)
+    assert "another output folder (-o)" in str(e.value) and "--name" not in str(e.value)
+
+
+def test_a_user_scene_under_a_taken_name_is_offered_another_name(tmp_path):
+    from spikesim.camera import SpikeCamera
+    from spikesim.generation.run import _takes_name
+    cam = SpikeCamera.realistic(height=4, width=8).to_dict()
+    xml = user_scene(tmp_path)
+    user = SceneJob(name="mine", source={"type": "scene", "scene": str(xml), "motion": None, "lights": None,
+                                         "light": "low"}, camera=cam, render={}, num_steps=4, gt_steps=(0,))
+    bundled = SceneJob(name="fan_low", source={"type": "scene", "scene": "fan", "motion": None, "lights": None,
+                                               "light": "low"}, camera=cam, render={}, num_steps=4, gt_steps=(0,))
+    assert _takes_name(user) and not _takes_name(bundled)
 
 
 @requires_llvm

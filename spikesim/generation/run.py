@@ -138,6 +138,13 @@ def job_status(job: SceneJob, root: Path, full: bool = False) -> str:
     return scene_state(job, Path(root), full)[0]
 
 
+def _takes_name(job: SceneJob) -> bool:
+    """Whether the job's folder name is the user's to choose: `generate scene --name` (a user
+    scene); LLR and RLLR name their folders themselves (round seven: an RLLR conflict said --name)."""
+    from scenes import SCENES
+    return job.source.get("type") == "scene" and job.source.get("scene") not in SCENES
+
+
 def _jobs_to_run(jobs: list[SceneJob], root: Path, overwrite_stale: bool, full: bool,
                  listed: dict[str, dict[str, Any]]) -> tuple[list[SceneJob], dict[str, str]]:
     """The jobs whose scene is missing, damaged or made from inputs that changed since (and, with
@@ -155,8 +162,10 @@ def _jobs_to_run(jobs: list[SceneJob], root: Path, overwrite_stale: bool, full: 
             recorded = _recorded_scene(root / name)
             if recorded is not None and recorded != _scene_identity(planned.to_dict()):
                 raise FileExistsError(f"{root / name} holds another scene, {_scene_label(recorded)}, under the name "
-                                      f"this run gives {_scene_label(_scene_identity(planned.to_dict()))}; give one "
-                                      "of them another name (--name), or use --overwrite to replace it")
+                                      f"this run gives {_scene_label(_scene_identity(planned.to_dict()))}; write "
+                                      "this run into another output folder (-o"
+                                      f"{', or give it another --name' if _takes_name(planned) else ''}), or use "
+                                      "--overwrite to replace it")
             raise FileExistsError(f"{root / name} was generated with other parameters ({'; '.join(reasons)}); "
                                   "use --overwrite to rebuild it, or another output folder")
     rebuilt = {}
