@@ -17,9 +17,10 @@ cannot report y > 1: saturation is one spike per step, and peers clamp their out
   noisier reconstruction of a dark frame.
 - Aligned (`psnr_aligned`): the light-normalised PSNR after the least-squares gain and offset that
   best map the prediction onto the ground truth, per frame. A black or constant image scores
-  exactly the floor 20 log10(level / std(gt)); any image correlated with the ground truth (rho)
-  scores 10 log10(1 / (1 - rho^2)) dB above it, so no image without structure can win. It rewards
-  structure only: brightness errors are what the other columns measure.
+  exactly the floor 20 log10(level / std(gt)); any image correlated with the ground truth (rho > 0)
+  scores 10 log10(1 / (1 - rho^2)) dB above it, so no image without structure can win. The gain is
+  at least 0: an image anti-correlated with the truth (its negative) scores the floor, not the
+  truth's own score. It rewards structure only: brightness errors are what the other columns measure.
 - Aligned SSIM (`ssim_aligned`): SSIM in the same spirit. The prediction gets the gain (and the
   offset that matches the means) that maximise its SSIM, as the aligned PSNR gets the pair that
   minimises its error; SSIM is taken at the ground truth's light level as the data range; then it
@@ -27,7 +28,8 @@ cannot report y > 1: saturation is one spike per step, and peers clamp their out
   S0 the SSIM of the constant image at the ground truth's mean (gain 0). Why: plain SSIM rewards
   flat regions matched by anything flat, so in low light `black` scores 0.97 where TFP scores 0.87,
   and light-normalised SSIM does not stop it either. Gain 0 is always a candidate, so no image
-  scores below 0 and black or constant images score exactly 0, at every light level. (With the
+  scores below 0 and black or constant images score exactly 0, at every light level; the gain is
+  searched at 0 or above, so a negative of the truth scores 0 too. (With the
   least-squares gain instead, a noisy image scored below the constant: SSIM penalises noise that
   MSE's fit keeps.)
 """
@@ -131,12 +133,19 @@ def ssim_norm(pred: np.ndarray, target: np.ndarray) -> float:
 
 
 def aligned_prediction(pred: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """a + b pred with a and b the least-squares fit to the target (float64, both already prepared);
-    a constant prediction gets the offset only: the target's mean."""
-    pc, tc = pred - pred.mean(), target - target.mean()
+    """a + b pred with a and b the least-squares fit to the target, b >= 0 (float64, both already
+    prepared); a constant prediction gets the offset only: the target's mean."""
+    pc = pred - pred.mean()
+    return target.mean() + aligned_gain(pc, target) * pc
+
+
+def aligned_gain(pc: np.ndarray, target: np.ndarray) -> float:
+    """The least-squares gain from the centred prediction `pc` to the target, at least 0: a negative
+    gain turned a photographic negative of the truth into the truth (round eight: an inverted image
+    scored inf dB and an aligned SSIM of 1), so an image that is anti-correlated with the truth
+    gets gain 0 and scores as the constant image, the floor."""
     var_p = float(np.vdot(pc, pc))
-    gain = float(np.vdot(pc, tc)) / var_p if var_p > 0 else 0.0
-    return target.mean() + gain * pc
+    return max(0.0, float(np.vdot(pc, target - target.mean())) / var_p) if var_p > 0 else 0.0
 
 
 def psnr_aligned(pred: np.ndarray, target: np.ndarray) -> float:
@@ -181,7 +190,8 @@ class AffineSSIM:
 
 def ssim_aligned(pred: np.ndarray, target: np.ndarray) -> float:
     """(S - S0) / (1 - S0): S the light-normalised SSIM of a + b pred at the gain b that maximises
-    it (the offset a matching the means; b searched between 0 and twice the least-squares gain),
+    it (the offset a matching the means; b searched between 0 and twice the least-squares gain,
+    itself at least 0),
     S0 that of the constant image at the ground truth's mean (b = 0), so that no image scores
     below an image without structure, and those score exactly 0 (module docstring). 1.0 for a ground
     truth without structure (S0 = 1: nothing to recover, as the aligned PSNR's infinity)."""
@@ -195,9 +205,7 @@ def ssim_aligned(pred: np.ndarray, target: np.ndarray) -> float:
     floor = score(0.0)
     if 1.0 - floor < 1e-12:
         return 1.0
-    pc = p - p.mean()
-    var_p = float(np.vdot(pc, pc))
-    ls_gain = float(np.vdot(pc, t - t.mean())) / var_p if var_p > 0 else 0.0
+    ls_gain = aligned_gain(p - p.mean(), t)  # at least 0: a negative of the truth is no reconstruction of it
     best = max(floor, score(ls_gain))
     if ls_gain != 0.0:
         found = minimize_scalar(lambda g: -score(g), bounds=sorted((0.0, 2.0 * ls_gain)), method="bounded",

@@ -142,6 +142,24 @@ def test_aligned_ssim_gives_every_image_without_structure_zero_at_every_light_le
         assert ssim(black, gt) > 0.95
 
 
+@pytest.mark.parametrize("light", [1e-3, 0.3])
+def test_a_negative_of_the_truth_scores_the_floor_not_the_truth(light):
+    """A free gain sign mapped an inverted image onto the truth: psnr_aligned inf and ssim_aligned
+    1.0 for max + min - gt (round eight). The gain is at least 0, so it scores as the constant."""
+    from scipy.ndimage import gaussian_filter
+
+    from model.metrics import light_level, psnr_aligned, ssim_aligned
+    gt = light * gaussian_filter(np.random.default_rng(1).uniform(0.1, 0.5, (32, 32)), 2)
+    negative = gt.max() + gt.min() - gt
+    floor = 20 * np.log10(light_level(gt) / gt.std())
+    assert psnr_aligned(negative, gt) == pytest.approx(floor, abs=1e-9)
+    assert ssim_aligned(negative, gt) == pytest.approx(0.0, abs=1e-12)
+    noisy_negative = negative + np.random.default_rng(2).normal(0, 0.02 * light, gt.shape)
+    assert psnr_aligned(noisy_negative, gt) == pytest.approx(floor, abs=1e-9)
+    assert ssim_aligned(noisy_negative, gt) == pytest.approx(0.0, abs=1e-12)
+    assert psnr_aligned(gt, gt) == math.inf and ssim_aligned(gt, gt) == pytest.approx(1.0)
+
+
 def test_aligned_ssim_of_a_flat_ground_truth_is_one():
     from model.metrics import ssim_aligned
     assert ssim_aligned(np.random.default_rng(0).random((16, 16)), np.full((16, 16), 0.2)) == 1.0
