@@ -409,6 +409,24 @@ def _datasets(experiment: ExperimentConfig, train_scenes: Sequence[Scene],
 
 #: What a run folder holds; a new run refuses a folder holding any of it unless told to overwrite.
 RUN_FILES = ("last.pt", "best.pt", "train_log.csv", "val_log.csv", "config.json", "tb")
+#: TensorBoard's event files, the run's own part of tb/ (SummaryWriter names them so).
+TB_EVENT_PREFIX = "events.out.tfevents."
+
+
+def _run_event_files(out: Path) -> list[str]:
+    """The names of the TensorBoard event files in out/tb: what a run wrote there. A user's own
+    files in tb/ are not the run's (round eight: --overwrite deleted a tb/analysis/ of the user's,
+    and a bare tb/ was called a run)."""
+    tb = out / "tb"
+    if tb.is_symlink() or not tb.is_dir():
+        return []
+    return sorted(p.name for p in tb.iterdir() if p.name.startswith(TB_EVENT_PREFIX) and not p.is_symlink()
+                  and p.is_file())
+
+
+def _run_files_present(out: Path) -> list[str]:
+    return [name for name in RUN_FILES if (name != "tb" and (out / name).exists())
+            or (name == "tb" and _run_event_files(out))]
 
 
 def _start_or_resume(out: Path, resume: bool, experiment: ExperimentConfig, run: _Run, dev: torch.device,
@@ -419,7 +437,7 @@ def _start_or_resume(out: Path, resume: bool, experiment: ExperimentConfig, run:
         writable(out, name)
     if resume:
         return _resume(last_path, dev, experiment.model, experiment.train, run.model, run.opt, run.sched, run.scaler)
-    existing = [name for name in RUN_FILES if (out / name).exists()]
+    existing = _run_files_present(out)
     if existing and not overwrite:
         raise FileExistsError(f"{out} holds a run ({', '.join(existing)}): pass --resume to continue it, "
                               "--overwrite to replace it, or choose another --out")
@@ -428,7 +446,10 @@ def _start_or_resume(out: Path, resume: bool, experiment: ExperimentConfig, run:
         tdist.barrier()
     if dist.is_main:
         for stale in RUN_FILES:
-            remove(out, stale)
+            if stale != "tb":
+                remove(out, stale)
+        for events in _run_event_files(out):  # only the run's own logs: the rest of tb/ is the user's
+            remove(out, "tb", events)
         atomic_write_json(writable(out, "config.json"), experiment.to_dict())
     return 0, 0, 0, -math.inf, {}
 

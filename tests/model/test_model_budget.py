@@ -190,6 +190,24 @@ def test_a_trained_model_is_never_replaced_without_being_asked(scenes, tmp_path)
     assert not (tmp_path / "best.pt").exists() and (tmp_path / "last.pt").exists()
 
 
+def test_overwrite_replaces_the_runs_event_files_and_keeps_the_users_files_in_tb(scenes, tmp_path):
+    """`train --overwrite` deleted a user's tb/analysis/plot.txt with the whole tb/, and a bare tb/
+    of the user's was called "a run (tb)" (round eight)."""
+    pytest.importorskip("tensorboard")
+    (tmp_path / "tb" / "analysis").mkdir(parents=True)
+    (tmp_path / "tb" / "analysis" / "plot.txt").write_text("mine")
+    (tmp_path / "tb" / "notes.md").write_text("mine too")
+    run_training(budget_experiment(max_steps=1), scenes, [], tmp_path, device="cpu", progress=False)  # no run here
+    first = sorted(p.name for p in (tmp_path / "tb").glob("events.out.tfevents.*"))
+    assert first
+    with pytest.raises(FileExistsError, match=r"holds a run \(last\.pt, train_log\.csv, val_log\.csv, config\.json, tb\)"):
+        run_training(budget_experiment(max_steps=1), scenes, [], tmp_path, device="cpu", progress=False)
+    run_training(budget_experiment(max_steps=1), scenes, [], tmp_path, device="cpu", progress=False, overwrite=True)
+    assert (tmp_path / "tb" / "analysis" / "plot.txt").read_text() == "mine"
+    assert (tmp_path / "tb" / "notes.md").read_text() == "mine too"
+    assert not set(first) & {p.name for p in (tmp_path / "tb").glob("events.out.tfevents.*")}
+
+
 @pytest.mark.parametrize("lr", [1e300, float("nan"), float("inf"), 0, -1e-3, 2.0])
 def test_a_learning_rate_outside_zero_to_one_is_refused(lr):
     with pytest.raises(ValueError, match="train.lr must be a number in"):
