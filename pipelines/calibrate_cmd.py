@@ -28,12 +28,51 @@ from spikesim import outputs
 
 
 def read_half_rates(path: Path, height: int | None, width: int | None, flip: bool | None) -> Any:
+    """The recording read as every other command reads it (spikesim.stream.open_stream): a
+    --height/--width that its record contradicts is refused, naming both (round eight: calibrate
+    read a 32 x 32 recording as 16 x 64 and wrote other spreads, rc 0)."""
     from spikesim.calibrate import half_rates
-    from spikesim.stream import DatReader, stream_geometry
+    from spikesim.stream import open_stream
 
-    h, w, f = stream_geometry(path, height, width, flip)
-    reader = DatReader(path, h, w, flip=f)
+    reader, _ = open_stream(path, height, width, flip)
     return half_rates(lambda a, b: reader.read(a, b).unpack(), reader.num_steps, str(path))
+
+
+def recorded_readout_period_s(path: Path) -> float | None:
+    """The readout period the recording's record gives (its sidecar's, or a dataset scene's
+    meta.json's, camera), None when it gives none."""
+    from spikesim.config_io import read_json_object
+    from spikesim.stream import recorded_geometry
+
+    rec = recorded_geometry(path)
+    if rec is None:
+        return None
+    camera = read_json_object(rec["source"], "stream description", finite=False, limit=1 << 24).get("camera")
+    period = camera.get("readout_period_s") if isinstance(camera, dict) else None
+    return float(period) if isinstance(period, (int, float)) and not isinstance(period, bool) else None
+
+
+def readout_period_of(recordings: list[Path], asked: float | None, starting: float) -> tuple[float, str]:
+    """The readout period the rates are converted with, and where it came from: the recordings'
+    records, which must agree with each other and with --readout-period-s (round eight: the
+    default 25e-6 s was taken for a 1e-4 s recording, a dark current 4 times too high)."""
+    import math
+    recorded = {p: v for p in recordings if (v := recorded_readout_period_s(p)) is not None}
+    periods = sorted(set(recorded.values()))
+    if len(periods) > 1:
+        raise ValueError("the recordings record different readout periods ("
+                         + ", ".join(f"{p.name}: {v:g} s" for p, v in recorded.items())
+                         + "); calibrate recordings of one camera at one readout period")
+    if periods:
+        period, source = periods[0], next(iter(recorded))
+        if asked is not None and not math.isclose(asked, period, rel_tol=1e-9):
+            raise ValueError(f"--readout-period-s {asked:g}: {source.name}'s record gives {period:g} s; drop the "
+                             "flag (the record is taken) or give the period it records")
+        return period, f"readout_period_s {period:g} s from {source.name}'s record"
+    if asked is not None:
+        return asked, f"readout_period_s {asked:g} s from --readout-period-s"
+    return starting, (f"readout_period_s {starting:g} s: the starting camera's (no recording records one; "
+                      "--readout-period-s sets it)")
 
 
 def calibrated_toml(camera: Any, fitted: list[Any], notes: list[str]) -> str:
@@ -80,11 +119,15 @@ def run(args: argparse.Namespace) -> int:
     if same:  # one recording counted as two independent ones: its errors came out too small (round six)
         raise ValueError(f"{same[0]}: given twice (the same recording, by path or content); --dark and each --flat "
                          "must be different recordings")
+    if args.scene is not None and args.dark is not None and same_recording(args.scene, args.dark):
+        raise ValueError(f"{args.scene}: given as --dark and as --scene (the same recording, by path or content); a "
+                         "scene recording is lit")
     base = load_camera(args.camera)
-    if args.readout_period_s is not None:
-        base = base.replace(readout_period_s=args.readout_period_s)
+    recordings = [p for p in (args.dark, *args.flat, args.scene) if p is not None]
+    period, period_note = readout_period_of(recordings, args.readout_period_s, base.readout_period_s)
+    base = base.replace(readout_period_s=period)
     flip = False if args.no_flip else None
-    fitted, notes = [], []
+    fitted, notes = [], [period_note]
     dark = None
     if args.dark is not None:
         dark = read_half_rates(args.dark, args.height, args.width, flip)
@@ -145,7 +188,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-flip", action="store_true",
                    help="rows stored top-down (SPCS/SCSim); default: as recorded, else rows stored bottom-up (flip)")
     p.add_argument("--readout-period-s", type=readout_period_s,
-                   help="the recordings' readout period in seconds (default: the starting camera's, 25e-6)")
+                   help="the recordings' readout period in seconds (default: what their records give, else the "
+                        "starting camera's, 25e-6; refused where a record gives another)")
     p.add_argument("--camera", type=camera_spec, default="realistic",
                    help="the camera whose other fields the file keeps (a preset or a camera file; default realistic)")
     p.add_argument("-o", "--out", type=output_file, required=True, help="the camera file to write (*.toml)")

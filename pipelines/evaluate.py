@@ -43,8 +43,11 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     names = [m.name for m in methods]
     if len(set(names)) != len(names):
         raise ValueError(f"method names must be unique, got {names}; name them with label=spec")
-    if args.out is not None:
-        check_results(Path(args.out))  # a link where results go: refused before the work
+    target = _results_folder(args)
+    if target is not None:  # links and a user's files where the results go: refused before the work
+        from spikesim.outputs import check_results_owned
+        check_results(target)
+        check_results_owned(target, RESULT_FILES, "evaluate")
     if args.rate is not None and args.spikezoo is None:
         raise ValueError("--rate goes with --spikezoo (a Spike-Zoo folder without spikezoo.json)")
     if args.dat is not None:
@@ -71,13 +74,31 @@ def _report(args: argparse.Namespace, rows: Sequence[Score], names: Sequence[str
         print(json.dumps(json_safe(scores_json(rows, names, source)), indent=2))
     else:
         print(markdown_table(rows, names))
-    if args.out is not None or not args.json:  # --json alone only prints
-        target = Path(args.out or DEFAULT_OUT)
-        replaced = [n for n in RESULT_FILES if (target / n).exists()]
-        csv_path, md_path = write_results(rows, names, target)
-        print(f"[evaluate] wrote {csv_path} and {md_path}" + (" (replacing an earlier evaluation's; -o DIR to keep "
-                                                                "each)" if replaced else ""), file=sys.stderr)
+    _write(args, rows, names)
     return 0
+
+
+def _results_folder(args: argparse.Namespace) -> Path | None:
+    """Where metrics.csv and metrics.md go: -o; without it DEFAULT_OUT, except with --json or
+    --dat, which then only print."""
+    if args.out is not None:
+        return Path(args.out)
+    return None if (args.json or args.dat is not None) else Path(DEFAULT_OUT)
+
+
+def _write(args: argparse.Namespace, rows: Sequence[Score], names: Sequence[str], markdown: str | None = None) -> None:
+    """metrics.csv and metrics.md, replacing only an earlier evaluation's (the folder's record says
+    which files evaluate wrote): a user's metrics.md of the same name was replaced (round eight)."""
+    from spikesim.outputs import check_results_owned, record_results_owned
+    target = _results_folder(args)
+    if target is None:
+        return
+    replaced = check_results_owned(target, RESULT_FILES, "evaluate")
+    csv_path, md_path = write_results(rows, names, target, markdown=markdown)
+    record_results_owned(target, RESULT_FILES, "evaluate")
+    again = "; -o DIR to keep each" if args.out is None else ""
+    print(f"[evaluate] wrote {csv_path} and {md_path}" + (f" (replacing an earlier evaluation's{again})"
+                                                            if replaced else ""), file=sys.stderr)
 
 
 def _evaluate_spikezoo_cmd(args: argparse.Namespace, methods: Sequence[Method], names: Sequence[str]) -> int:
@@ -122,9 +143,7 @@ def _evaluate_pair_cmd(args: argparse.Namespace, methods: Sequence[Method], name
         print(json.dumps(json_safe(doc), indent=2))
     else:
         print(pair_table(rows, names, read))
-    if args.out is not None:  # -o given: the same files as --data writes (without it, only printed)
-        csv_path, md_path = write_results(rows, names, Path(args.out), markdown=pair_table(rows, names, read))
-        print(f"[evaluate] wrote {csv_path} and {md_path}", file=sys.stderr)
+    _write(args, rows, names, markdown=pair_table(rows, names, read))  # only with -o: else printed only
     return 0
 
 

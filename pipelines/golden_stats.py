@@ -12,6 +12,7 @@ import argparse
 import json
 import math
 import sys
+from pathlib import Path
 from typing import Any
 
 from pipelines.argtypes import seed_int, camera_spec, existing_file, load_camera, output_file_in, positive_int
@@ -87,16 +88,20 @@ def _num(x: float) -> Any:
 def _write(args: argparse.Namespace) -> int:
     from spikesim.progress import progress_bar
 
-    from spikesim.outputs import check_not_link
+    from spikesim.outputs import check_not_link, check_results_owned, record_results_owned
 
     check_not_link(args.output)  # a link at -o is refused before the measurement, not after
+    out = Path(args.output)
+    check_results_owned(out.parent, [out.name], "golden")  # a user's JSON there is refused, not replaced (round eight)
     camera, backend = _camera(args), _backend(args.backend)
-    seeds = list(range(args.seeds if args.seeds is not None else len(golden.REFERENCE_SEEDS)))
-    if golden.MEASURE_SEED in seeds:
-        raise ValueError(f"--seeds {len(seeds)}: at most {golden.MEASURE_SEED} (seed {golden.MEASURE_SEED} is the check's)")
+    count = args.seeds if args.seeds is not None else len(golden.REFERENCE_SEEDS)
+    if count > golden.MEASURE_SEED:  # checked before the list: 10^9 seeds were listed and measured (round eight)
+        raise ValueError(f"--seeds {count}: at most {golden.MEASURE_SEED} (seed {golden.MEASURE_SEED} is the check's)")
+    seeds = list(range(count))
     with progress_bar(total=len(seeds), desc="golden reference", unit="seed", quiet=args.json) as bar:
         reference = golden.measure_reference(camera, backend, seeds, progress=bar)
     path = golden.write_reference(reference, args.output)
+    record_results_owned(out.parent, [out.name], "golden")
     if args.json:
         print(json.dumps({"wrote": str(path), "backend": reference["backend"], "seeds": seeds,
                           "statistics": sum(len(e) for e in reference["stats"].values())}, indent=2))

@@ -194,13 +194,16 @@ def run(args: argparse.Namespace) -> int:
         s["sidecar"] = {k: side[k] for k in ("seed", "backend", "keyframe_every", "irradiance") if k in side}
     if args.preview:
         from spikesim.imageio import PREVIEW_PERCENTILE, auto_percentile, write_png
-        from spikesim.outputs import output_file
+        from spikesim.outputs import check_not_link, check_results_owned, output_file, record_results_owned
+        preview_path = check_not_link(args.preview)
+        check_results_owned(preview_path.parent, [preview_path.name], "inspect")  # a user's PNG: refused (round eight)
         a = max(start, (start + stop) // 2 - args.window // 2)
         tfp = reader.read(a, min(stop, a + args.window)).unpack().mean(axis=0)
         # a dark stream's preview is stretched to its 99.5th percentile (it was near-black in low light)
         percentile = PREVIEW_PERCENTILE if args.enhance else auto_percentile(tfp)
         with output_file(args.preview) as preview:  # never through a link; no new empty folder on failure
             write_png(preview, tfp, percentile=percentile)
+            record_results_owned(preview_path.parent, [preview_path.name], "inspect")
         s["preview"] = str(args.preview)
         s["preview_stretched"] = percentile is not None
     if args.json:

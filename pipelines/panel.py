@@ -88,6 +88,8 @@ def run(args: argparse.Namespace) -> int:
 
     device = str(resolve_device(args.device))
     outputs.check_not_link(args.out)  # refused before the work, not after
+    out_path = Path(args.out)
+    outputs.check_results_owned(out_path.parent, [out_path.name], "panel")  # a user's PNG there is refused (round eight)
     set_cpu_threads(args.threads)
     header = None if args.header_columns == "auto" else args.header_columns
     frames, reference, read = panel_frames(args.input, args.methods, args.height, args.width, header, args.flip,
@@ -97,6 +99,7 @@ def run(args: argparse.Namespace) -> int:
     image = compose_panel(frames, captions)
     with outputs.output_file(args.out) as out:
         outputs.atomic_write_with(out, lambda tmp: image.save(tmp, format="PNG"))
+        outputs.record_results_owned(out_path.parent, [out_path.name], "panel")
     doc = {"read": read, "scores": scores, "out": str(out),
            "measures": {"flat_noise": "std / mean in the flattest 10 % of 16 x 16 blocks of the reference (lower: "
                                       "less noise)",

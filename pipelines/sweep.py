@@ -324,6 +324,8 @@ def run_sweep(scenes: Sequence[str] = ("ball", "car", "cook", "fan", "rotate"), 
             from spikesim.generation.lock import output_lock
             held.enter_context(output_folder(out))
             held.enter_context(output_lock(out, f"sweep (pid {os.getpid()})", what="sweep run"))
+            from spikesim.outputs import check_results_owned
+            check_results_owned(out, RESULT_FILES, "sweep")  # a user's sweep.md is refused, not replaced (round eight)
         sources = []
         for s in scenes:
             if str(s).lower().endswith(".xml"):
@@ -360,6 +362,8 @@ def run_sweep(scenes: Sequence[str] = ("ball", "car", "cook", "fan", "rotate"), 
             if draw_plot:
                 plot(rows, names, saturation, writable(out, "sweep.png"),
                      f"{', '.join(r.name for r in rendered)} at {camera.height} x {camera.width}, {windows} windows")
+            from spikesim.outputs import record_results_owned
+            record_results_owned(out, RESULT_FILES, "sweep")
         return SweepResult(rows, record, md)
 
 

@@ -256,6 +256,11 @@ def fit_scene(scene: HalfRates, dark: HalfRates | None = None) -> list[Fitted]:
     a, b = (scene.a - dark.a, scene.b - dark.b) if dark is not None else (scene.a, scene.b)
     local = median_filter(scene.mean if dark is None else (a + b) / 2, size=NEIGHBOURHOOD_PX, mode="reflect")
     lit = local > max(float(np.percentile(local, 10)), 1e-6)  # where there is light to measure a gain on
+    if lit.any(axis=1).sum() < 3 or lit.any(axis=0).sum() < 3:
+        # a spikeless or dark recording gave NumPy's warnings and "a spread needs at least 3 samples, got 0" (round eight)
+        raise ValueError(f"{where}: too little light for a gain to be measured (lit pixels in "
+                         f"{int(lit.any(axis=1).sum())} row(s) and {int(lit.any(axis=0).sum())} column(s), at least 3 "
+                         "of each needed); record a lit, textured scene")
     ra = np.where(lit, a / np.where(lit, local, 1.0), np.nan)
     rb = np.where(lit, b / np.where(lit, local, 1.0), np.nan)
     # What is left of each ratio once its row's and column's means are taken out: the pixels' own gain

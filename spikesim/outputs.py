@@ -20,6 +20,8 @@ write, replace or delete a file outside that folder:
 - `open_in_place` (and `in_place_fd`) open a file written in place (a log, a lock, an appended
   CSV) never through a symlink and never when the file has another name: writing through a hard
   link planted at its name would change a file outside the output (docs/CONTRACTS.md).
+- `check_results_owned` / `record_results_owned` keep a record of the results a command wrote in
+  a folder it shares with the user, so a rerun replaces its own and refuses to replace theirs.
 """
 from __future__ import annotations
 
@@ -31,7 +33,7 @@ import secrets
 import shutil
 import stat
 from pathlib import Path
-from typing import Any, BinaryIO, Callable, Iterator
+from typing import Any, BinaryIO, Callable, Iterator, Sequence
 
 LINK_REFUSED = ("is a symlink; files are not written or deleted through links (remove the link, or choose "
                 "another output folder)")
@@ -360,3 +362,63 @@ def discard_empty(folders: list[Path]) -> None:
 __all__ = ["parent_fd", "move_into", "in_place_fd", "open_in_place", "HARD_LINK_REFUSED", "LINK_REFUSED", "inside", "writable", "check_not_link", "naming", "writing", "new_temp_beside",
            "atomic_write_with", "atomic_write_file", "atomic_write_bytes", "atomic_write_text", "atomic_write_json", "append_text",
            "make_dirs", "remove", "missing_folders", "output_folder", "output_file", "discard_empty"]
+
+
+#: The record a command keeps in a results folder it shares with the user (evaluate's and sweep's
+#: -o): which files it wrote there, by name and sha256, so that a rerun replaces its own results
+#: and never a user's file of the same name (round eight: a user's metrics.md and sweep.md were
+#: replaced, "replacing an earlier evaluation's").
+RESULTS_RECORD = ".spikesim-results.json"
+
+
+def _file_sha256(path: Path) -> str:
+    import hashlib
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _results_record(out: Path) -> dict[str, Any]:
+    try:
+        doc = json.loads((out / RESULTS_RECORD).read_text())
+    except (OSError, ValueError):
+        return {}
+    files = doc.get("files") if isinstance(doc, dict) else None
+    return files if isinstance(files, dict) else {}
+
+
+def check_results_owned(out: str | Path, names: Sequence[str], command: str) -> list[str]:
+    """The names of `names` in `out` that an earlier `command` run wrote (as its record there
+    says, with the same content): a rerun replaces those. Any other existing file of those names
+    is the user's: refused, named, before any work."""
+    out = Path(out)
+    listed = _results_record(out)
+    ours, theirs = [], []
+    for name in names:
+        path = out / name
+        if not path.exists() and not path.is_symlink():
+            continue
+        entry = listed.get(name)
+        try:
+            same = (isinstance(entry, dict) and entry.get("command") == command and path.is_file()
+                    and not path.is_symlink() and entry.get("sha256") == _file_sha256(path))
+        except OSError:
+            same = False
+        (ours if same else theirs).append(name)
+    if theirs:
+        raise FileExistsError(f"{out}: holds {', '.join(theirs)}, which no earlier {command} run wrote there (or it "
+                              f"was changed since); {command} would replace {'it' if len(theirs) == 1 else 'them'}: "
+                              "choose another -o, or move them")
+    return ours
+
+
+def record_results_owned(out: str | Path, names: Sequence[str], command: str) -> None:
+    """Add the files `names` (just written in `out` by `command`) to the folder's results record."""
+    out = Path(out)
+    files = _results_record(out)
+    for name in names:
+        if (out / name).is_file():
+            files[name] = {"command": command, "sha256": _file_sha256(out / name)}
+    atomic_write_json(writable(out, RESULTS_RECORD), {"files": files}, indent=1)

@@ -136,3 +136,41 @@ def test_a_scene_of_a_camera_without_row_or_column_patterns_finds_none():
     for field in ("row_gain_spread", "column_gain_spread"):
         f = fits[field]
         assert f.value <= max(3 * f.uncertainty, 0.003), f
+
+
+def test_calibrate_takes_the_recorded_readout_period_and_size_and_refuses_what_contradicts_them(tmp_path, capsys):
+    """A 1e-4 s recording was converted at the default 25e-6 s (a dark current 4 times too high);
+    --height/--width that its record contradicts were taken (other spreads written); a dark
+    recording as --scene gave NumPy's warnings, and as --dark and --scene at once was accepted
+    (round eight)."""
+    import warnings
+
+    from pipelines.argtypes import load_camera
+    from pipelines.cli import main
+    slow = SpikeCamera.realistic(height=16, width=24).replace(readout_period_s=1e-4)
+    dark = tmp_path / "dark.dat"
+    Simulator(slow, seed=1).run_to_dat((np.zeros((16, 24), np.float32) for _ in range(4_000)), dark)
+    out = tmp_path / "c.toml"
+    assert main(["calibrate", "--dark", str(dark), "-o", str(out)]) == 0
+    assert "readout_period_s 0.0001 s from dark.dat's record" in out.read_text()
+    fitted = load_camera(str(out))
+    assert fitted.readout_period_s == 1e-4
+    # the camera's own 94 Hz within 25 % (4,000 steps of a 16 x 24 dark frame: a few hundred spikes)
+    assert 0.75 < fitted.dark_current_hz / slow.dark_current_hz < 1.25
+    capsys.readouterr()
+    from spikesim.stream import SpikeStream, write_dat, write_sidecar
+    spikeless = write_dat(tmp_path / "spikeless.dat", SpikeStream.from_bool(np.zeros((400, 16, 24), bool)))
+    write_sidecar(spikeless, {"height": 16, "width": 24, "flip": True})
+    for argv, says in ((["--dark", str(dark), "--readout-period-s", "25e-6"], "dark.dat's record gives 0.0001 s"),
+                       (["--dark", str(dark), "--height", "12", "--width", "32"], "not the 32x12 asked for"),
+                       (["--scene", str(spikeless)], "too little light for a gain to be measured"),
+                       (["--dark", str(dark), "--scene", str(dark)], "given as --dark and as --scene")):
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")  # no NumPy warning on the way to the refusal
+            assert main(["calibrate", *argv, "-o", str(tmp_path / "x.toml")]) == 2, argv
+        assert says in capsys.readouterr().err and not (tmp_path / "x.toml").exists()
+    other = tmp_path / "other.dat"
+    Simulator(SpikeCamera.realistic(height=16, width=24), seed=2).run_to_dat(
+        (np.full((16, 24), 0.1, np.float32) for _ in range(400)), other)
+    assert main(["calibrate", "--dark", str(dark), "--flat", str(other), "-o", str(tmp_path / "y.toml")]) == 2
+    assert "record different readout periods" in capsys.readouterr().err

@@ -6,6 +6,7 @@ from __future__ import annotations
 import errno
 import os
 
+import numpy as np
 import pytest
 
 from spikesim import outputs
@@ -330,3 +331,44 @@ def test_render_on_a_full_disk_names_the_frame_and_leaves_no_folder(xml, tmp_pat
     line = one_line(err)
     assert code == 2 and f"{d / 'frames' / 'step_000000.png'}: No space left on device" in line, line
     assert not (tmp_path / "new").exists()
+
+
+def test_a_users_file_of_a_results_name_is_refused_and_a_rerun_replaces_its_own(tmp_path, capsys):
+    """evaluate -o, panel -o, inspect --preview and golden --write -o replaced a user's metrics.md,
+    PNG or JSON of the same name, evaluate saying "replacing an earlier evaluation's" (round eight).
+    A rerun still replaces what the command itself wrote there, as the folder's record says."""
+    dat = tmp_path / "s.dat"
+    assert run_cli(["simulate", "--steps", 60, "--height", 16, "--width", 16, "--backend", "numpy", "--quiet",
+                    "-o", dat], capsys)[0] == 0
+    gt = tmp_path / "gt.npy"
+    np.save(gt, np.full((16, 16), 0.2, np.float32) + np.eye(16, dtype=np.float32) * 0.1)
+    cases = {
+        "evaluate": (tmp_path / "ev" / "metrics.md",
+                     ["evaluate", "--dat", dat, "--gt", gt, "--center", 30, "--window", 21, "--methods", "tfp",
+                      "--height", 16, "--width", 16, "-o", tmp_path / "ev", "--quiet"]),
+        "panel": (tmp_path / "pa" / "panel.png",
+                  ["panel", dat, "--methods", "tfp", "--window", 21, "--num-windows", 2, "-o", tmp_path / "pa" / "panel.png"]),
+        "inspect": (tmp_path / "in" / "p.png", ["inspect", dat, "--window", 5, "--preview", tmp_path / "in" / "p.png"]),
+        "golden": (tmp_path / "go" / "ref.json",
+                   ["golden", "--write", "--seeds", "1", "--backend", "numpy", "-o", tmp_path / "go" / "ref.json"]),
+    }
+    for command, (target, argv) in cases.items():
+        target.parent.mkdir()
+        target.write_bytes(b"the user's own")
+        code, err = run_cli(argv, capsys)
+        assert code == 2 and f"holds {target.name}, which no earlier {command} run wrote there" in err, (command, err)
+        assert target.read_bytes() == b"the user's own"
+        target.unlink()
+        code, err = run_cli(argv, capsys)
+        assert code == 0, (command, err)
+        first = target.read_bytes()
+        assert run_cli(argv, capsys)[0] == 0, command  # its own result: replaced without a word
+        assert target.read_bytes()[:4] == first[:4]
+
+
+def test_a_sweep_refuses_a_users_sweep_md_before_rendering(tmp_path):
+    from pipelines.sweep import run_sweep
+    (tmp_path / "sweep.md").write_text("my own notes")
+    with pytest.raises(FileExistsError, match="holds sweep.md, which no earlier sweep run wrote there"):
+        run_sweep(["fan"], ["tfp"], [1.0], out=tmp_path, progress=False)
+    assert (tmp_path / "sweep.md").read_text() == "my own notes"
