@@ -116,6 +116,20 @@ def remove_stage(stage: Path) -> None:
     shutil.rmtree(stage, ignore_errors=True)
 
 
+def recorded_readout_period_s(folder: Path) -> float | None:
+    """The readout period a render folder's frames were made for (its record's exposure; the
+    folder itself or a kind subfolder of one): a frame's y is the charge of one readout period and
+    its motion that of one step. None for a folder of the user's own EXRs."""
+    folder = Path(folder)
+    base = folder if (folder / RECORD).is_file() else folder.parent if (folder.parent / RECORD).is_file() else None
+    if base is None:
+        return None
+    record = read_record(base) or {}
+    exposure = record.get("exposure")
+    period = exposure.get("readout_period_s") if isinstance(exposure, dict) else None
+    return float(period) if isinstance(period, (int, float)) and not isinstance(period, bool) and period > 0 else None
+
+
 def listed_frames(folder: Path, keyframe_every: int) -> list[Path] | None:
     """The EXR frames `simulate --frames folder` reads when `folder` is a render folder (holding
     render.json) or a kind subfolder of one: only those its record lists, in step order, checked

@@ -110,22 +110,42 @@ def _camera_file_sizes(camera: Any) -> bool:
     return "height" in data or "width" in data
 
 
-def frames_size(path: Path) -> tuple[int, int] | None:
+def frames_size(path: Path, keyframe_every: int = 1) -> tuple[int, int] | None:
     """(H, W) of --frames (a .npy's array, a folder's first EXR); None where it cannot be read, so
-    that the reader's own error names what is wrong."""
+    that the reader's own error names what is wrong. `keyframe_every` is the run's: a render folder
+    of keyframes checked as frames one step apart was not read, and its size became 250 x 400 (round
+    eight)."""
     try:
         if path.is_dir():
             from pipelines.render_folder import listed_frames
             from spikesim.imageio import read_exr
             # a render folder's frames sit under its kind folder, listed by its record (round six: a 16 x 24
             # render folder was read as 250 x 400); a folder of one's own EXRs holds them directly
-            files = listed_frames(path, 1) or exr_files(path)
+            files = listed_frames(path, keyframe_every) or exr_files(path)
             shape = read_exr(files[0]).shape
         else:
             shape = np.load(path, mmap_mode="r").shape[1:]
     except (OSError, ValueError, EOFError, IndexError):
         return None
     return (int(shape[0]), int(shape[1])) if len(shape) == 2 and min(shape) > 0 else None
+
+
+def render_readout_period(cam: SpikeCamera, folder: Path, camera_spec: Any) -> SpikeCamera:
+    """`cam` at the readout period the render folder's frames were made for: a preset camera takes
+    it; a camera file that gives another is refused (round eight: frames rendered for 1e-4 s were
+    simulated at 25e-6 s, the stream's time base 4 times off, rc 0)."""
+    import math
+
+    from pipelines.render_folder import recorded_readout_period_s
+    period = recorded_readout_period_s(folder)
+    if period is None or math.isclose(period, cam.readout_period_s, rel_tol=1e-9):
+        return cam
+    if isinstance(camera_spec, Path):
+        raise ValueError(f"--frames {folder}: rendered for a readout period of {period:g} s (its render.json), but "
+                         f"--camera {camera_spec} reads out every {cam.readout_period_s:g} s; render again with that "
+                         "camera's period, or give a camera file with the render's")
+    log.info("readout period %g s, the render's (%s/render.json)", period, folder)
+    return cam.replace(readout_period_s=period)
 
 
 def load_npy_frames(path: Path, cam: SpikeCamera) -> np.ndarray:
@@ -241,9 +261,11 @@ def run(args: argparse.Namespace) -> int:
     check_outputs(args)
     cam = camera_from_args(args)
     if args.frames is not None and args.height is None and args.width is None and not _camera_file_sizes(args.camera):
-        size = frames_size(Path(args.frames))  # the frames' own size, not the default camera's 250 x 400
+        size = frames_size(Path(args.frames), args.keyframe_every)  # the frames' own size, not the default camera's 250 x 400
         if size is not None:
             cam = cam.replace(height=size[0], width=size[1])
+    if args.frames is not None and Path(args.frames).is_dir():
+        cam = render_readout_period(cam, Path(args.frames), args.camera)
     backend = args.backend
     settings = None
     if args.scene is not None and args.frames is None:

@@ -129,3 +129,34 @@ def test_simulate_takes_a_render_folders_frame_size(tmp_path, capsys):
     assert main(["simulate", "--frames", str(out), "--backend", "numpy", "-o", str(tmp_path / "s.dat"), "--quiet"]) == 0
     info = json.loads((tmp_path / "s.dat.json").read_text())
     assert (info["height"], info["width"], info["num_steps"]) == (16, 24, 3)
+
+
+def test_simulate_takes_the_size_of_a_render_folder_of_keyframes(tmp_path, capsys):
+    """With --keyframe-every 2 (what simulate's own message asks for) a render folder of steps 0, 2, 4
+    was read as 250 x 400 again (round eight)."""
+    out = tmp_path / "rf"
+    assert main(["render", "tests/data/plain_scene/scene.xml", "--steps", "0,2,4", "--spp", "1", "--height", "16",
+                 "--width", "24", "-o", str(out), "--quiet"]) == 0
+    capsys.readouterr()
+    assert main(["simulate", "--frames", str(out), "--backend", "numpy", "-o", str(tmp_path / "s.dat"), "--quiet"]) == 2
+    assert "give --keyframe-every 2" in capsys.readouterr().err
+    assert main(["simulate", "--frames", str(out), "--keyframe-every", "2", "--backend", "numpy",
+                 "-o", str(tmp_path / "s.dat"), "--quiet"]) == 0
+    info = json.loads((tmp_path / "s.dat.json").read_text())
+    assert (info["height"], info["width"]) == (16, 24)
+
+
+def test_simulate_reads_out_at_the_period_the_frames_were_rendered_for(tmp_path, capsys):
+    """Frames rendered for 1e-4 s were simulated at the default 25e-6 s (round eight): a preset
+    camera takes the render's period; a camera file giving another is refused."""
+    (tmp_path / "e.json").write_text('{"readout_period_s": 0.0001}')
+    out = tmp_path / "rf"
+    assert main(["render", "tests/data/plain_scene/scene.xml", "--steps", "0:2", "--spp", "1", "--height", "16",
+                 "--width", "24", "--exposure", str(tmp_path / "e.json"), "-o", str(out), "--quiet"]) == 0
+    assert main(["simulate", "--frames", str(out), "--backend", "numpy", "-o", str(tmp_path / "s.dat"), "--quiet"]) == 0
+    assert json.loads((tmp_path / "s.dat.json").read_text())["camera"]["readout_period_s"] == 1e-4
+    assert main(["camera", "--write", str(tmp_path / "cam.toml")]) == 0
+    capsys.readouterr()
+    assert main(["simulate", "--frames", str(out), "--camera", str(tmp_path / "cam.toml"), "--height", "16",
+                 "--width", "24", "--backend", "numpy", "-o", str(tmp_path / "t.dat"), "--quiet"]) == 2
+    assert "rendered for a readout period of 0.0001 s" in capsys.readouterr().err
