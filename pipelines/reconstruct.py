@@ -31,7 +31,8 @@ import torch
 from model.methods import method_from_spec
 from model.streaming import StepWindows
 from model.threads import set_cpu_threads
-from pipelines.argtypes import add_threads_argument, nonnegative_int, positive_float, positive_int, window_steps
+from pipelines.argtypes import (add_threads_argument, float_in, nonnegative_int, positive_float, positive_int,
+                                window_steps)
 from pipelines.inspect_cmd import header_columns_arg, open_stream
 from spikesim._optional import require
 from spikesim.errors import UnavailableError
@@ -128,6 +129,8 @@ def reconstruct_file(path: Path, out: Path, method_spec: str = "tfp", height: in
     header_columns None: detected (spikesim.stream.detect_header_columns).
     """
     path, out = Path(path), Path(out)
+    if not (isinstance(fps, (int, float)) and 0.01 <= fps <= 1000.0):  # a GIF frame lasts at most 655.35 s
+        raise ValueError(f"fps: expected 0.01 to 1000 frames per second, got {fps!r}")
     reader, header_columns = open_stream(path, height, width, flip, header_columns)
     height, width, flip = reader.height, reader.width, reader.flip
     method = method_from_spec(method_spec, window, chunk, device)
@@ -315,7 +318,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--scale", type=positive_float, default=1.0, help="display gain on y before clipping (e.g. 1/0.6)")
     p.add_argument("--percentile", type=percentage, default=99.5,
                    help="percentile mapped to white by --enhance stretch, in (0, 100]")
-    p.add_argument("--fps", type=positive_float, default=10.0, help="frames per second of the GIF and MP4")
+    # a GIF frame lasts at most 655.35 s (a 16-bit count of 10 ms): --fps 0.001 crashed inside PIL (round eight)
+    p.add_argument("--fps", type=float_in(0.01, 1000.0, "frames per second"), default=10.0,
+                   help="frames per second of the GIF and MP4 (0.01 to 1000)")
     p.add_argument("--no-gif", action="store_true", help="do not write the GIF")
     p.add_argument("--no-mp4", action="store_true", help="do not write the MP4")
     p.add_argument("--save-npy", action="store_true", help="also write the linear frames to frames.npy")
