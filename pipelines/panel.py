@@ -28,12 +28,12 @@ from spikesim.config_io import standard_json
 def panel_frames(path: Path, specs: list[str], height: int | None = None, width: int | None = None,
                  header_columns: int | str | None = "auto", flip: bool | None = None, start: int = 0,
                  num_windows: int | None = None, frame: int | None = None, window: int = 41,
-                 device: str = "cpu") -> tuple[dict[str, np.ndarray], np.ndarray, dict]:
+                 device: str = "cpu", drop_partial: bool = False) -> tuple[dict[str, np.ndarray], np.ndarray, dict]:
     """({method name: frame (H, W) y}, reference (H, W): TFP over every window read, what was read)."""
     from model.methods import method_from_spec
     from model.streaming import StepWindows
 
-    reader, header = open_stream(Path(path), height, width, flip, header_columns)
+    reader, header = open_stream(Path(path), height, width, flip, header_columns, drop_partial)
     available = (reader.num_steps - start) // window
     if available < 1:
         raise ValueError(f"{path}: {reader.num_steps} steps leave no full {window}-step window after --start {start}")
@@ -93,7 +93,8 @@ def run(args: argparse.Namespace) -> int:
     set_cpu_threads(args.threads)
     header = None if args.header_columns == "auto" else args.header_columns
     frames, reference, read = panel_frames(args.input, args.methods, args.height, args.width, header, args.flip,
-                                           args.start, args.num_windows, args.frame, args.window, device)
+                                           args.start, args.num_windows, args.frame, args.window, device,
+                                           args.drop_partial)
     scores = {name: no_reference_scores(f, reference) for name, f in frames.items()}
     captions = {n: f"noise {s['flat_noise']:.3f}\nedge {s['edge_sharpness']:.3f}" for n, s in scores.items()}
     image = compose_panel(frames, captions)
@@ -136,6 +137,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--width", type=positive_int, help="columns without header (default: as recorded, else 400)")
     p.add_argument("--header-columns", type=header_columns_arg, default="auto",
                    help="columns to drop at the end of each row (auto: as recorded, else detected)")
+    p.add_argument("--drop-partial", action="store_true",
+                   help="ignore a partial last frame (a recording cut off mid-frame) instead of failing")
     flip = p.add_mutually_exclusive_group()
     flip.add_argument("--flip", dest="flip", action="store_true", default=None,
                       help="rows stored bottom-up (a real PKU camera's files; the default where nothing is recorded)")

@@ -122,7 +122,7 @@ def reconstruct_file(path: Path, out: Path, method_spec: str = "tfp", height: in
                      start: int = 0, num_windows: int | None = None, window: int = 41, chunk: int = 8,
                      device: str = "cpu", enhance: str = "auto", gamma: float = 2.2, scale: float = 1.0,
                      percentile: float = 99.5, fps: float = 10.0, gif: bool = True, mp4: bool = True,
-                     save_npy: bool = False, progress: bool = True) -> dict:
+                     save_npy: bool = False, progress: bool = True, drop_partial: bool = False) -> dict:
     """Reconstruct `path` into `out`; returns a summary (also written to out/reconstruct.json).
 
     height / width / flip None: as recorded beside the stream, else 250 x 400 bottom-up;
@@ -131,7 +131,7 @@ def reconstruct_file(path: Path, out: Path, method_spec: str = "tfp", height: in
     path, out = Path(path), Path(out)
     if not (isinstance(fps, (int, float)) and 0.01 <= fps <= 1000.0):  # a GIF frame lasts at most 655.35 s
         raise ValueError(f"fps: expected 0.01 to 1000 frames per second, got {fps!r}")
-    reader, header_columns = open_stream(path, height, width, flip, header_columns)
+    reader, header_columns = open_stream(path, height, width, flip, header_columns, drop_partial)
     height, width, flip = reader.height, reader.width, reader.flip
     method = method_from_spec(method_spec, window, chunk, device)
     window = method.window
@@ -272,7 +272,7 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
                                args.flip, args.start, args.num_windows, args.window, args.chunk,
                                device, args.enhance, args.gamma, args.scale,
                                args.percentile, args.fps, not args.no_gif, not args.no_mp4, args.save_npy,
-                               progress=not args.quiet)
+                               progress=not args.quiet, drop_partial=args.drop_partial)
     for note in summary.get("notes", []):
         print(f"[reconstruct] note: {note}", file=sys.stderr)
     if args.json:
@@ -303,6 +303,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                       help="rows stored bottom-up (real cameras; the default unless recorded otherwise)")
     flip.add_argument("--no-flip", dest="flip", action="store_false",
                       help="rows stored top-down (SPCS/SCSim/LR-Rep authors); default: as recorded, else rows stored bottom-up (flip)")
+    p.add_argument("--drop-partial", action="store_true",
+                   help="ignore a partial last frame (a recording cut off mid-frame) instead of failing")
     p.add_argument("--start", type=nonnegative_int, default=0, help="first step of the first window")
     p.add_argument("--num-windows", type=positive_int, help="frames to make (default: as many as fit)")
     p.add_argument("--window", type=window_steps, default=41,

@@ -241,8 +241,8 @@ class DatReader:
                 f"{self.path}: {size} bytes is not a whole number of {height}x{self.stored_width} frames "
                 f"({self.frame_bytes} bytes each; {full} frames and {rest} bytes left over). The geometry is "
                 "likely wrong: give height, width and header_columns as the recording has them (a sidecar or "
-                "meta.json records them). Only for a file cut off mid-frame, drop_partial=True (--drop-partial) "
-                "ignores the partial last frame.")
+                "meta.json records them). Only for a file cut off mid-frame, drop_partial=True (the commands "
+                "inspect, reconstruct and panel: --drop-partial) ignores the partial last frame.")
         self.num_steps = full
         self._mm = np.memmap(self.path, dtype=np.uint8, mode="r", shape=(full, self.frame_bytes)) if full else np.zeros((0, self.frame_bytes), np.uint8)
 
@@ -428,8 +428,9 @@ def detect_header_columns(path: str | Path, height: int, width: int, drop_partia
         fits_plain = fits_wide = True  # a partial last frame is ignored whichever the reading
     if not (fits_plain or fits_wide):
         raise ValueError(f"{path}: {size} bytes is not a whole number of {width}x{height} frames ({plain} bytes "
-                         f"each), nor of {width + HEADER_COLUMNS}x{height} frames ({wide} bytes each): the file "
-                         "is truncated or --height/--width are wrong")
+                         f"each), nor of {width + HEADER_COLUMNS}x{height} frames ({wide} bytes each): --height/--width "
+                         "are wrong, or the file is cut off mid-frame (then drop_partial=True, in the commands "
+                         "inspect, reconstruct and panel --drop-partial, ignores the partial last frame)")
     if size == 0 or not fits_wide:
         return 0
     if not fits_plain:

@@ -201,3 +201,22 @@ def test_a_run_that_makes_other_than_asked_says_so(tmp_path, capsys):
                          "--out", tmp_path / "o2", "--quiet", "--no-mp4"], capsys)
     assert code == 0 and "note:" not in err
     assert json.loads((tmp_path / "o2" / "reconstruct.json").read_text())["notes"] == []
+
+
+def test_a_recording_cut_off_mid_frame_is_read_where_the_message_says_it_can_be(dat, tmp_path, capsys):
+    """The partial-frame error advised --drop-partial to reconstruct and panel, which refused the
+    flag (round eight); both take it now and make the whole frames' output."""
+    cut = tmp_path / "cut.dat"
+    cut.write_bytes(dat.read_bytes() + b"\0" * 5)
+    base = ["reconstruct", cut, "--height", 12, "--width", 16, "--window", 7, "--no-mp4", "--no-gif", "--quiet"]
+    code, err = run_cli([*base, "--out", tmp_path / "a"], capsys)
+    assert code == 2 and "inspect, reconstruct and panel" in err and "--drop-partial" in err
+    code, err = run_cli([*base, "--out", tmp_path / "b", "--drop-partial", "--header-columns", 0], capsys)
+    assert code == 0, err
+    assert json.loads((tmp_path / "b" / "reconstruct.json").read_text())["frames"] == 5
+    from spikesim.stream import SpikeStream, write_dat
+    big = write_dat(tmp_path / "big.dat", SpikeStream.from_bool(make_scene("q", 16, 16, 7 * 3, brightness=0.3).spike_array))
+    big.write_bytes(big.read_bytes() + b"\0" * 5)
+    code, err = run_cli(["panel", big, "--height", 16, "--width", 16, "--window", 7, "--methods", "tfp", "--quiet",
+                         "--drop-partial", "--header-columns", 0, "-o", tmp_path / "p.png"], capsys)
+    assert code == 0 and (tmp_path / "p.png").is_file(), err
