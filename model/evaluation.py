@@ -93,6 +93,22 @@ def group_name(condition: str | None) -> str:
     return ALL if condition is None else f"{ALL}_{condition}"
 
 
+def unscored_note(scene: Scene, window: int) -> str | None:
+    """What the evaluation run leaves out of a scene's ground truth, or None: the run scores
+    consecutive windows (a recurrent network's input), so only ground-truth steps `window` apart
+    in one run are scored."""
+    half = window // 2
+    inside = [int(s) for s in scene.gt_steps if int(s) - half >= 0 and int(s) + half <= scene.num_steps - 1]
+    n = evaluation_run(scene, window)[1]
+    if n >= len(inside):
+        return None
+    steps = sorted(int(s) for s in scene.gt_steps)
+    gaps = sorted({b - a for a, b in zip(steps, steps[1:])})
+    apart = f"; its ground truth is {gaps[0]} steps apart" if len(gaps) == 1 else ""
+    return (f"{scene.name}: {n} of its {len(inside)} ground-truth frames scored: the scored windows are consecutive, "
+            f"so their centres must be {window} steps apart{apart}")
+
+
 def evaluate_scene(scene: Scene, methods: Sequence[Method], window: int) -> list[Score]:
     """Every metric of every method on the scene's evaluation run; ground truth clipped at the
     sensor's saturation (y = 1 spike per step: above it no stream differs, model/data.py)."""
@@ -131,6 +147,8 @@ def evaluate(scenes: Sequence[Scene], methods: Sequence[Method], window: int, pr
     rows: list[Score] = []
     for sc in scenes:
         rows += evaluate_scene(sc, methods, window)
+        if note := unscored_note(sc, window):  # --window 3 scored 1 of 5 frames without a word (round eight)
+            print(f"[evaluate] note: {note}", file=sys.stderr)
         if progress:
             print(f"[evaluate] {sc.name}: aligned PSNR " + ", ".join(f"{r.method} {r.psnr_aligned:.2f} dB"
                                                                   for r in rows[-len(methods):]),

@@ -156,3 +156,16 @@ def test_tfp_on_the_spk2imgnet_sample(shared_data):
     assert 22.5 < psnr(est, gt) < 25.0
     flipped = tfp_windows(torch.from_numpy(read_dat(dat, 250, 400, 131, 172, flip=False).unpack()).unsqueeze(0))[0]
     assert psnr(flipped.numpy() / 0.6, gt) < psnr(est, gt) - 3
+
+
+def test_evaluate_says_when_a_window_leaves_ground_truth_unscored(capsys):
+    """--window 3 on a set with ground truth every 41 steps scored 1 of 5 frames per scene and said
+    nothing but "(1 frames)" (round eight)."""
+    from model.evaluation import evaluate, unscored_note
+    sc = make_scene("s_low", 16, 16, 41 * 5, gt_every=41)
+    assert unscored_note(sc, 41) is None
+    note = unscored_note(sc, 3)
+    assert note == ("s_low: 1 of its 4 ground-truth frames scored: the scored windows are consecutive, so their "
+                    "centres must be 3 steps apart; its ground truth is 41 steps apart")
+    rows = evaluate([sc], [method_from_spec("tfp", 3)], 3, progress=False)
+    assert rows[0].frames == 1 and f"[evaluate] note: {note}" in capsys.readouterr().err
