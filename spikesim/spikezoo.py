@@ -46,7 +46,7 @@ import numpy as np
 
 from . import outputs
 from .config_io import read_json_object
-from .dataset import LOCK_FILE, SATURATION_Y, SceneRecord, open_dataset
+from .dataset import LOCK_FILE, SATURATION_Y, SceneRecord, open_dataset, sha256_file
 from .stream import write_dat
 
 SPLITS = ("train", "test")
@@ -253,10 +253,12 @@ def _export_scene(out: Path, split: str, plan: ScenePlan, steps: int, rate: floa
     for g, y in gts.items():
         name = plan.pair_name(g)
         start, stop = window_of(g, steps)
-        write_dat(outputs.writable(out, split, SPIKE_DIR, f"{name}.dat"), sc.stream(start, stop), flip=True)
-        _write_png(outputs.writable(out, split, GT_DIR, f"{name}.png"), png_levels(y, r))
+        dat = write_dat(outputs.writable(out, split, SPIKE_DIR, f"{name}.dat"), sc.stream(start, stop), flip=True)
+        png = outputs.writable(out, split, GT_DIR, f"{name}.png")
+        _write_png(png, png_levels(y, r))
+        # each file's sha256: swapped streams were scored against each other's truth, rc 0 (round eight)
         pairs[name] = {"scene": sc.name, "gt_step": g, "first_step": start, "steps": steps, "rate": r,
-                       "mean_y": float(np.mean(y))}
+                       "mean_y": float(np.mean(y)), "sha256": {"spike": sha256_file(dat), "gt": sha256_file(png)}}
     entry = {"rate": r, "max_y": top, "mean_y": float(np.mean([p["mean_y"] for p in pairs.values()])),
              "pairs": len(pairs), "skipped_gt_steps": plan.skipped, **_light(sc),
              "licences": sorted(set(_licences(sc.meta.get("source"))))}
@@ -487,6 +489,12 @@ def _pair(dat: Path, spike_dir: Path, gt_dir: Path, height: int, width: int, ent
         raise ValueError(f"{dat}: not listed in the export's {RECORD}; Spike-Zoo would read it as one more sample")
     if int(info["steps"]) != steps:
         raise ValueError(f"{dat}: {steps} frames of {height} x {width}; {RECORD} records {info['steps']}")
+    recorded = info.get("sha256")  # exports before round eight recorded none
+    if isinstance(recorded, dict):
+        for path, key in ((dat, "spike"), (png, "gt")):
+            if recorded.get(key) is not None and sha256_file(path) != recorded[key]:
+                raise ValueError(f"{path}: not the file the export wrote for {rel.as_posix()} (its sha256 differs from "
+                                 f"{RECORD}'s): swapped or altered; export again")
     return SpikeZooPair(rel.as_posix(), dat, png, float(info["rate"]), key_index(steps), steps,
                         info.get("scene"), info.get("gt_step"))
 

@@ -272,3 +272,20 @@ def test_a_rate_no_png_can_hold_is_refused(rate, tmp_path, capsys):
     """--rate 1e300 wrote every ground truth as 0, rc 0 (round six): a rate is a y in 1e-6..1."""
     rc, err = run_cli(["export", tmp_path / "none", "--format", "spikezoo", "-o", tmp_path / "o", "--rate", rate], capsys)
     assert rc == 2 and "argument --rate" in err and not (tmp_path / "o").exists()
+
+
+def test_swapped_or_altered_pairs_of_an_export_are_refused_naming_the_file(texture_data, capsys, tmp_path):
+    """Two exported streams swapped were scored against each other's truth, rc 0 (round eight): the
+    record keeps each file's sha256 and the reader checks it."""
+    out = tmp_path / "zoo"
+    _export(capsys, texture_data, out, "--steps", "41", "--gt-stride", "82")
+    spikes = out / "test" / "spike"
+    a, b = spikes / "tex_low_step000020.dat", spikes / "tex_normal_step000020.dat"
+    a_bytes, b_bytes = a.read_bytes(), b.read_bytes()
+    a.write_bytes(b_bytes)
+    b.write_bytes(a_bytes)
+    code, err = run_cli(["evaluate", "--spikezoo", out, "--methods", "tfp", "--json"], capsys)
+    assert code == 2 and "tex_low_step000020.dat: not the file the export wrote" in one_line(err)
+    a.write_bytes(a_bytes)
+    b.write_bytes(b_bytes)
+    assert run_cli(["evaluate", "--spikezoo", out, "--methods", "tfp", "--json"], capsys)[0] == 0
