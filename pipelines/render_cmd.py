@@ -51,6 +51,10 @@ def parse_steps(spec: str) -> list[int]:
             raise argparse.ArgumentTypeError(f"bad step specification {part!r}; use N, A:B or A:B:S") from None
     if not steps or min(steps) < 0:
         raise argparse.ArgumentTypeError(f"{spec!r} selects no steps, or a negative one")
+    seen: set[int] = set()
+    if twice := sorted({s for s in steps if s in seen or seen.add(s)}):
+        # 0,0,0 rendered one frame three times; simulate then asked for --keyframe-every 0 (round eight)
+        raise argparse.ArgumentTypeError(f"{spec!r} selects step(s) {', '.join(map(str, twice[:5]))} more than once")
     return steps
 
 
