@@ -239,6 +239,17 @@ def light_power_factor(text: str) -> float:
     return v
 
 
+class StoreOnce(argparse.Action):
+    """argparse action: a flag given once; a second value is refused, not silently taken instead of
+    the first (round eight: calibrate --dark A --dark B fitted B alone)."""
+
+    def __call__(self, parser, namespace, values, option_string=None):  # noqa: D102
+        if getattr(namespace, self.dest, None) is not None:
+            parser.error(f"argument {option_string}: given twice ({getattr(namespace, self.dest)} and {values}); "
+                         "give it once")
+        setattr(namespace, self.dest, values)
+
+
 def add_light_power_factor_argument(parser: argparse.ArgumentParser) -> None:
     """The --light-power-factor flag of every command that renders a user scene (generate, render,
     simulate --scene): one definition, one meaning, one help text."""

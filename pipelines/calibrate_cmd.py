@@ -23,7 +23,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from pipelines.argtypes import camera_spec, existing_file, load_camera, output_file, positive_int, readout_period_s
+from pipelines.argtypes import (StoreOnce, camera_spec, existing_file, load_camera, output_file, positive_int,
+                                readout_period_s)
 from spikesim import outputs
 
 
@@ -179,10 +180,10 @@ def run(args: argparse.Namespace) -> int:
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("calibrate", help="fit a camera file from your own dark, flat and scene recordings",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--dark", type=existing_file, help="a recording with the lens capped (.dat)")
+    p.add_argument("--dark", type=existing_file, action=StoreOnce, help="a recording with the lens capped (.dat)")
     p.add_argument("--flat", type=existing_file, action="append", default=[],
                    help="a recording of uniform light (.dat); give it twice for two light levels")
-    p.add_argument("--scene", type=existing_file, help="a recording of a textured scene (.dat)")
+    p.add_argument("--scene", type=existing_file, action=StoreOnce, help="a recording of a textured scene (.dat)")
     p.add_argument("--height", type=positive_int, help="rows (default: the stream's sidecar, else 250)")
     p.add_argument("--width", type=positive_int, help="columns (default: the stream's sidecar, else 400)")
     p.add_argument("--no-flip", action="store_true",

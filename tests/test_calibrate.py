@@ -169,6 +169,9 @@ def test_calibrate_takes_the_recorded_readout_period_and_size_and_refuses_what_c
             warnings.simplefilter("error")  # no NumPy warning on the way to the refusal
             assert main(["calibrate", *argv, "-o", str(tmp_path / "x.toml")]) == 2, argv
         assert says in capsys.readouterr().err and not (tmp_path / "x.toml").exists()
+    for flag in ("--dark", "--scene"):  # the second was taken silently instead of the first (round eight)
+        assert main(["calibrate", flag, str(dark), flag, str(spikeless), "-o", str(tmp_path / "x.toml")]) == 2
+        assert f"argument {flag}: given twice" in capsys.readouterr().err
     other = tmp_path / "other.dat"
     Simulator(SpikeCamera.realistic(height=16, width=24), seed=2).run_to_dat(
         (np.full((16, 24), 0.1, np.float32) for _ in range(400)), other)
