@@ -61,11 +61,18 @@ def edge_sharpness(image: np.ndarray, mask: np.ndarray) -> float:
     """Mean |grad| of `image` on the mask, over the image's mean level."""
     image = np.asarray(image, dtype=np.float64)
     level = image.mean()
+    if not np.any(mask):  # a reference without edges: nothing to measure (NaN, and no NumPy warning)
+        return float("nan")
     return float(gradient_magnitude(image)[mask].mean() / level) if level > 0 else 0.0
 
 
 def no_reference_scores(image: np.ndarray, reference: np.ndarray, block: int = 16) -> dict[str, float]:
-    """{"flat_noise", "edge_sharpness", "edge_to_noise"} of `image`, regions chosen on `reference`."""
+    """{"flat_noise", "edge_sharpness", "edge_to_noise"} of `image`, regions chosen on `reference`.
+    A reference without light is refused: every measure is a ratio to the light (round eight: an
+    all-zero recording gave noise inf, sharpness NaN and NumPy warnings)."""
+    if not np.any(np.asarray(reference) > 0):
+        raise ValueError("the reference (TFP over the windows read) holds no spike: no-reference measures are "
+                         "ratios to the light, and this recording has none in those windows")
     noise = flat_noise(image, flat_blocks(reference, block))
     sharp = edge_sharpness(image, edge_mask(reference))
     return {"flat_noise": noise, "edge_sharpness": sharp, "edge_to_noise": sharp / noise if noise > 0 else float("inf")}

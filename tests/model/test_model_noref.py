@@ -48,3 +48,19 @@ def test_bad_reference_is_refused():
         flat_blocks(np.zeros((8, 8)), block=16)
     with pytest.raises(ValueError, match="fraction"):
         flat_blocks(_scene(), fraction=0)
+
+
+def test_a_reference_without_light_is_refused_and_one_without_edges_gives_nan_quietly():
+    """An all-zero recording gave flat noise inf, edge sharpness NaN and NumPy warnings in `panel`
+    (round eight)."""
+    import warnings
+
+    from model.noref import no_reference_scores
+    black = np.zeros((32, 32))
+    with pytest.raises(ValueError, match="holds no spike"):
+        no_reference_scores(black, black)
+    flat = np.full((32, 32), 0.2)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        scores = no_reference_scores(flat + np.random.default_rng(0).normal(0, 0.01, flat.shape), flat)
+    assert np.isnan(scores["edge_sharpness"]) and scores["flat_noise"] > 0
