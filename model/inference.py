@@ -86,6 +86,8 @@ def reconstruct(spikes: Any, method: str = "lrrep", window: int = 41, threads: i
     cuda:N, mps, auto) is checked for every method, a device this machine lacks refused naming it;
     the window averages (tfp, tfi, tfp:N) compute on the CPU whatever it is."""
     _check_reader_args(height=height, width=width, flip=flip, drop_partial=drop_partial, threads=threads, chunk=chunk)
+    if isinstance(method, Path):  # the README says "a checkpoint path": a pathlib.Path is one (round eight)
+        method = str(method)
     if not isinstance(method, str) or not method.strip():
         raise ValueError(f"method: expected a method spec (lrrep, tfp, tfi, tfp:N, a checkpoint path), got {method!r}")
     if isinstance(spikes, (str, Path)):

@@ -169,3 +169,11 @@ def test_evaluate_says_when_a_window_leaves_ground_truth_unscored(capsys):
                     "centres must be 3 steps apart; its ground truth is 41 steps apart")
     rows = evaluate([sc], [method_from_spec("tfp", 3)], 3, progress=False)
     assert rows[0].frames == 1 and f"[evaluate] note: {note}" in capsys.readouterr().err
+
+
+def test_model_reconstruct_takes_a_checkpoint_as_a_path_object(tmp_path):
+    """method=pathlib.Path(...) was refused as "not a method spec" while the same str worked (round eight)."""
+    import model
+    ckpt = tiny_checkpoint(tmp_path / "t.pt", window=41)
+    s = np.random.default_rng(0).random((41 * 3, 16, 16)) < 0.2
+    np.testing.assert_array_equal(model.reconstruct(s, method=ckpt), model.reconstruct(s, method=str(ckpt)))
