@@ -629,8 +629,9 @@ def open_dataset(root: str | Path, checksums: bool = True) -> list[SceneRecord]:
     read, each checked the same way against its own checksums.json, with a warning that the set may
     be incomplete."""
     root = Path(root)
-    if not root.is_dir():
-        raise FileNotFoundError(f"dataset folder {root} does not exist")
+    if not root.is_dir():  # a file given as a dataset was "missing" (round eight)
+        raise FileNotFoundError(f"dataset folder {root} does not exist" if not root.exists() else
+                                f"{root} is not a folder (a dataset is a folder)")
     if (writer := writer_of(root)) is not None:  # a reader saw files replaced under it (round six)
         raise DatasetBusyError(f"{root}: a generate run is writing it now ({writer}); read it when that run has "
                                "finished")

@@ -289,3 +289,12 @@ def test_swapped_or_altered_pairs_of_an_export_are_refused_naming_the_file(textu
     a.write_bytes(a_bytes)
     b.write_bytes(b_bytes)
     assert run_cli(["evaluate", "--spikezoo", out, "--methods", "tfp", "--json"], capsys)[0] == 0
+
+
+def test_a_file_given_as_a_dataset_is_said_to_be_no_folder(capsys, tmp_path):
+    """evaluate / train / export --data FILE said the dataset folder does not exist (round eight)."""
+    (tmp_path / "flat.dat").write_bytes(b"\0" * 64)
+    for argv in (["evaluate", "--data", tmp_path / "flat.dat", "--methods", "tfp", "-o", tmp_path / "e"],
+                 ["export", tmp_path / "flat.dat", "--format", "spikezoo", "-o", tmp_path / "x"]):
+        code, err = run_cli(argv, capsys)
+        assert code == 2 and "flat.dat is not a folder (a dataset is a folder)" in one_line(err), err
