@@ -602,7 +602,7 @@ def run_training(experiment: ExperimentConfig, train_scenes: Sequence[Scene], va
             return _train(experiment, train_scenes, val_scenes, out_dir, device, resume, progress, overwrite, init)
         from spikesim.generation.lock import output_lock
         # two runs in one folder logged steps twice and left whichever last.pt was written last
-        with output_lock(out_dir, f"train {experiment.name} (pid {os.getpid()})", what="train run"):
+        with output_lock(out_dir, f"train {experiment.name}", what="train run"):
             return _train(experiment, train_scenes, val_scenes, out_dir, device, resume, progress, overwrite, init)
 
 

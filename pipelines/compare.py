@@ -24,7 +24,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import os
 import shlex
 import sys
 from pathlib import Path
@@ -169,7 +168,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     from spikesim.generation.lock import output_lock
     from spikesim.outputs import output_folder
     # one compare per folder: two at once would train the same runs and write each other's tables
-    with output_folder(out), output_lock(out, f"compare (pid {os.getpid()})", what="compare run"):
+    with output_folder(out), output_lock(out, "compare", what="compare run"):
         roots: Any = data if by_data else next(iter(data.values()))
         import torch
         worker_threads = max(1, torch.get_num_threads() // args.jobs)  # --threads (or the free cores) shared out

@@ -18,7 +18,6 @@ folder inside --out and moved into place only when the run succeeds.
 from __future__ import annotations
 
 import argparse
-import os
 import json
 import shutil
 import sys
@@ -146,7 +145,7 @@ def reconstruct_file(path: Path, out: Path, method_spec: str = "tfp", height: in
     source = StepWindows(lambda a, b: reader.read(a, b).unpack(), start, window, n)
     from spikesim.generation.lock import output_lock
     # one run per folder: two runs into one -o left one run's frames under the other's reconstruct.json
-    with output_folder(out), output_lock(out, f"reconstruct {path} (pid {os.getpid()})", what="reconstruct run"):
+    with output_folder(out), output_lock(out, f"reconstruct {path}", what="reconstruct run"):
         check_outputs(out)  # a link where an output goes: refused before any work
         check_ownership(out)  # and a file of the user's where one goes
         with writing(out):

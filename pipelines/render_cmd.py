@@ -123,12 +123,10 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    import os
-
     from spikesim.generation.lock import output_lock
     # the folder is this run's until it ends: two renders into one -o left one's frames unlisted
     # beside the other's record, and every later render there was refused (round six)
-    with output_folder(args.out), output_lock(args.out, f"render {args.scene} (pid {os.getpid()})", what="render run"):
+    with output_folder(args.out), output_lock(args.out, f"render {args.scene}", what="render run"):
         return _run(args)
 
 

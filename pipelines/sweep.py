@@ -25,7 +25,6 @@ import csv
 import io
 import json
 import math
-import os
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -323,7 +322,7 @@ def run_sweep(scenes: Sequence[str] = ("ball", "car", "cook", "fan", "rotate"), 
         if out is not None:  # the folder is this run's until it ends: two sweeps wrote a mix of each other's tables
             from spikesim.generation.lock import output_lock
             held.enter_context(output_folder(out))
-            held.enter_context(output_lock(out, f"sweep (pid {os.getpid()})", what="sweep run"))
+            held.enter_context(output_lock(out, "sweep", what="sweep run"))
             from spikesim.outputs import check_results_owned
             check_results_owned(out, RESULT_FILES, "sweep")  # a user's sweep.md is refused, not replaced (round eight)
         sources = []

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import os
 from pathlib import Path
 from typing import Any
 
@@ -60,7 +59,7 @@ def cmd_tradeoff(args: argparse.Namespace) -> int:
     require("matplotlib", "plot", "the trade study's plot")  # before any run, not after hours of them
     from spikesim.generation.lock import output_lock
     from spikesim.outputs import output_folder
-    with output_folder(out), output_lock(out, f"tradeoff (pid {os.getpid()})", what="tradeoff run"):
+    with output_folder(out), output_lock(out, "tradeoff", what="tradeoff run"):
         return _study(args, cfg, out)
 
 

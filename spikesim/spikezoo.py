@@ -299,7 +299,7 @@ def export_spikezoo(dataset: str | Path, out: str | Path, split: str = "test", s
     if not any(p.steps for p in plans):
         raise _no_window_error(dataset, plans, steps)
     check_output(out, split)  # refused before any folder is made
-    with outputs.output_folder(out), output_lock(out, f"export {dataset} (pid {os.getpid()})", what="export run"):
+    with outputs.output_folder(out), output_lock(out, f"export {dataset}", what="export run"):
         old = check_output(out, split)  # again, now that no other export writes here
         record = _start_record(out, split, old, dataset, steps, gt_stride, height, width, plans)
         split_entry = record["splits"][split]

@@ -188,3 +188,16 @@ def test_verify_sees_a_scene_record_deleted_or_emptied(pattern_dataset, tmp_path
     (root / "rllr_0001" / "checksums.json").write_text('{"files": {}}')
     problems = " ".join(verify(root))
     assert "rllr_0000/checksums.json: missing" in problems and "rllr_0001/checksums.json: does not record" in problems
+
+
+def test_a_held_lock_names_its_holder_once(tmp_path):
+    """"another train run is writing here (pid 8195: train tiny (pid 8195))" (round eight)."""
+    import os
+
+    from spikesim.generation.lock import OutputLockedError, output_lock
+    with output_lock(tmp_path, "train tiny", what="train run"):
+        with pytest.raises(OutputLockedError) as info:
+            with output_lock(tmp_path, "train tiny", what="train run"):
+                pass
+    assert f"another train run is writing here (pid {os.getpid()}: train tiny)" in str(info.value)
+    assert str(info.value).count("pid") == 1
