@@ -388,7 +388,12 @@ class BatchSimulator:
                 return np.asarray(flat.numpy(), dtype=np.float32)
             return flat
         arr = np.asarray(frame)
-        if arr.shape != self._frame_shape():
+        want = self._frame_shape()
+        if arr.shape != want and len(want) == 3 and arr.ndim == 3 and arr.shape[1:] == want[1:]:
+            # blamed the camera's size when the count of streams was what differed (round eight)
+            raise ValueError(f"frame {self._frames_seen}: {arr.shape[0]} streams' frames of {want[1]} x {want[2]}, but "
+                             f"this simulator makes {want[0]} streams (one per seed)")
+        if arr.shape != want:
             raise ValueError(f"frame {self._frames_seen}: shape {arr.shape}, expected {self._frame_shape()} "
                              "for this camera; a camera of another size is SpikeCamera.realistic(height=..., "
                              "width=...)")
@@ -425,10 +430,10 @@ class BatchSimulator:
 
     def _stream_array(self, frames: np.ndarray, k: int, per_chunk: int, final: bool) -> Iterator[Any]:
         """Zero-copy path for frames already in memory: the kernel reads views of the array."""
+        if frames.shape[0] == 0:  # no frames, no steps (reshape(0, -1) raised NumPy's own error, round eight)
+            return
         flat = frames.reshape(frames.shape[0], -1)
         m = flat.shape[0]
-        if m == 0:
-            return
         step = per_chunk if k == 1 else per_chunk - 1
         base = self._frames_seen
         for a in range(0, m, step):

@@ -153,3 +153,19 @@ def test_a_stream_written_over_another_drops_the_old_ones_record(tmp_path):
     for bad in ({"flip": "no"}, {"height": 0}, {"height": 12.0}):
         with pytest.raises(ValueError, match="must be"):
             DatReader(path, **{"width": 32, **bad})
+
+
+def test_no_frames_make_an_empty_stream_and_a_batch_names_its_stream_count():
+    """Simulator.run(frames[:0]) raised NumPy's reshape error; BatchSimulator with 3 seeds given 2
+    streams' frames blamed the camera's size (round eight)."""
+    from spikesim.camera import SpikeCamera
+    from spikesim.simulate import BatchSimulator, Simulator
+    cam = SpikeCamera.realistic(height=8, width=8)
+    for backend in ("numpy", "llvm"):
+        try:
+            sim = Simulator(cam, seed=0, backend=backend)
+        except Exception:  # noqa: BLE001 - a machine without the LLVM backend checks NumPy alone
+            continue
+        assert sim.run(np.zeros((0, 8, 8), np.float32)).num_steps == 0
+    with pytest.raises(ValueError, match=r"2 streams' frames of 8 x 8, but this simulator makes 3 streams"):
+        BatchSimulator(cam, seeds=[0, 1, 2], backend="numpy").run(np.full((41, 2, 8, 8), 0.05, np.float32))
