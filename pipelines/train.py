@@ -71,6 +71,8 @@ def cmd_train(args: argparse.Namespace) -> int:
         exp = _apply_overrides(load_config(args.config or "full"), args)
         out = Path(args.out) if args.out else Path("runs") / exp.name
     resolve_precision(exp.train.precision, dev)  # bf16 on a GPU without it: one line, before any work
+    from spikesim.dataset import check_outside_datasets
+    check_outside_datasets(out, [*args.data, *(args.val_data or [])])
     scenes = open_scenes(args.data)
     if args.val_data:
         train_scenes, val_scenes = scenes, open_scenes(args.val_data)

@@ -31,7 +31,7 @@ import shutil
 import stat
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any, Iterable, Sequence
 
 import numpy as np
 
@@ -485,6 +485,17 @@ def manifest_disagreement(root: str | Path, name: str, entries: dict[str, Any]) 
     out += [f"{rel}: listed in {MANIFEST} but not in {name}/{CHECKSUMS}" for rel in entries if rel not in own]
     out += [f"{rel}: in {name}/{CHECKSUMS} but not listed in {MANIFEST}" for rel in own if rel not in entries]
     return out
+
+
+def check_outside_datasets(out: str | Path, roots: Sequence[str | Path], flag: str = "-o") -> None:
+    """Refuse an output folder at or inside one of the dataset roots a command reads: `train -o`
+    and `export -o` wrote into a dataset, which `verify` then reported damaged (round eight)."""
+    where = Path(out).resolve()
+    for root in roots:
+        base = Path(root).resolve()
+        if where == base or base in where.parents:
+            raise ValueError(f"{flag} {out}: inside the dataset {root}, whose files a manifest lists (verify would "
+                             "count the outputs as damage); choose a folder outside it")
 
 
 def read_manifest(root: str | Path) -> dict[str, Any]:

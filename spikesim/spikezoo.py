@@ -46,7 +46,7 @@ import numpy as np
 
 from . import outputs
 from .config_io import read_json_object
-from .dataset import LOCK_FILE, SATURATION_Y, SceneRecord, open_dataset, sha256_file
+from .dataset import LOCK_FILE, SATURATION_Y, SceneRecord, check_outside_datasets, open_dataset, sha256_file
 from .stream import write_dat
 
 SPLITS = ("train", "test")
@@ -293,6 +293,7 @@ def export_spikezoo(dataset: str | Path, out: str | Path, split: str = "test", s
     if rate is not None and not (math.isfinite(rate) and rate > 0):
         raise ValueError(f"--rate {rate}: must be a finite number > 0")
     dataset, out = Path(dataset), Path(out)
+    check_outside_datasets(out, [dataset])
     chosen = pick_scenes(dataset, open_dataset(dataset), scenes)
     height, width = check_geometry(dataset, chosen)
     plans = plan_export(chosen, steps, gt_stride)
