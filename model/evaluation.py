@@ -185,7 +185,9 @@ def evaluate_pair(dat: Path, gt: np.ndarray, center: int, methods: Sequence[Meth
     half = window // 2
     if center - half < 0 or center + (window - half) > reader.num_steps:
         raise ValueError(f"--center {center}: a {window}-step window around it needs steps {center - half}.."
-                         f"{center + window - half - 1}, but {dat} has steps 0..{reader.num_steps - 1}")
+                         f"{center + window - half - 1}, but {dat} has steps 0..{reader.num_steps - 1}"
+                         + (f"; a shorter --window (odd, at most {max(1, reader.num_steps - 1 + reader.num_steps % 2)}) "
+                            "scores it with a window average" if reader.num_steps < window else ""))
     # every whole window that fits on each side of the centre window: a network (and TFP over a
     # span) sees the stream around the frame, as on a dataset; TFP and TFI use the centre window only
     before = (center - half) // window

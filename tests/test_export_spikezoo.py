@@ -308,3 +308,13 @@ def test_outputs_inside_a_dataset_are_refused(texture_data, capsys, tmp_path):
         assert code == 2 and f"inside the dataset {texture_data}" in one_line(err), err
         assert not (texture_data / "exp").exists() and not (texture_data / "run").exists()
     assert run_cli(["verify", texture_data], capsys)[0] == 0
+
+
+def test_pairs_shorter_than_the_window_are_scored_with_a_shorter_one(texture_data, capsys, tmp_path):
+    """export --steps 40 wrote pairs evaluate --spikezoo refused without saying what would score them
+    (round eight)."""
+    out = tmp_path / "zoo"
+    _export(capsys, texture_data, out, "--steps", "40", "--gt-stride", "82")
+    code, err = run_cli(["evaluate", "--spikezoo", out, "--methods", "tfp", "--json"], capsys)
+    assert code == 2 and "a shorter --window (odd, at most 39) scores it" in one_line(err)
+    assert run_cli(["evaluate", "--spikezoo", out, "--methods", "tfp", "--window", "39", "--json"], capsys)[0] == 0
