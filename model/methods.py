@@ -88,7 +88,7 @@ class SpanTFPMethod:
         if 2 * half + 1 > total:
             import logging
             logging.getLogger("spikesim.methods").warning(
-                "%s: the span (%d steps) is longer than the stream (%d windows of %d steps): each frame averages "
+                "%s: the span (%d steps) is longer than the %d window(s) of %d steps read: each frame averages "
                 "the windows within reach, at most all %d steps", self.name, self.span, total, self.window,
                 total * self.window)
         keep = 2 * half + 1 <= self.KEPT_WINDOWS  # a short span keeps its windows' counts: each read once
