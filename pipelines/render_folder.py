@@ -116,18 +116,25 @@ def remove_stage(stage: Path) -> None:
     shutil.rmtree(stage, ignore_errors=True)
 
 
-def recorded_readout_period_s(folder: Path) -> float | None:
-    """The readout period a render folder's frames were made for (its record's exposure; the
-    folder itself or a kind subfolder of one): a frame's y is the charge of one readout period and
-    its motion that of one step. None for a folder of the user's own EXRs."""
+#: The camera fields a render's y depends on (y = electrons per readout period / threshold), as its
+#: record's exposure gives them: a stream simulated with others is brighter or darker or faster
+#: than the render meant (round eight: the period; round nine: the threshold).
+RENDER_CAMERA_FIELDS = ("readout_period_s", "threshold_electrons")
+
+
+def recorded_camera_fields(folder: Path) -> dict[str, float]:
+    """The camera fields (RENDER_CAMERA_FIELDS) a render folder's frames were made for, from its
+    record's exposure (the folder itself or a kind subfolder of one); empty for a folder of the
+    user's own EXRs."""
     folder = Path(folder)
     base = folder if (folder / RECORD).is_file() else folder.parent if (folder.parent / RECORD).is_file() else None
     if base is None:
-        return None
-    record = read_record(base) or {}
-    exposure = record.get("exposure")
-    period = exposure.get("readout_period_s") if isinstance(exposure, dict) else None
-    return float(period) if isinstance(period, (int, float)) and not isinstance(period, bool) and period > 0 else None
+        return {}
+    exposure = (read_record(base) or {}).get("exposure")
+    if not isinstance(exposure, dict):
+        return {}
+    return {k: float(v) for k in RENDER_CAMERA_FIELDS if isinstance(v := exposure.get(k), (int, float))
+            and not isinstance(v, bool) and v > 0}
 
 
 def listed_frames(folder: Path, keyframe_every: int) -> list[Path] | None:

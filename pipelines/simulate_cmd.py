@@ -130,22 +130,25 @@ def frames_size(path: Path, keyframe_every: int = 1) -> tuple[int, int] | None:
     return (int(shape[0]), int(shape[1])) if len(shape) == 2 and min(shape) > 0 else None
 
 
-def render_readout_period(cam: SpikeCamera, folder: Path, camera_spec: Any) -> SpikeCamera:
-    """`cam` at the readout period the render folder's frames were made for: a preset camera takes
-    it; a camera file that gives another is refused (round eight: frames rendered for 1e-4 s were
-    simulated at 25e-6 s, the stream's time base 4 times off, rc 0)."""
+def render_camera_fields(cam: SpikeCamera, folder: Path, camera_spec: Any) -> SpikeCamera:
+    """`cam` with the readout period and threshold the render folder's frames were made for: a
+    preset camera takes them; a camera file that gives others is refused (round eight: frames
+    rendered for 1e-4 s were simulated at 25e-6 s; round nine: frames for a 1000-electron threshold
+    simulated by a 500-electron camera, half as bright as its own render; both rc 0)."""
     import math
 
-    from pipelines.render_folder import recorded_readout_period_s
-    period = recorded_readout_period_s(folder)
-    if period is None or math.isclose(period, cam.readout_period_s, rel_tol=1e-9):
+    from pipelines.render_folder import recorded_camera_fields
+    differ = {k: v for k, v in recorded_camera_fields(folder).items()
+              if not math.isclose(v, getattr(cam, k), rel_tol=1e-9)}
+    if not differ:
         return cam
     if isinstance(camera_spec, Path):
-        raise ValueError(f"--frames {folder}: rendered for a readout period of {period:g} s (its render.json), but "
-                         f"--camera {camera_spec} reads out every {cam.readout_period_s:g} s; render again with that "
-                         "camera's period, or give a camera file with the render's")
-    log.info("readout period %g s, the render's (%s/render.json)", period, folder)
-    return cam.replace(readout_period_s=period)
+        said = ", ".join(f"{k} {v:g} (the camera's {getattr(cam, k):g})" for k, v in differ.items())
+        raise ValueError(f"--frames {folder}: rendered for {said} (its render.json's exposure), but --camera "
+                         f"{camera_spec} gives others; render again with that camera (render --exposure), or give "
+                         "a camera file with the render's values")
+    log.info("%s, the render's (%s/render.json)", ", ".join(f"{k} {v:g}" for k, v in differ.items()), folder)
+    return cam.replace(**differ)
 
 
 def load_npy_frames(path: Path, cam: SpikeCamera) -> np.ndarray:
@@ -265,7 +268,7 @@ def run(args: argparse.Namespace) -> int:
         if size is not None:
             cam = cam.replace(height=size[0], width=size[1])
     if args.frames is not None and Path(args.frames).is_dir():
-        cam = render_readout_period(cam, Path(args.frames), args.camera)
+        cam = render_camera_fields(cam, Path(args.frames), args.camera)
     backend = args.backend
     settings = None
     if args.scene is not None and args.frames is None:

@@ -159,4 +159,20 @@ def test_simulate_reads_out_at_the_period_the_frames_were_rendered_for(tmp_path,
     capsys.readouterr()
     assert main(["simulate", "--frames", str(out), "--camera", str(tmp_path / "cam.toml"), "--height", "16",
                  "--width", "24", "--backend", "numpy", "-o", str(tmp_path / "t.dat"), "--quiet"]) == 2
-    assert "rendered for a readout period of 0.0001 s" in capsys.readouterr().err
+    assert "rendered for readout_period_s 0.0001 (the camera's 2.5e-05)" in capsys.readouterr().err
+
+
+def test_simulate_takes_the_threshold_the_frames_were_rendered_for(tmp_path, capsys):
+    """Frames rendered for a 1000-electron threshold, simulated by a 500-electron camera file, gave
+    half the spikes of that camera's own render, rc 0 (round nine)."""
+    (tmp_path / "e.toml").write_text("threshold_electrons = 500.0\n")
+    out = tmp_path / "rf"
+    assert main(["render", "tests/data/plain_scene/scene.xml", "--steps", "0:2", "--spp", "1", "--height", "16",
+                 "--width", "24", "--exposure", str(tmp_path / "e.toml"), "-o", str(out), "--quiet"]) == 0
+    assert main(["simulate", "--frames", str(out), "--backend", "numpy", "-o", str(tmp_path / "s.dat"), "--quiet"]) == 0
+    assert json.loads((tmp_path / "s.dat.json").read_text())["camera"]["threshold_electrons"] == 500.0
+    assert main(["camera", "--write", str(tmp_path / "cam.toml")]) == 0
+    capsys.readouterr()
+    assert main(["simulate", "--frames", str(out), "--camera", str(tmp_path / "cam.toml"), "--height", "16",
+                 "--width", "24", "--backend", "numpy", "-o", str(tmp_path / "t.dat"), "--quiet"]) == 2
+    assert "rendered for threshold_electrons 500 (the camera's 1000)" in capsys.readouterr().err
