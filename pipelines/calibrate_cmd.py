@@ -156,7 +156,8 @@ def run(args: argparse.Namespace) -> int:
     else:
         notes.append("not fitted: gain_spread needs a flat recording (--flat)")
     if args.scene is not None:
-        fitted += fit_scene(read_half_rates(args.scene, args.height, args.width, flip), dark)
+        fitted += fit_scene(read_half_rates(args.scene, args.height, args.width, flip), dark,
+                            dark_rate=base.dark_current_hz * base.readout_period_s)
     else:
         notes.append("not fitted: row_gain_spread and column_gain_spread need a scene recording (--scene)")
     notes.append("not fitted from any recording: comparator and shot noise, reset loss (python -m "

@@ -157,7 +157,8 @@ def reconstruct_file(path: Path, out: Path, method_spec: str = "tfp", height: in
             summary = {"input": str(path), "method": method.name, "frames": n, "window": window, "start": start,
                        "height": height, "width": width, "header_columns": header_columns, "flip": flip,
                        "display": {"enhance": enhance, "gamma": gamma, "scale": scale, "percentile": percentile},
-                       "outputs": sorted([p.name for p in stage.iterdir()] + ["reconstruct.json"])}
+                       "outputs": sorted([p.name for p in stage.iterdir()] + ["reconstruct.json"]),
+                       "png_frames": sorted(p.name for p in (stage / PNG_DIR).glob(PNG_PATTERN))}
             if "frames.mp4" in summary["outputs"] and (height % 2 or width % 2):
                 notes.append(f"frames.mp4 is {height + height % 2} x {width + width % 2}: video needs even sides, so "
                              f"the last row or column is repeated (the PNGs and the GIF are {height} x {width})")
@@ -220,22 +221,31 @@ def check_outputs(out: Path) -> None:
             writable(out, PNG_DIR, old.name)
 
 
+def recorded_outputs(out: Path) -> tuple[set[str], set[str] | None]:
+    """(the outputs an earlier run's reconstruct.json lists, the PNG frames it lists: None for a
+    record made before it listed them, which took every png/step_*.png for its own). The record is
+    read as every small file is (a FIFO or a link to /dev/zero is refused, not waited on)."""
+    from spikesim.config_io import read_json_object
+    try:
+        record = read_json_object(out / "reconstruct.json", "reconstruct record", finite=False)
+    except (OSError, ValueError):
+        return set(), set()
+    outputs, frames = record.get("outputs", []), record.get("png_frames")
+    listed = {str(x) for x in outputs} if isinstance(outputs, list) else set()
+    return listed, ({str(x) for x in frames} if isinstance(frames, list) else None)
+
+
 def check_ownership(out: Path) -> None:
     """A rerun replaces only what an earlier reconstruct run wrote, as its reconstruct.json lists:
     a user's own frames.npy in the folder (the README's simulate --frames example makes one) was
-    deleted, a png/step_*.png of theirs removed (round seven). Anything else is refused, named."""
-    listed: set[str] = set()
-    record = out / "reconstruct.json"
-    if record.is_file():
-        try:
-            outputs = json.loads(record.read_text()).get("outputs", [])
-            listed = {str(x) for x in outputs} if isinstance(outputs, list) else set()
-        except (OSError, ValueError, AttributeError):
-            listed = set()
+    deleted, a png/step_*.png of theirs removed (rounds seven and nine: a step_009999.png of the
+    user's beside a run's frames). Anything else is refused, named."""
+    listed, frames = recorded_outputs(out) if (out / "reconstruct.json").exists() else (set(), set())
     theirs = [name for name in OUTPUT_FILES if name != "reconstruct.json" and (out / name).exists() and name not in listed]
     png = out / PNG_DIR
-    if png.is_dir() and PNG_DIR not in listed:
-        theirs += [f"{PNG_DIR}/{p.name}" for p in sorted(png.glob(PNG_PATTERN))]
+    if png.is_dir():
+        mine = frames if frames is not None else ({p.name for p in png.glob(PNG_PATTERN)} if PNG_DIR in listed else set())
+        theirs += [f"{PNG_DIR}/{p.name}" for p in sorted(png.glob(PNG_PATTERN)) if p.name not in mine]
     if theirs:
         shown = ", ".join(theirs[:3]) + (f" and {len(theirs) - 3} more" if len(theirs) > 3 else "")
         raise FileExistsError(f"{out}: holds {shown}, which no reconstruct.json there says a reconstruct run wrote; "

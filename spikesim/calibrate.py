@@ -246,13 +246,26 @@ def combine(fits: Sequence[Fitted]) -> Fitted:
                   " + ".join(f.source for f in fits))
 
 
-def fit_scene(scene: HalfRates, dark: HalfRates | None = None) -> list[Fitted]:
+#: A scene recording must fire at least this many times the dark rate on average: below it the
+#: "gain" measured is the dark current's own pattern (round nine: a lens-capped recording given as
+#: --scene was fitted as row and column spreads of 0.067 and 0.023).
+SCENE_MIN_OVER_DARK = 3.0
+
+
+def fit_scene(scene: HalfRates, dark: HalfRates | None = None, dark_rate: float | None = None) -> list[Fitted]:
     """row_gain_spread and column_gain_spread from a scene: each pixel's rate over its
     neighbourhood's median (NEIGHBOURHOOD_PX), averaged along rows and columns in each half; the
-    split-half spread of those means across rows (columns)."""
+    split-half spread of those means across rows (columns). `dark_rate` (spikes per step: the dark
+    recording's, else the camera's dark current) refuses a scene that is no brighter than dark."""
     from scipy.ndimage import median_filter
 
     where = f"{Path(scene.path).name} ({scene.steps} steps, scene)"
+    if dark is not None:
+        dark_rate = float(dark.mean.mean())
+    if dark_rate is not None and float(scene.mean.mean()) < SCENE_MIN_OVER_DARK * dark_rate:
+        raise ValueError(f"{scene.path}: a scene recording fires {float(scene.mean.mean()):.3g} spikes per step on "
+                         f"average, less than {SCENE_MIN_OVER_DARK:g} times the dark rate ({dark_rate:.3g}): it is dark; "
+                         "a scene recording is lit")
     a, b = (scene.a - dark.a, scene.b - dark.b) if dark is not None else (scene.a, scene.b)
     local = median_filter(scene.mean if dark is None else (a + b) / 2, size=NEIGHBOURHOOD_PX, mode="reflect")
     lit = local > max(float(np.percentile(local, 10)), 1e-6)  # where there is light to measure a gain on

@@ -138,6 +138,13 @@ def test_a_scene_of_a_camera_without_row_or_column_patterns_finds_none():
         assert f.value <= max(3 * f.uncertainty, 0.003), f
 
 
+def test_a_scene_without_light_is_refused_by_the_fit_itself():
+    from spikesim.calibrate import HalfRates
+    zero = np.zeros((16, 24))
+    with pytest.raises(ValueError, match="too little light for a gain to be measured"):
+        fit_scene(HalfRates(zero, zero, 400, "z.dat"))
+
+
 def test_calibrate_takes_the_recorded_readout_period_and_size_and_refuses_what_contradicts_them(tmp_path, capsys):
     """A 1e-4 s recording was converted at the default 25e-6 s (a dark current 4 times too high);
     --height/--width that its record contradicts were taken (other spreads written); a dark
@@ -163,7 +170,8 @@ def test_calibrate_takes_the_recorded_readout_period_and_size_and_refuses_what_c
     write_sidecar(spikeless, {"height": 16, "width": 24, "flip": True})
     for argv, says in ((["--dark", str(dark), "--readout-period-s", "25e-6"], "dark.dat's record gives 0.0001 s"),
                        (["--dark", str(dark), "--height", "12", "--width", "32"], "not the 32x12 asked for"),
-                       (["--scene", str(spikeless)], "too little light for a gain to be measured"),
+                       (["--scene", str(spikeless)], "it is dark; a scene recording is lit"),
+                       (["--scene", str(dark)], "it is dark; a scene recording is lit"),  # dark current only (round nine)
                        (["--dark", str(dark), "--scene", str(dark)], "given as --dark and as --scene")):
         with warnings.catch_warnings():
             warnings.simplefilter("error")  # no NumPy warning on the way to the refusal

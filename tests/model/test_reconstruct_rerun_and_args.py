@@ -220,3 +220,20 @@ def test_a_recording_cut_off_mid_frame_is_read_where_the_message_says_it_can_be(
     code, err = run_cli(["panel", big, "--height", 16, "--width", 16, "--window", 7, "--methods", "tfp", "--quiet",
                          "--drop-partial", "--header-columns", 0, "-o", tmp_path / "p.png"], capsys)
     assert code == 0 and (tmp_path / "p.png").is_file(), err
+
+
+def test_a_users_frame_named_png_beside_a_runs_frames_is_kept(dat, tmp_path, capsys):
+    """Once reconstruct.json listed "png", every png/step_*.png was taken for the run's: a rerun
+    deleted the user's step_009999.png (round nine). The record lists the frames by name."""
+    out = tmp_path / "out"
+    base = ["reconstruct", dat, "--height", 12, "--width", 16, "--window", 7, "--out", out, "--no-mp4", "--quiet"]
+    assert run_cli(base, capsys)[0] == 0
+    record = json.loads((out / "reconstruct.json").read_text())
+    assert record["png_frames"] == [p.name for p in sorted((out / "png").glob("step_*.png"))]
+    (out / "png" / "step_009999.png").write_bytes(b"the user's")
+    code, err = run_cli(base, capsys)
+    assert code == 2 and "png/step_009999.png, which no reconstruct.json there says" in err
+    assert (out / "png" / "step_009999.png").read_bytes() == b"the user's"
+    (out / "png" / "step_009999.png").unlink()
+    assert run_cli(base + ["--num-windows", 2], capsys)[0] == 0  # its own frames: the stale three removed
+    assert len(list((out / "png").glob("step_*.png"))) == 2
