@@ -236,6 +236,10 @@ def _check_output(args: argparse.Namespace, out: Path) -> None:
     if out.exists() and not getattr(args, "overwrite", False) and not simulated_stream(out):
         raise ValueError(f"--out {out} exists and is not a spike stream simulate wrote (no sidecar beside it "
                          "that matches its size); pass --overwrite to replace it, or choose another -o")
+    if not out.exists() and side.exists() and not getattr(args, "overwrite", False):
+        # a user's X.dat.json beside no X.dat was replaced by the new stream's record (round nine)
+        raise ValueError(f"--out {out}: {side.name} exists beside no stream, so no simulate run wrote it; pass "
+                         "--overwrite to replace it, or choose another -o")
 
 
 def simulated_stream(path: Path) -> bool:

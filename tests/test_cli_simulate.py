@@ -68,3 +68,18 @@ def test_frames_give_the_camera_their_size_unless_told_otherwise(tmp_path, capsy
     assert main(["simulate", "--frames", str(frames), "--height", "8", "--width", "10", "--backend", "numpy",
                  "--quiet", "-o", str(tmp_path / "b.dat")]) == 2  # a size given is a size checked
     assert "frames are 6x10" in capsys.readouterr().err
+
+
+def test_a_users_file_at_the_sidecars_name_is_not_replaced(tmp_path, capsys):
+    """-o X.dat with the user's X.dat.json (and --twin with X_twin.dat.json) beside no stream: the
+    record was replaced by the new stream's, rc 0 (round nine)."""
+    frames = tmp_path / "f.npy"
+    np.save(frames, np.full((20, 8, 8), 0.1, np.float32))
+    for name, extra in (("s.dat.json", []), ("t_twin.dat.json", ["--twin"])):
+        (tmp_path / name).write_text("precious")
+        out = tmp_path / (name.split("_twin")[0].replace(".dat.json", "") + ".dat")
+        assert main(["simulate", "--frames", str(frames), "--backend", "numpy", "-o", str(out), "--quiet", *extra]) == 2
+        assert f"{name} exists beside no stream" in capsys.readouterr().err
+        assert (tmp_path / name).read_text() == "precious"
+        assert main(["simulate", "--frames", str(frames), "--backend", "numpy", "-o", str(out), "--quiet", *extra,
+                     "--overwrite"]) == 0
