@@ -39,11 +39,15 @@ def free_cores(cores: int | None = None, load_1min: float | None = None) -> int:
 _chosen: dict[str, object] = {}
 
 
+#: More threads than any machine's cores; the command line's bound too (pipelines.argtypes).
+MAX_THREADS = 1024
+
+
 def set_cpu_threads(requested: int = 0) -> str:
     """Set torch's intra-op threads: `requested` if > 0, else `free_cores()`. Returns how the
     count was chosen (also what `describe_threads` says afterwards, for a command's log line)."""
-    if requested < 0:
-        raise ValueError(f"threads must be >= 0 (0: chosen from the free cores), got {requested}")
+    if requested < 0 or requested > MAX_THREADS:  # 99999 crashed the process (round nine)
+        raise ValueError(f"threads must be 0 to {MAX_THREADS} (0: chosen from the free cores), got {requested}")
     if requested:
         n, reason = requested, f"{requested} thread(s), as asked"
     else:

@@ -310,6 +310,17 @@ class CommandParsers:
 
 def add_threads_argument(parser: argparse.ArgumentParser) -> None:
     """`--threads`, the same in every command that runs torch on the CPU (model.threads)."""
-    parser.add_argument("--threads", type=nonnegative_int, default=0,
-                        help="torch CPU threads (default 0: the cores not busy now, from the load average; "
-                             "threads that share a busy core stall each other)")
+    parser.add_argument("--threads", type=cpu_threads, default=0,
+                        help="torch CPU threads, 0 to 1024 (default 0: the cores not busy now, from the load "
+                             "average; threads that share a busy core stall each other)")
+
+
+def cpu_threads(text: str) -> int:
+    """argparse type: 0 (choose) to model.threads.MAX_THREADS torch CPU threads: --threads 99999
+    exhausted the process limit and crashed (a segmentation fault, round nine)."""
+    from model.threads import MAX_THREADS as MAX_CPU_THREADS
+    v = nonnegative_int(text)
+    if v > MAX_CPU_THREADS:
+        raise argparse.ArgumentTypeError(f"must be at most {MAX_CPU_THREADS} threads (this machine has "
+                                         f"{os.cpu_count()} cores), got {text}")
+    return v

@@ -381,8 +381,14 @@ def _file_sha256(path: Path) -> str:
 
 
 def _results_record(out: Path) -> dict[str, Any]:
+    """The folder's results record, read as every small file is (a FIFO there hung the command, a
+    link to /dev/zero grew without bound: round nine); an unreadable one lists nothing."""
+    from .config_io import read_json_object
+    path = out / RESULTS_RECORD
+    if not path.exists() and not path.is_symlink():
+        return {}
     try:
-        doc = json.loads((out / RESULTS_RECORD).read_text())
+        doc = read_json_object(path, "results record", finite=False)
     except (OSError, ValueError):
         return {}
     files = doc.get("files") if isinstance(doc, dict) else None

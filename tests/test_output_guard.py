@@ -372,3 +372,18 @@ def test_a_sweep_refuses_a_users_sweep_md_before_rendering(tmp_path):
     with pytest.raises(FileExistsError, match="holds sweep.md, which no earlier sweep run wrote there"):
         run_sweep(["fan"], ["tfp"], [1.0], out=tmp_path, progress=False)
     assert (tmp_path / "sweep.md").read_text() == "my own notes"
+
+
+def test_a_results_record_that_is_no_regular_file_is_not_waited_on(tmp_path):
+    """A FIFO at .spikesim-results.json hung every command that checks it; a link to /dev/zero grew
+    without bound (round nine). It lists nothing: the command's own files there are then refused."""
+    from spikesim.outputs import RESULTS_RECORD, check_results_owned
+    os.mkfifo(tmp_path / RESULTS_RECORD)
+    assert check_results_owned(tmp_path, ["metrics.md"], "evaluate") == []
+    (tmp_path / "metrics.md").write_text("x")
+    with pytest.raises(FileExistsError, match="holds metrics.md"):
+        check_results_owned(tmp_path, ["metrics.md"], "evaluate")
+    other = tmp_path / "z"
+    other.mkdir()
+    (other / RESULTS_RECORD).symlink_to("/dev/zero")
+    assert check_results_owned(other, ["metrics.md"], "evaluate") == []

@@ -76,7 +76,7 @@ def test_geometry_comes_from_the_sidecar(dat, tmp_path):
     ("--fps", 0), ("--gamma", 0), ("--gamma", -1), ("--window", 0), ("--window", 40), ("--start", -1), ("--percentile", 101),
     ("--percentile", 0), ("--height", 0), ("--width", -4), ("--header-columns", -1),
     ("--header-columns", "x"), ("--scale", 0), ("--chunk", 0), ("--num-windows", 0), ("--threads", -1),
-    ("--fps", "nan"), ("--fps", "0.001"), ("--fps", "1e6")])
+    ("--fps", "nan"), ("--fps", "0.001"), ("--fps", "1e6"), ("--threads", 99999)])
 def test_reconstruct_refuses_bad_values(flag, value, dat, tmp_path, capsys):
     code, err = run_cli(["reconstruct", dat, "--out", tmp_path / "o", flag, value], capsys)
     assert code == 2 and f"argument {flag}" in parser_error(err)
