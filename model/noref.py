@@ -47,7 +47,7 @@ def flat_noise(image: np.ndarray, blocks: list[tuple[slice, slice]]) -> float:
     """Mean over the blocks of std / mean of `image` (the coefficient of variation)."""
     image = np.asarray(image, dtype=np.float64)
     cvs = [image[t].std() / image[t].mean() for t in blocks if image[t].mean() > 0]
-    return float(np.mean(cvs)) if cvs else float("inf")
+    return float(np.mean(cvs)) if cvs else float("nan")  # black there: no level to be noisy about
 
 
 def edge_mask(reference: np.ndarray, fraction: float = 0.05) -> np.ndarray:
@@ -75,7 +75,13 @@ def no_reference_scores(image: np.ndarray, reference: np.ndarray, block: int = 1
                          "ratios to the light, and this recording has none in those windows")
     noise = flat_noise(image, flat_blocks(reference, block))
     sharp = edge_sharpness(image, edge_mask(reference))
-    return {"flat_noise": noise, "edge_sharpness": sharp, "edge_to_noise": sharp / noise if noise > 0 else float("inf")}
+    # a constant image (the `mean` floor) is 0 / 0: undefined, never a winning inf (round nine); its
+    # flat blocks' std is float rounding (1e-17), not noise
+    if np.ptp(np.asarray(image)) == 0:
+        return {"flat_noise": 0.0 if np.isfinite(noise) else noise, "edge_sharpness": sharp,
+                "edge_to_noise": float("nan")}
+    ratio = sharp / noise if noise > 0 else (float("inf") if sharp > 0 else float("nan"))
+    return {"flat_noise": noise, "edge_sharpness": sharp, "edge_to_noise": ratio}
 
 
 __all__ = ["flat_blocks", "flat_noise", "edge_mask", "edge_sharpness", "gradient_magnitude", "no_reference_scores"]

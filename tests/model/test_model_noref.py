@@ -64,3 +64,13 @@ def test_a_reference_without_light_is_refused_and_one_without_edges_gives_nan_qu
         warnings.simplefilter("error")
         scores = no_reference_scores(flat + np.random.default_rng(0).normal(0, 0.01, flat.shape), flat)
     assert np.isnan(scores["edge_sharpness"]) and scores["flat_noise"] > 0
+
+
+def test_the_floors_get_no_score_rather_than_a_winning_one():
+    """panel gave the constant `mean` floor an edge/noise of inf, above every real method (round nine)."""
+    ref = _scene()
+    for floor in (np.zeros_like(ref), np.full_like(ref, 0.1)):
+        scores = no_reference_scores(floor, ref)
+        assert np.isnan(scores["edge_to_noise"])
+    noisy = ref + np.random.default_rng(0).normal(0, 0.01, ref.shape)
+    assert np.isfinite(no_reference_scores(noisy, ref)["edge_to_noise"])
