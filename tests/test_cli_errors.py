@@ -222,3 +222,16 @@ def test_inspect_on_an_image_says_it_is_not_a_spike_stream(tmp_path, capsys):
     rc, err = run_cli(["inspect", exr], capsys)
     line = one_line(err)
     assert rc == 2 and "OpenEXR image, not a spike stream" in line and "simulate --frames" in line
+
+
+@pytest.mark.parametrize("line, says", [("threshold_electrons = 1e-300", "threshold_electrons=1e-300 is outside [10.0"),
+                                        ("readout_period_s = 1e-12", "readout_period_s=1e-12 is outside [1e-07")])
+def test_render_exposure_takes_the_cameras_ranges(line, says, tmp_path, capsys):
+    """A threshold of 1e-300 rendered non-finite frames and blamed the scene; a 1e-12 s period
+    rendered frames that simulate then refused (round nine)."""
+    from pipelines.cli import main
+    (tmp_path / "e.toml").write_text(line + "\n")
+    assert main(["render", "fan", "--steps", "0", "--height", "16", "--width", "24", "--spp", "1", "--exposure",
+                 str(tmp_path / "e.toml"), "--quiet", "-o", str(tmp_path / "r")]) == 2
+    err = capsys.readouterr().err
+    assert "e.toml" in err and says in err and not (tmp_path / "r").exists()

@@ -137,8 +137,12 @@ class Exposure:
     """Photo-electrons per threshold (spikesim.camera.SpikeCamera.threshold_electrons)."""
 
     def __post_init__(self) -> None:
-        _check_range("Exposure", "readout_period_s", self.readout_period_s, 0.0, 1.0)
-        _check_range("Exposure", "threshold_electrons", self.threshold_electrons, 0.0, 1e9)
+        # the camera's own ranges: a threshold of 1e-300 rendered non-finite frames that blamed the scene,
+        # a 1e-12 s period rendered frames simulate then refused (round nine)
+        from ..camera import READOUT_PERIOD_RANGE_S, THRESHOLD_ELECTRONS_RANGE
+        _check_range("Exposure", "readout_period_s", self.readout_period_s, *READOUT_PERIOD_RANGE_S, lo_open=False)
+        _check_range("Exposure", "threshold_electrons", self.threshold_electrons, *THRESHOLD_ELECTRONS_RANGE,
+                     lo_open=False)
 
     @classmethod
     def for_camera(cls, camera: Any = None, optics: Optics | None = None,
