@@ -25,17 +25,19 @@ from typing import Any
 
 from pipelines.argtypes import (StoreOnce, camera_spec, existing_file, load_camera, output_file, positive_int,
                                 readout_period_s)
+from pipelines.inspect_cmd import header_columns_arg
 from spikesim import outputs
 
 
-def read_half_rates(path: Path, height: int | None, width: int | None, flip: bool | None) -> Any:
+def read_half_rates(path: Path, height: int | None, width: int | None, flip: bool | None,
+                    header_columns: int | str = "auto") -> Any:
     """The recording read as every other command reads it (spikesim.stream.open_stream): a
     --height/--width that its record contradicts is refused, naming both (round eight: calibrate
     read a 32 x 32 recording as 16 x 64 and wrote other spreads, rc 0)."""
     from spikesim.calibrate import half_rates
     from spikesim.stream import open_stream
 
-    reader, _ = open_stream(path, height, width, flip)
+    reader, _ = open_stream(path, height, width, flip, header_columns)
     return half_rates(lambda a, b: reader.read(a, b).unpack(), reader.num_steps, str(path))
 
 
@@ -131,7 +133,7 @@ def run(args: argparse.Namespace) -> int:
     fitted, notes = [], [period_note]
     dark = None
     if args.dark is not None:
-        dark = read_half_rates(args.dark, args.height, args.width, flip)
+        dark = read_half_rates(args.dark, args.height, args.width, flip, args.header_columns)
         dark_fit = fit_dark(dark, base.readout_period_s)
         fitted += dark_fit.fitted
         notes.append(f"{args.dark.name}: {int(dark_fit.hot.sum())} hot pixel(s) of {dark_fit.hot.size} (log dark "
@@ -141,11 +143,12 @@ def run(args: argparse.Namespace) -> int:
     if args.flat:
         flats = []
         for path in args.flat:
-            fits, y = fit_flat(read_half_rates(path, args.height, args.width, flip), dark, base)
+            fits, y = fit_flat(read_half_rates(path, args.height, args.width, flip, args.header_columns), dark, base)
             flats += fits
             notes.append(f"{path.name}: light y = {y:.4g} spikes per step (dark subtracted)")
         gain = combine(flats)
-        outliers = fit_outliers(read_half_rates(args.flat[0], args.height, args.width, flip), dark, base)
+        first = read_half_rates(args.flat[0], args.height, args.width, flip, args.header_columns)
+        outliers = fit_outliers(first, dark, base)
         if outliers[0].value > 0:  # the pixels' own spread is the mixture's narrow part
             gain = outliers[2]
             notes.append(f"{args.flat[0].name}: an outlier population found (a share of pixels with an extra gain "
@@ -156,7 +159,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         notes.append("not fitted: gain_spread needs a flat recording (--flat)")
     if args.scene is not None:
-        fitted += fit_scene(read_half_rates(args.scene, args.height, args.width, flip), dark,
+        fitted += fit_scene(read_half_rates(args.scene, args.height, args.width, flip, args.header_columns), dark,
                             dark_rate=base.dark_current_hz * base.readout_period_s)
     else:
         notes.append("not fitted: row_gain_spread and column_gain_spread need a scene recording (--scene)")
@@ -187,6 +190,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--scene", type=existing_file, action=StoreOnce, help="a recording of a textured scene (.dat)")
     p.add_argument("--height", type=positive_int, help="rows (default: the stream's sidecar, else 250)")
     p.add_argument("--width", type=positive_int, help="columns (default: the stream's sidecar, else 400)")
+    p.add_argument("--header-columns", type=header_columns_arg, default="auto",
+                   help="columns to drop at the end of each row (auto: as recorded, else detected)")
     p.add_argument("--no-flip", action="store_true",
                    help="rows stored top-down (SPCS/SCSim); default: as recorded, else rows stored bottom-up (flip)")
     p.add_argument("--readout-period-s", type=readout_period_s,

@@ -196,7 +196,7 @@ def run(args: argparse.Namespace) -> int:
         from spikesim.imageio import PREVIEW_PERCENTILE, auto_percentile, write_png
         from spikesim.outputs import check_not_link, check_results_owned, output_file, record_results_owned
         preview_path = check_not_link(args.preview)
-        check_results_owned(preview_path.parent, [preview_path.name], "inspect")  # a user's PNG: refused (round eight)
+        check_results_owned(preview_path.parent, [preview_path.name], "inspect", "--preview")  # a user's PNG: refused (round eight)
         a = max(start, (start + stop) // 2 - args.window // 2)
         tfp = reader.read(a, min(stop, a + args.window)).unpack().mean(axis=0)
         # a dark stream's preview is stretched to its 99.5th percentile (it was near-black in low light)

@@ -495,7 +495,7 @@ def check_outside_datasets(out: str | Path, roots: Sequence[str | Path], flag: s
         base = Path(root).resolve()
         if where == base or base in where.parents:
             raise ValueError(f"{flag} {out}: inside the dataset {root}, whose files a manifest lists (verify would "
-                             "count the outputs as damage); choose a folder outside it")
+                             "report the outputs as extra files); choose a folder outside it")
 
 
 def read_manifest(root: str | Path) -> dict[str, Any]:

@@ -395,7 +395,7 @@ def _results_record(out: Path) -> dict[str, Any]:
     return files if isinstance(files, dict) else {}
 
 
-def check_results_owned(out: str | Path, names: Sequence[str], command: str) -> list[str]:
+def check_results_owned(out: str | Path, names: Sequence[str], command: str, flag: str = "-o") -> list[str]:
     """The names of `names` in `out` that an earlier `command` run wrote (as its record there
     says, with the same content): a rerun replaces those. Any other existing file of those names
     is the user's: refused, named, before any work."""
@@ -416,7 +416,7 @@ def check_results_owned(out: str | Path, names: Sequence[str], command: str) -> 
     if theirs:
         raise FileExistsError(f"{out}: holds {', '.join(theirs)}, which no earlier {command} run wrote there (or it "
                               f"was changed since); {command} would replace {'it' if len(theirs) == 1 else 'them'}: "
-                              "choose another -o, or move them")
+                              f"choose another {flag}, or move them")
     return ours
 
 
