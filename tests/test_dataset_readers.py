@@ -201,3 +201,15 @@ def test_a_held_lock_names_its_holder_once(tmp_path):
                 pass
     assert f"another train run is writing here (pid {os.getpid()}: train tiny)" in str(info.value)
     assert str(info.value).count("pid") == 1
+
+
+def test_a_lock_that_is_no_regular_file_is_named(tmp_path):
+    """A FIFO at .spikesim.lock gave "[Errno 22] Invalid argument", naming no file (round nine)."""
+    import os
+
+    from spikesim.dataset import LOCK_FILE
+    from spikesim.generation.lock import output_lock
+    os.mkfifo(tmp_path / LOCK_FILE)
+    with pytest.raises(ValueError, match=rf"{LOCK_FILE}: is not a regular file, where a train run keeps its lock"):
+        with output_lock(tmp_path, "train x", what="train run"):
+            pass

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import fcntl
 import os
+import stat
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
@@ -54,7 +55,10 @@ def _lock(root: Path, path: Path, what: str = "generate run") -> int:
     while True:
         # no symlink and no second name (a hard link planted at the lock's name would be truncated
         # below: spikesim.outputs.in_place_fd); the umask applies
-        fd = in_place_fd(path, os.O_RDWR | os.O_CREAT)
+        fd = in_place_fd(path, os.O_RDWR | os.O_CREAT | getattr(os, "O_NONBLOCK", 0))
+        if not stat.S_ISREG(os.fstat(fd).st_mode):  # a FIFO there failed later as "[Errno 22]", naming nothing (round nine)
+            os.close(fd)
+            raise ValueError(f"{path}: is not a regular file, where a {what} keeps its lock; remove it")
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
