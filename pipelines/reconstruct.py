@@ -145,9 +145,14 @@ def reconstruct_file(path: Path, out: Path, method_spec: str = "tfp", height: in
     source = StepWindows(lambda a, b: reader.read(a, b).unpack(), start, window, n)
     from spikesim.generation.lock import output_lock
     # one run per folder: two runs into one -o left one run's frames under the other's reconstruct.json
-    with output_folder(out), output_lock(out, f"reconstruct {path}", what="reconstruct run"):
+    from spikesim.generation.run import sigterm_raises
+    # SIGTERM as Ctrl-C: the stage folder and the lock are removed (it left both, round nine)
+    with sigterm_raises(), output_folder(out), output_lock(out, f"reconstruct {path}", what="reconstruct run"):
         check_outputs(out)  # a link where an output goes: refused before any work
         check_ownership(out)  # and a file of the user's where one goes
+        for stale in out.glob(".reconstruct.*.part"):  # a run killed before its clean-up (round nine): under the lock,
+            if stale.is_dir() and not stale.is_symlink():  # none is another run's
+                remove(out, stale.name)
         with writing(out):
             stage = Path(tempfile.mkdtemp(prefix=".reconstruct.", suffix=".part", dir=out))
         try:

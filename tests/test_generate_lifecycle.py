@@ -103,7 +103,7 @@ def test_a_sigterm_wrapped_by_a_library_is_still_a_termination():
     import os
     import signal
 
-    from spikesim.generation.run import Terminated, _sigterm_raises
+    from spikesim.generation.run import Terminated, sigterm_raises
 
     def library_call():  # what Dr.Jit's frozen functions do with an exception raised inside them
         try:
@@ -114,8 +114,8 @@ def test_a_sigterm_wrapped_by_a_library_is_still_a_termination():
             raise RuntimeError("FlatVariables::assign(): error encountered while processing an argument") from exc
 
     with pytest.raises(Terminated, match="terminated"):
-        with _sigterm_raises():
+        with sigterm_raises():
             library_call()
     with pytest.raises(RuntimeError):  # without a signal a library's error stays what it is
-        with _sigterm_raises():
+        with sigterm_raises():
             raise RuntimeError("a real failure")

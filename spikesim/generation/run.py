@@ -250,7 +250,7 @@ class Terminated(KeyboardInterrupt):
 
 
 @contextmanager
-def _sigterm_raises() -> Iterator[None]:
+def sigterm_raises() -> Iterator[None]:
     """Turn SIGTERM into `Terminated` in this (main) thread while the block runs; by default it
     would end the process at once, leaving the scenes in progress as `.work` debris and saying
     nothing. A second SIGTERM during the clean-up is ignored (SIGKILL still ends it)."""
@@ -332,7 +332,7 @@ def generate(jobs: list[SceneJob], root: str | Path, workers: int | None = None,
         raise ValueError(f"workers={workers}: needs at least 1 (None: one per core)")
     created = _make_root(root)
     try:
-        with _sigterm_raises(), output_lock(root, command or shlex.join(sys.argv)):
+        with sigterm_raises(), output_lock(root, command or shlex.join(sys.argv)):
             listed: dict[str, dict[str, Any]] = {}
             recorded_jobs: dict[str, Any] = {}
             if (root / MANIFEST).exists() or (root / MANIFEST).is_symlink():

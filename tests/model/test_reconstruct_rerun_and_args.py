@@ -237,3 +237,28 @@ def test_a_users_frame_named_png_beside_a_runs_frames_is_kept(dat, tmp_path, cap
     (out / "png" / "step_009999.png").unlink()
     assert run_cli(base + ["--num-windows", 2], capsys)[0] == 0  # its own frames: the stale three removed
     assert len(list((out / "png").glob("step_*.png"))) == 2
+
+
+def test_sigterm_and_a_killed_runs_stage_leave_nothing_behind(dat, tmp_path, capsys):
+    """SIGTERM left .reconstruct.XXXX.part/ and the lock, and no later run cleaned the stage up
+    (round nine): SIGTERM now stops a run as Ctrl-C does, and a run removes a dead run's stage."""
+    import os
+    import signal
+
+    out = tmp_path / "out"
+    (out / ".reconstruct.dead.part" / "png").mkdir(parents=True)
+    base = ["reconstruct", dat, "--height", 12, "--width", 16, "--window", 7, "--out", out, "--no-mp4", "--quiet"]
+    assert run_cli(base, capsys)[0] == 0
+    assert not list(out.glob(".reconstruct.*.part"))
+
+    def stop(*a, **k):  # the signal arrives while the frames are made
+        os.kill(os.getpid(), signal.SIGTERM)
+    import pipelines.reconstruct as rc_module
+    real = rc_module._render_frames
+    try:
+        rc_module._render_frames = lambda *a, **k: (stop(), real(*a, **k))
+        with pytest.raises(KeyboardInterrupt):
+            rc.reconstruct_file(dat, tmp_path / "o2", "tfp", 12, 16, 0, window=7, mp4=False, progress=False)
+    finally:
+        rc_module._render_frames = real
+    assert not list((tmp_path / "o2").glob(".reconstruct.*.part")) and not (tmp_path / "o2" / ".spikesim.lock").exists()
