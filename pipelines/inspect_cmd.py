@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 from pathlib import Path
 from typing import Any
 
@@ -157,6 +158,10 @@ def step_range(path: Path, num_steps: int, start: int, stop: int | None) -> tupl
 def _readout_period(args: argparse.Namespace, side: dict[str, Any]) -> float:
     cam = side.get("camera")  # the sidecar's fields are checked as it is read (spikesim.stream.check_stream_record)
     recorded = (cam.get("readout_period_s") if isinstance(cam, dict) else None) or side.get("readout_period_s")
+    if args.readout_period_s is not None and recorded and not math.isclose(args.readout_period_s, recorded, rel_tol=1e-9):
+        # taken silently over the record (round nine); calibrate refuses the same contradiction
+        raise ValueError(f"--readout-period-s {args.readout_period_s:g}: {args.path}'s record gives {recorded:g} s; drop "
+                         "the flag (the record is taken) or give the period it records")
     return args.readout_period_s or recorded or 25e-6
 
 

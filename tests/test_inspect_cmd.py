@@ -112,11 +112,19 @@ def test_inspect_prints_a_slow_readout_in_seconds_and_hertz(dat, capsys):
     """--readout-period-s 1e9 printed 205000000000000.000 ms at 0 Hz (round seven, low); a 1 s
     readout, the slowest accepted, prints its duration in seconds and its rate as 1 Hz."""
     capsys.readouterr()
+    assert main(["inspect", str(dat)]) == 0
+    assert "1.25 ms at 40,000 Hz" in capsys.readouterr().out
+    write_sidecar(dat, {"height": 10, "width": 24, "flip": True})  # a record without the period: the flag gives it
     assert main(["inspect", str(dat), "--readout-period-s", "1"]) == 0
     out = capsys.readouterr().out
     assert "50 x 10 x 24 (flip=True), 50 s at 1 Hz" in out, out
-    assert main(["inspect", str(dat)]) == 0
-    assert "1.25 ms at 40,000 Hz" in capsys.readouterr().out
+
+
+def test_inspect_refuses_a_period_its_record_contradicts(dat, capsys):
+    """--readout-period-s 5e-5 over a sidecar's 2.5e-5 printed half the rates silently (round nine)."""
+    code, err = run_cli(["inspect", dat, "--readout-period-s", "5e-5"], capsys)
+    assert code == 2 and "s.dat's record gives 2.5e-05 s" in one_line(err)
+    assert run_cli(["inspect", dat, "--readout-period-s", "25e-6"], capsys)[0] == 0
 
 
 @pytest.mark.parametrize("extra, words", [(["--start", 50], ["--start 50", "s.dat", "50 frames"]),
