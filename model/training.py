@@ -439,8 +439,8 @@ def _start_or_resume(out: Path, resume: bool, experiment: ExperimentConfig, run:
         return _resume(last_path, dev, experiment.model, experiment.train, run.model, run.opt, run.sched, run.scaler)
     existing = _run_files_present(out)
     if existing and not overwrite:
-        raise FileExistsError(f"{out} holds a run ({', '.join(existing)}): pass --resume to continue it, "
-                              "--overwrite to replace it, or choose another --out")
+        raise FileExistsError(f"{out} holds a run ({', '.join(existing)}): pass --resume (resume=True) to continue "
+                              "it, --overwrite (overwrite=True) to replace it, or choose another --out (out_dir)")
     if dist.world > 1:  # every rank has looked before rank 0 writes
         import torch.distributed as tdist
         tdist.barrier()

@@ -100,7 +100,11 @@ def replace_outputs(stage: Path, folder: Path, new: list[str], old: list[str], r
         make_dirs(folder, Path(rel).parent)
         with writing(folder / rel):
             os.replace(stage / rel, writable(folder, rel))
-    atomic_write_text(writable(folder, RECORD), json.dumps({**record, "files": sorted(new)}, indent=2, default=str) + "\n")
+    from spikesim.dataset import sha256_file
+    # each EXR frame's sha256: frames swapped or altered after the render were simulated, rc 0 (round nine)
+    digests = {rel: sha256_file(folder / rel) for rel in sorted(new) if rel.endswith(".exr")}
+    atomic_write_text(writable(folder, RECORD), json.dumps({**record, "files": sorted(new), "sha256": digests},
+                                                           indent=2, default=str) + "\n")
     for rel in stale:
         remove(folder, rel)
     for kind in KINDS:
@@ -169,6 +173,13 @@ def listed_frames(folder: Path, keyframe_every: int) -> list[Path] | None:
                              "frames one step (or --keyframe-every steps) apart")
         if (gap := gaps.pop()) != keyframe_every:
             raise ValueError(f"{base}: its frames are steps {gap} apart ({RECORD}); give --keyframe-every {gap}")
+    digests = record.get("sha256")
+    if isinstance(digests, dict):  # records before round nine hold none
+        from spikesim.dataset import sha256_file
+        for f in sorted(files):
+            if isinstance(digests.get(f), str) and sha256_file(base / f) != digests[f]:
+                raise ValueError(f"{base / f}: not the frame the render wrote (its sha256 differs from {RECORD}'s): "
+                                 "swapped or altered; render again")
     return [base / f for f in sorted(files)]
 
 

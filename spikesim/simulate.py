@@ -395,8 +395,8 @@ class BatchSimulator:
                              f"this simulator makes {want[0]} streams (one per seed)")
         if arr.shape != want:
             raise ValueError(f"frame {self._frames_seen}: shape {arr.shape}, expected {self._frame_shape()} "
-                             "for this camera; a camera of another size is SpikeCamera.realistic(height=..., "
-                             "width=...)")
+                             "for this camera; a camera of another size is --height/--width on the command line, "
+                             "SpikeCamera.realistic(height=..., width=...) in Python")
         if not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
             raise ValueError(f"frame {self._frames_seen}: dtype {arr.dtype} is not numeric")
         return arr.reshape(-1)

@@ -176,3 +176,17 @@ def test_simulate_takes_the_threshold_the_frames_were_rendered_for(tmp_path, cap
     assert main(["simulate", "--frames", str(out), "--camera", str(tmp_path / "cam.toml"), "--height", "16",
                  "--width", "24", "--backend", "numpy", "-o", str(tmp_path / "t.dat"), "--quiet"]) == 2
     assert "rendered for threshold_electrons 500 (the camera's 1000)" in capsys.readouterr().err
+
+
+def test_frames_swapped_after_the_render_are_refused_naming_the_file(tmp_path, capsys):
+    """Two EXR frames swapped after the render were simulated into another stream, rc 0 (round nine)."""
+    out = tmp_path / "rf"
+    assert main(["render", "tests/data/plain_scene/scene.xml", "--steps", "0:2", "--spp", "1", "--height", "16",
+                 "--width", "24", "-o", str(out), "--quiet"]) == 0
+    a, b = out / "frames" / "step_000000.exr", out / "frames" / "step_000001.exr"
+    a_bytes, b_bytes = a.read_bytes(), b.read_bytes()
+    a.write_bytes(b_bytes)
+    b.write_bytes(a_bytes)
+    capsys.readouterr()
+    assert main(["simulate", "--frames", str(out), "--backend", "numpy", "-o", str(tmp_path / "s.dat"), "--quiet"]) == 2
+    assert "step_000000.exr: not the frame the render wrote" in capsys.readouterr().err
