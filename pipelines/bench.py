@@ -24,7 +24,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from pipelines.argtypes import bundled_scene, positive_int
+from pipelines.argtypes import bounded_count, bundled_scene, positive_int
 from spikesim.camera import SpikeCamera
 from spikesim.keyframes import keyframe_count, steps_covered
 from spikesim.simulate import BatchSimulator, Simulator, aligned_empty, available_backends
@@ -228,9 +228,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--width", type=positive_int, default=400, help="frame columns, pixels")
     p.add_argument("--steps", type=positive_int, default=1024, help="steps per Dr.Jit sensor run")
     p.add_argument("--numpy-steps", type=positive_int, default=64, help="steps per NumPy run (it is slow)")
-    p.add_argument("--streams", type=positive_int, default=1, help="also time this many streams in one launch")
+    # bounded: --streams 10^8 and --repeats 10^9 ran on without a word (round nine)
+    p.add_argument("--streams", type=bounded_count(1024, "streams"), default=1,
+                   help="also time this many streams in one launch (at most 1024)")
     p.add_argument("--backends", nargs="*", choices=["llvm", "cuda"], help="default: every available one")
-    p.add_argument("--repeats", type=positive_int, default=3, help="timed runs per case (the best is reported)")
+    p.add_argument("--repeats", type=bounded_count(100, "repeats"), default=3,
+                   help="timed runs per case, at most 100 (the best is reported)")
     p.add_argument("--scene", type=bundled_scene, default="fan", help="render and pipeline stages")
     p.add_argument("--light", choices=["normal", "low"], default="normal", help="lighting of the render stage's scene")
     p.add_argument("--spp", type=positive_int, default=4, help="render samples per pixel")

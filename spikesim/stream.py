@@ -104,6 +104,8 @@ def pack_frames(frames: np.ndarray) -> np.ndarray:
 
 
 def unpack_frames(packed: np.ndarray, height: int, width: int) -> np.ndarray:
+    if packed.shape[0] == 0:  # no frames: reshape(-1, ...) of nothing raised NumPy's error (round nine)
+        return np.zeros((0, height, width), bool)
     bits = np.unpackbits(packed, axis=1, bitorder="little", count=height * width)
     return bits.reshape(-1, height, width).view(bool)
 

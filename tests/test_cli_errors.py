@@ -137,6 +137,8 @@ CASES = [
     ("render-steps-zero-stride", "render ball --steps 0:10:0 --out {d}/r", "--steps"),
     ("render-steps-huge-range", "render ball --steps 0:100000000000 --out {d}/r", "--steps"),
     ("render-steps-repeated", "render ball --steps 0,0,0 --out {d}/r", "more than once"),  # round eight
+    ("bench-streams-huge", "bench --streams 100000000", "at most 1,024 streams"),  # round nine
+    ("bench-repeats-huge", "bench --repeats 1000000000", "at most 100 repeats"),
     ("render-steps-overlapping-ranges", "render ball --steps 0:4,2:6 --out {d}/r", "step(s) 2, 3 more than once"),
     ("render-spp-0", "render ball --spp 0 --out {d}/r", "--spp"),
     ("render-gt-spp-0", "render ball --gt-spp 0 --ground-truth --out {d}/r", "--gt-spp"),

@@ -169,3 +169,10 @@ def test_no_frames_make_an_empty_stream_and_a_batch_names_its_stream_count():
         assert sim.run(np.zeros((0, 8, 8), np.float32)).num_steps == 0
     with pytest.raises(ValueError, match=r"2 streams' frames of 8 x 8, but this simulator makes 3 streams"):
         BatchSimulator(cam, seeds=[0, 1, 2], backend="numpy").run(np.full((41, 2, 8, 8), 0.05, np.float32))
+
+
+def test_an_empty_read_unpacks_to_no_frames(tmp_path):
+    """DatReader.read(0, 0).unpack() raised NumPy's reshape error (round nine)."""
+    from spikesim.stream import DatReader, write_dat
+    path = write_dat(tmp_path / "s.dat", SpikeStream.from_bool(np.zeros((3, 4, 8), bool)), flip=False)
+    assert DatReader(path, 4, 8, flip=False).read(0, 0).unpack().shape == (0, 4, 8)
