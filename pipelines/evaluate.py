@@ -45,7 +45,9 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         raise ValueError(f"method names must be unique, got {names}; name them with label=spec")
     target = _results_folder(args)
     if target is not None:  # links and a user's files where the results go: refused before the work
+        from spikesim.dataset import check_outside_datasets
         from spikesim.outputs import check_results_owned
+        check_outside_datasets(target, [d for d in (args.data, args.spikezoo) if d is not None])  # round nine
         check_results(target)
         check_results_owned(target, RESULT_FILES, "evaluate")
     if args.rate is not None and args.spikezoo is None:

@@ -303,7 +303,8 @@ def test_a_file_given_as_a_dataset_is_said_to_be_no_folder(capsys, tmp_path):
 def test_outputs_inside_a_dataset_are_refused(texture_data, capsys, tmp_path):
     """train -o and export -o inside a dataset wrote there; verify then reported the set damaged (round eight)."""
     for argv in (["export", texture_data, "--format", "spikezoo", "-o", texture_data / "exp"],
-                 ["train", "--config", "tiny", "--data", texture_data, "--max-steps", "1", "-o", texture_data / "run"]):
+                 ["train", "--config", "tiny", "--data", texture_data, "--max-steps", "1", "-o", texture_data / "run"],
+                 ["evaluate", "--data", texture_data, "--methods", "tfp", "-o", texture_data / "tex_low"]):
         code, err = run_cli(argv, capsys)
         assert code == 2 and f"inside the dataset {texture_data}" in one_line(err), err
         assert not (texture_data / "exp").exists() and not (texture_data / "run").exists()
