@@ -166,9 +166,10 @@ def evaluate(scenes: Sequence[Scene], methods: Sequence[Method], window: int, pr
 
 def evaluate_pair(dat: Path, gt: np.ndarray, center: int, methods: Sequence[Method], window: int,
                   height: int | None = None, width: int | None = None, header_columns: int | None = None,
-                  flip: bool | None = None) -> tuple[list[Score], dict]:
+                  flip: bool | None = None, center_is: str = "--center") -> tuple[list[Score], dict]:
     """Scores of each method on the window of `dat` centred on step `center` against `gt` (y);
-    geometry as recorded beside the stream where not given. Returns the rows and what was read."""
+    geometry as recorded beside the stream where not given. Returns the rows and what was read.
+    `center_is` names the centre in errors (a Spike-Zoo pair's is its key step, not a flag)."""
     from model.streaming import StepWindows
     from spikesim.stream import DatReader, check_recorded_layout, detect_header_columns, stream_geometry
 
@@ -184,7 +185,7 @@ def evaluate_pair(dat: Path, gt: np.ndarray, center: int, methods: Sequence[Meth
     reader = DatReader(dat, height, width, flip=flip, header_columns=header_columns)
     half = window // 2
     if center - half < 0 or center + (window - half) > reader.num_steps:
-        raise ValueError(f"--center {center}: a {window}-step window around it needs steps {center - half}.."
+        raise ValueError(f"{center_is} {center}: a {window}-step window around it needs steps {center - half}.."
                          f"{center + window - half - 1}, but {dat} has steps 0..{reader.num_steps - 1}"
                          + (f"; a shorter --window (odd, at most {max(1, reader.num_steps - 1 + reader.num_steps % 2)}) "
                             "scores it with a window average" if reader.num_steps < window else ""))

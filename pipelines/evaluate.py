@@ -116,7 +116,7 @@ def _evaluate_spikezoo_cmd(args: argparse.Namespace, methods: Sequence[Method], 
     for pair in layout.pairs:
         try:
             got, _ = evaluate_pair(pair.spike, pair.ground_truth(), pair.key_step, methods, args.window,
-                                   layout.height, layout.width, 0, True)
+                                   layout.height, layout.width, 0, True, center_is="its key step")
         except ValueError as exc:
             raise ValueError(f"{pair.spike}: {exc}") from None
         rows += [replace(r, scene=pair.name) for r in got if r.scene != ALL]

@@ -318,4 +318,5 @@ def test_pairs_shorter_than_the_window_are_scored_with_a_shorter_one(texture_dat
     _export(capsys, texture_data, out, "--steps", "40", "--gt-stride", "82")
     code, err = run_cli(["evaluate", "--spikezoo", out, "--methods", "tfp", "--json"], capsys)
     assert code == 2 and "a shorter --window (odd, at most 39) scores it" in one_line(err)
+    assert "its key step 20:" in err and "--center" not in err
     assert run_cli(["evaluate", "--spikezoo", out, "--methods", "tfp", "--window", "39", "--json"], capsys)[0] == 0
