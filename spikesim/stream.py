@@ -303,9 +303,13 @@ def sidecar_path(dat_path: str | Path) -> Path:
 
 
 def write_sidecar(dat_path: str | Path, info: dict[str, Any]) -> Path:
-    """A small JSON beside a simulated stream: camera parameters, seed, geometry, flip."""
+    """A small JSON beside a simulated stream: camera parameters, seed, geometry, flip. Standard
+    JSON: a NaN or infinite number (an extra field's, a scene's infinite illuminance) is written as
+    null and named under "non_finite" (config_io.standard_json); the token NaN, which strict
+    readers refuse, was written (round seven)."""
+    from .config_io import standard_json
     path = sidecar_path(dat_path)
-    return outputs.atomic_write_json(path, info, sort_keys=True)
+    return outputs.atomic_write_text(path, standard_json(info, sort_keys=True, indent=2) + "\n")
 
 
 def read_sidecar(dat_path: str | Path) -> dict[str, Any] | None:

@@ -31,7 +31,9 @@ def small_stream(tmp_path: Path, record: dict | None = None, dataset: bool = Fal
                                                      {"height": H, "width": W, "flip": False, "num_steps": N}))
         return path
     path = write_dat(tmp_path / "s.dat", SpikeStream.from_bool(frames), flip=False)
-    write_sidecar(path, record if record is not None else {"height": H, "width": W, "flip": False})
+    # written as a hand-edited record would be (json's Infinity included): write_sidecar writes standard JSON
+    Path(f"{path}.json").write_text(json.dumps(record if record is not None else {"height": H, "width": W,
+                                                                                  "flip": False}))
     return path
 
 

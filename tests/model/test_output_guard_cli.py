@@ -178,7 +178,8 @@ def test_evaluate_dat_writes_its_results_under_out(dat, tmp_path, capsys):
     code, err = run_cli(["evaluate", "--dat", dat, "--gt", gt, "--center", 10, "--height", 12, "--width", 16,
                          "--methods", "tfp", "--window", 7, "--out", out, "--device", "cpu", "--quiet"], capsys)
     assert code == 0, err
-    assert sorted(p.name for p in out.iterdir()) == ["metrics.csv", "metrics.md"]
+    # the results and the record that says evaluate wrote them (a rerun replaces them, not a user's file)
+    assert sorted(p.name for p in out.iterdir()) == [".spikesim-results.json", "metrics.csv", "metrics.md"]
     assert ",TFP," in (out / "metrics.csv").read_text()
 
 
