@@ -36,11 +36,18 @@ class PretrainedWeights:
 #: The shipped weights by name (docs/model.md, "Model card": how they were made and scored).
 PRETRAINED: dict[str, PretrainedWeights] = {
     "lrrep": PretrainedWeights(
-        name="lrrep", file="lrrep_span.pt",
+        name="lrrep", file="lrrep_still.pt",
+        file_sha256="9e2c1d04937fbbc59d5f6fc5eb587531ad3e7bc4a46d042133e08068fa078322",
+        weights_sha256="dfedb2777cc123bd50de06f3e74e4366bbbc18fe658eaa4d1d097d5a1f896887",
+        summary="the sixth stage: lrrep_v4's network (the span's average at the refining head) fine-tuned 103 "
+                "minutes on two CPU cores (config lrrep_span, lr 1e-4 cosine) on 8 rendered natural scenes and 240 "
+                "video-like photo scenes, 144 of them with a still camera (dark, at video brightness and brighter)"),
+    "lrrep_v4": PretrainedWeights(
+        name="lrrep_v4", file="lrrep_span.pt",
         file_sha256="44a0e5d62cf77e70c58d75ed44485adfe8189ac7d3996b3029abbf5af6150383",
         weights_sha256="2e2b2e4f3ec5afd559fa360491dc039b2a93e9c385b87bc6ab6f2a34f19af085",
-        summary="(E) at 16 features and 2 blocks, K = 5, GISI as 1/interval, with the refining output and the span's "
-                "average at its head (gates to the window's TFP and TFI and to TFP over the 5 windows around it): "
+        summary="the fifth stage, kept for comparison: (E) at 16 features and 2 blocks, K = 5, GISI as 1/interval, "
+                "with the refining output and the span's average at its head (gates to the window's TFP and TFI and to TFP over the 5 windows around it): "
                 "lrrep_v3 fine-tuned about 85 minutes on two CPU cores (config lrrep_span) on 8 rendered natural scenes "
                 "and 192 video-like photo scenes, half at video brightness, half with a still camera"),
     "lrrep_v3": PretrainedWeights(
