@@ -146,36 +146,25 @@ def test_simulate_takes_the_size_of_a_render_folder_of_keyframes(tmp_path, capsy
     assert (info["height"], info["width"]) == (16, 24)
 
 
-def test_simulate_reads_out_at_the_period_the_frames_were_rendered_for(tmp_path, capsys):
-    """Frames rendered for 1e-4 s were simulated at the default 25e-6 s (round eight): a preset
-    camera takes the render's period; a camera file giving another is refused."""
-    (tmp_path / "e.json").write_text('{"readout_period_s": 0.0001}')
+@pytest.mark.parametrize("exposure, field, value, says", [
+    ('{"readout_period_s": 0.0001}', "readout_period_s", 1e-4, "readout_period_s 0.0001 (the camera's 2.5e-05)"),
+    ('{"threshold_electrons": 500.0}', "threshold_electrons", 500.0, "threshold_electrons 500 (the camera's 1000)"),
+])
+def test_simulate_takes_the_camera_fields_the_frames_were_rendered_for(tmp_path, capsys, exposure, field, value, says):
+    """Frames rendered for a 1e-4 s readout were simulated at the default 25e-6 s (round eight), and
+    frames for a 500-electron threshold at 1000, half as bright (round nine), rc 0: a preset camera
+    takes the render's values; a camera file giving others is refused."""
+    (tmp_path / "e.json").write_text(exposure)
     out = tmp_path / "rf"
     assert main(["render", "tests/data/plain_scene/scene.xml", "--steps", "0:2", "--spp", "1", "--height", "16",
                  "--width", "24", "--exposure", str(tmp_path / "e.json"), "-o", str(out), "--quiet"]) == 0
     assert main(["simulate", "--frames", str(out), "--backend", "numpy", "-o", str(tmp_path / "s.dat"), "--quiet"]) == 0
-    assert json.loads((tmp_path / "s.dat.json").read_text())["camera"]["readout_period_s"] == 1e-4
+    assert json.loads((tmp_path / "s.dat.json").read_text())["camera"][field] == value
     assert main(["camera", "--write", str(tmp_path / "cam.toml")]) == 0
     capsys.readouterr()
     assert main(["simulate", "--frames", str(out), "--camera", str(tmp_path / "cam.toml"), "--height", "16",
                  "--width", "24", "--backend", "numpy", "-o", str(tmp_path / "t.dat"), "--quiet"]) == 2
-    assert "rendered for readout_period_s 0.0001 (the camera's 2.5e-05)" in capsys.readouterr().err
-
-
-def test_simulate_takes_the_threshold_the_frames_were_rendered_for(tmp_path, capsys):
-    """Frames rendered for a 1000-electron threshold, simulated by a 500-electron camera file, gave
-    half the spikes of that camera's own render, rc 0 (round nine)."""
-    (tmp_path / "e.toml").write_text("threshold_electrons = 500.0\n")
-    out = tmp_path / "rf"
-    assert main(["render", "tests/data/plain_scene/scene.xml", "--steps", "0:2", "--spp", "1", "--height", "16",
-                 "--width", "24", "--exposure", str(tmp_path / "e.toml"), "-o", str(out), "--quiet"]) == 0
-    assert main(["simulate", "--frames", str(out), "--backend", "numpy", "-o", str(tmp_path / "s.dat"), "--quiet"]) == 0
-    assert json.loads((tmp_path / "s.dat.json").read_text())["camera"]["threshold_electrons"] == 500.0
-    assert main(["camera", "--write", str(tmp_path / "cam.toml")]) == 0
-    capsys.readouterr()
-    assert main(["simulate", "--frames", str(out), "--camera", str(tmp_path / "cam.toml"), "--height", "16",
-                 "--width", "24", "--backend", "numpy", "-o", str(tmp_path / "t.dat"), "--quiet"]) == 2
-    assert "rendered for threshold_electrons 500 (the camera's 1000)" in capsys.readouterr().err
+    assert f"rendered for {says}" in capsys.readouterr().err
 
 
 def test_frames_swapped_after_the_render_are_refused_naming_the_file(tmp_path, capsys):
