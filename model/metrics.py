@@ -48,8 +48,9 @@ AUTHORS_CONVENTION = ("8-bit (the authors' metric code, the convention of the pa
                       "structural_similarity (7x7 uniform window, sample covariance).")
 NORMALISED_CONVENTION = ("light-normalised: as ours, with the data range set to the ground truth's 99.5th "
                          "percentile (its light level) instead of 1. Aligned: light-normalised PSNR after the "
-                         "least-squares gain and offset from prediction to ground truth (a black or constant "
-                         "image scores the floor, 20 log10(level / std(gt))); aligned SSIM: light-normalised SSIM "
+                         "least-squares gain (at least 0) and offset from prediction to ground truth (a black, "
+                         "constant or inverted image scores the floor, 20 log10(level / std(gt))); aligned SSIM: "
+                         "light-normalised SSIM "
                          "after the gain (offset matching the means) that maximises it, rescaled so that the constant "
                          "image at the ground truth's mean scores 0 and a perfect one 1 (no image scores below 0).")
 PEAK_PERCENTILE = 99.5
