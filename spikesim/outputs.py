@@ -371,15 +371,6 @@ __all__ = ["parent_fd", "move_into", "in_place_fd", "open_in_place", "HARD_LINK_
 RESULTS_RECORD = ".spikesim-results.json"
 
 
-def _file_sha256(path: Path) -> str:
-    import hashlib
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
 def _results_record(out: Path) -> dict[str, Any]:
     """The folder's results record, read as every small file is (a FIFO there hung the command, a
     link to /dev/zero grew without bound: round nine); an unreadable one lists nothing."""
@@ -399,6 +390,7 @@ def check_results_owned(out: str | Path, names: Sequence[str], command: str, fla
     """The names of `names` in `out` that an earlier `command` run wrote (as its record there
     says, with the same content): a rerun replaces those. Any other existing file of those names
     is the user's: refused, named, before any work."""
+    from .dataset import sha256_file  # imported here: spikesim.dataset imports this module
     out = Path(out)
     listed = _results_record(out)
     ours, theirs = [], []
@@ -409,7 +401,7 @@ def check_results_owned(out: str | Path, names: Sequence[str], command: str, fla
         entry = listed.get(name)
         try:
             same = (isinstance(entry, dict) and entry.get("command") == command and path.is_file()
-                    and not path.is_symlink() and entry.get("sha256") == _file_sha256(path))
+                    and not path.is_symlink() and entry.get("sha256") == sha256_file(path))
         except OSError:
             same = False
         (ours if same else theirs).append(name)
@@ -422,9 +414,10 @@ def check_results_owned(out: str | Path, names: Sequence[str], command: str, fla
 
 def record_results_owned(out: str | Path, names: Sequence[str], command: str) -> None:
     """Add the files `names` (just written in `out` by `command`) to the folder's results record."""
+    from .dataset import sha256_file
     out = Path(out)
     files = _results_record(out)
     for name in names:
         if (out / name).is_file():
-            files[name] = {"command": command, "sha256": _file_sha256(out / name)}
+            files[name] = {"command": command, "sha256": sha256_file(out / name)}
     atomic_write_json(writable(out, RESULTS_RECORD), {"files": files}, indent=1)
