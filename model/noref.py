@@ -26,7 +26,11 @@ def gradient_magnitude(image: np.ndarray) -> np.ndarray:
     return np.hypot(gx, gy)
 
 
-def flat_blocks(reference: np.ndarray, block: int = 16, fraction: float = 0.1) -> list[tuple[slice, slice]]:
+#: The side of the tiles in which flat regions are sought (pixels): a panel's frames need at least this.
+FLAT_BLOCK_PX = 16
+
+
+def flat_blocks(reference: np.ndarray, block: int = FLAT_BLOCK_PX, fraction: float = 0.1) -> list[tuple[slice, slice]]:
     """The `fraction` of block x block tiles of `reference` with the least gradient energy
     relative to their level, among tiles that are not dark (level at least a tenth of the median
     tile's): where the scene is flat and lit, so what varies in an image there is noise."""
@@ -66,7 +70,7 @@ def edge_sharpness(image: np.ndarray, mask: np.ndarray) -> float:
     return float(gradient_magnitude(image)[mask].mean() / level) if level > 0 else 0.0
 
 
-def no_reference_scores(image: np.ndarray, reference: np.ndarray, block: int = 16) -> dict[str, float]:
+def no_reference_scores(image: np.ndarray, reference: np.ndarray, block: int = FLAT_BLOCK_PX) -> dict[str, float]:
     """{"flat_noise", "edge_sharpness", "edge_to_noise"} of `image`, regions chosen on `reference`.
     A reference without light is refused: every measure is a ratio to the light (round eight: an
     all-zero recording gave noise inf, sharpness NaN and NumPy warnings)."""

@@ -165,10 +165,18 @@ def cmd_compare(args: argparse.Namespace) -> int:
                              f"{' ...' if len(both) > 3 else ''}): a comparison scores held-out scenes; give other "
                              "test data")
     out = Path(args.out)
+    from spikesim.dataset import check_outside_datasets
     from spikesim.generation.lock import output_lock
-    from spikesim.outputs import output_folder
+    from spikesim.outputs import check_results_owned, output_folder, record_results_owned
+    from model.comparison import COMPARE_FILES
+    from model.evaluation import RESULT_FILES
+    # checkpoints written into the test data, which verify then reported damaged (round ten)
+    check_outside_datasets(out, [*data.values(), args.test_data], "--out")
+    # the tables this run writes: a user's compare.md or metrics.md there was replaced (round ten)
+    tables = [*RESULT_FILES, *COMPARE_FILES, *((f"study_{study.name}.md", f"study_{study.name}.json") if study else ())]
     # one compare per folder: two at once would train the same runs and write each other's tables
     with output_folder(out), output_lock(out, "compare", what="compare run"):
+        check_results_owned(out, tables, "compare", "--out")
         roots: Any = data if by_data else next(iter(data.values()))
         import torch
         worker_threads = max(1, torch.get_num_threads() // args.jobs)  # --threads (or the free cores) shared out
@@ -204,6 +212,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
                                                                         steps_per_run(checkpoints).items()},
                 "configs": {label: exp.to_dict() for label, exp in args.configs}, "study": args.study,
                 "costs": costs, "jobs": args.jobs}
+        check_results_owned(out, tables, "compare", "--out")  # again: a file put there while it trained
         write_comparison(stats, rows, text, meta, out)
         if study is not None:  # one folder can hold every study (runs shared): each keeps its own table
             from model.evaluation import json_safe
@@ -211,6 +220,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
             atomic_write_text(writable(out, f"study_{study.name}.md"), text)
             atomic_write_text(writable(out, f"study_{study.name}.json"), json.dumps(json_safe(
                 {**meta, "statistics": [{**dataclasses.asdict(s), "values": list(s.values)} for s in stats]}), indent=1))
+        record_results_owned(out, tables, "compare")
         if args.json:
             from model.evaluation import json_safe
             print(json.dumps(json_safe({**meta, "statistics": [{**dataclasses.asdict(s), "values": list(s.values), "n": s.n}
@@ -258,7 +268,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                    help="seedless baselines in the tables: tfp, tfi, stp, snm (the traditional STP and SNM), black, "
                         "mean, tfp:N (TFP over N steps, an odd "
                         "number of windows: the span a network sees, e.g. tfp:205 for K = 5) (default: tfp tfi)")
-    p.add_argument("-o", "--out", type=output_dir, required=True, help="folder for the runs and the tables")
+    p.add_argument("-o", "--out", type=output_dir, required=True, help="folder for the runs and the tables (compare.md/.csv/.json, metrics.md/.csv, study_NAME.md/.json "
+                        "with --study); a file of those names that no earlier compare wrote there is refused")
     p.add_argument("--precision", choices=("bf16", "fp16", "fp32"),
                    help="training precision of every run (default: each config's, auto)")
     p.add_argument("--device", default="auto", help="auto (CUDA when present), cpu, cuda, cuda:N or mps")

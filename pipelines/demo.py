@@ -39,7 +39,8 @@ def run(args: argparse.Namespace) -> int:
     from spikesim.dataset import open_dataset
     from spikesim.imageio import write_png
     from spikesim._drjit import resolve_device
-    from spikesim.outputs import make_dirs, writable
+    from spikesim.outputs import check_results_owned, make_dirs, record_results_owned, writable
+    from model.evaluation import RESULT_FILES
     from spikesim.stats import dark_pixel_fraction
 
     out = Path(args.out)
@@ -56,6 +57,10 @@ def run(args: argparse.Namespace) -> int:
     preset = dataclasses.replace(PRESETS["small"], llr_windows=args.windows)
     t0 = time.perf_counter()
     jobs = plan_llr(preset, seed=args.seed, scenes=args.scenes)
+    # the tables and previews this run writes: a user's metrics.md in -o was replaced (round ten)
+    results = [*RESULT_FILES, *(f"previews/{j.name}_{kind}_p99.png" for j in jobs
+                                for kind in ("gt", *(m.name for m in methods if m.name not in FLOORS)))]
+    check_results_owned(out, results, "demo")
     todo = [j.name for j in jobs if job_status(j, out / "llr") != "done"]
     if todo:
         print(f"[demo] rendering {', '.join(todo)} at {preset.width}x{preset.height}, {jobs[0].num_steps} steps "
@@ -64,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"[demo] {', '.join(j.name for j in jobs)}: already rendered and simulated in {out / 'llr'}",
               file=sys.stderr)
     generate(jobs, out / "llr", workers=args.workers, info={"kind": "demo"}, show_progress=not args.quiet,
-             device=device)
+             device=device, overwrite_stale=args.overwrite)
     scenes = open_dataset(out / "llr")
     t_gen = time.perf_counter() - t0
     for sc in scenes:
@@ -79,6 +84,7 @@ def run(args: argparse.Namespace) -> int:
                   "shows the large shapes those spikes allow)", file=sys.stderr)
     rows = evaluate(scenes, methods, 41, progress=False)
     names = [m.name for m in methods]
+    check_results_owned(out, results, "demo")  # again: a file put there while it rendered
     write_results(rows, names, out)
     if args.json:
         print(json.dumps(json_safe(scores_json(rows, names, {"data": str(out / "llr")})), indent=2))
@@ -97,6 +103,7 @@ def run(args: argparse.Namespace) -> int:
         for m in (m for m in methods if m.name not in FLOORS):  # the floors show nothing
             frame = next(f for i, f in m.frames(src) if i == mid)
             write_png(writable(out, "previews", f"{sc.name}_{m.name}_p99.png"), np.asarray(frame), percentile=99.5)
+    record_results_owned(out, results, "demo")
     print(f"[demo] done in {time.perf_counter() - t0:.0f} s (rendering and simulation {t_gen:.0f} s); "
           f"data in {out / 'llr'}, table in {out / 'metrics.md'}, previews in {out / 'previews'} (each image "
           "stretched to its own 99.5th percentile: _p99)", file=sys.stderr)
@@ -121,6 +128,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="worker processes (default: one per core; one with a GPU)")
     add_device_argument(p)
     p.add_argument("--seed", type=seed_int, default=0, help="seed of the sensor's noise and fixed patterns")
+    p.add_argument("--overwrite", action="store_true",
+                   help="rebuild scenes an earlier demo in -o made with another --seed or --windows (refused without it)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.add_argument("--json", action="store_true", help="print the scores as JSON (evaluate's layout) instead of the table")
     p.set_defaults(func=run)

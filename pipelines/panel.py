@@ -34,6 +34,10 @@ def panel_frames(path: Path, specs: list[str], height: int | None = None, width:
     from model.streaming import StepWindows
 
     reader, header = open_stream(Path(path), height, width, flip, header_columns, drop_partial)
+    from model.noref import FLAT_BLOCK_PX as block
+    if min(reader.height, reader.width) < block:  # said before the methods run, naming the stream (round ten)
+        raise ValueError(f"{path}: a {reader.height} x {reader.width} stream; panel's scores find flat regions in "
+                         f"{block} x {block} blocks, so frames need at least {block} x {block} pixels")
     available = (reader.num_steps - start) // window
     if available < 1:
         raise ValueError(f"{path}: {reader.num_steps} steps leave no full {window}-step window after --start {start}")
@@ -89,6 +93,8 @@ def run(args: argparse.Namespace) -> int:
     device = str(resolve_device(args.device))
     outputs.check_not_link(args.out)  # refused before the work, not after
     out_path = Path(args.out)
+    from spikesim.dataset import check_outside_datasets
+    check_outside_datasets(out_path)  # a panel written into a dataset, which verify then reports (round ten)
     outputs.check_results_owned(out_path.parent, [out_path.name], "panel")  # a user's PNG there is refused (round eight)
     set_cpu_threads(args.threads)
     header = None if args.header_columns == "auto" else args.header_columns
@@ -99,6 +105,8 @@ def run(args: argparse.Namespace) -> int:
     captions = {n: f"noise {s['flat_noise']:.3f}\nedge {s['edge_sharpness']:.3f}" for n, s in scores.items()}
     image = compose_panel(frames, captions)
     with outputs.output_file(args.out) as out:
+        # again, as it is written: a PNG the user put there while the methods ran was replaced (round ten)
+        outputs.check_results_owned(out_path.parent, [out_path.name], "panel")
         outputs.atomic_write_with(out, lambda tmp: image.save(tmp, format="PNG"))
         outputs.record_results_owned(out_path.parent, [out_path.name], "panel")
     doc = {"read": read, "scores": scores, "out": str(out),

@@ -318,13 +318,14 @@ def run_sweep(scenes: Sequence[str] = ("ball", "car", "cook", "fan", "rotate"), 
         out = Path(out)
         for name in RESULT_FILES:
             writable(out, name)  # a link where results go: refused before the work
+    ours: list[str] = []
     with contextlib.ExitStack() as held:
         if out is not None:  # the folder is this run's until it ends: two sweeps wrote a mix of each other's tables
             from spikesim.generation.lock import output_lock
             held.enter_context(output_folder(out))
             held.enter_context(output_lock(out, "sweep", what="sweep run"))
             from spikesim.outputs import check_results_owned
-            check_results_owned(out, RESULT_FILES, "sweep")  # a user's sweep.md is refused, not replaced (round eight)
+            ours = check_results_owned(out, RESULT_FILES, "sweep")  # a user's sweep.md is refused, not replaced (round eight)
         sources = []
         for s in scenes:
             if str(s).lower().endswith(".xml"):
@@ -351,6 +352,8 @@ def run_sweep(scenes: Sequence[str] = ("ball", "car", "cook", "fan", "rotate"), 
                   "gt_spp": gt_spp, "seed": seed, "light": light,
                   "not_best_below_saturation": {m: losing_levels(rows, m, saturation) for m in names}}
         if out is not None:
+            from spikesim.outputs import check_results_owned, record_results_owned
+            check_results_owned(out, RESULT_FILES, "sweep")  # again: a file the user put there while it ran (round ten)
             buf = io.StringIO(newline="")
             w = csv.DictWriter(buf, fieldnames=list(rows[0]))
             w.writeheader()
@@ -361,8 +364,8 @@ def run_sweep(scenes: Sequence[str] = ("ball", "car", "cook", "fan", "rotate"), 
             if draw_plot:
                 plot(rows, names, saturation, writable(out, "sweep.png"),
                      f"{', '.join(r.name for r in rendered)} at {camera.height} x {camera.width}, {windows} windows")
-            from spikesim.outputs import record_results_owned
-            record_results_owned(out, RESULT_FILES, "sweep")
+            written = [name for name in RESULT_FILES if draw_plot or name != "sweep.png"]
+            record_results_owned(out, written, "sweep", stale=ours)  # a --no-plot rerun drops the old plot (round ten)
         return SweepResult(rows, record, md)
 
 

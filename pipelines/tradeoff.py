@@ -60,6 +60,11 @@ def cmd_tradeoff(args: argparse.Namespace) -> int:
     from spikesim.generation.lock import output_lock
     from spikesim.outputs import output_folder
     with output_folder(out), output_lock(out, "tradeoff", what="tradeoff run"):
+        from spikesim.outputs import check_results_owned
+        from pipelines.tradeoff_study import PARETO_PLOT, REPORT_FILES
+        check_results_owned(out, ["study.json", *REPORT_FILES], "tradeoff")  # a user's files: refused before any run
+        if args.images is not None:
+            check_results_owned(Path(args.images), [PARETO_PLOT], "tradeoff", "--images")
         return _study(args, cfg, out)
 
 

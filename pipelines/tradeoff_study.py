@@ -47,7 +47,8 @@ import numpy as np
 
 from spikesim._optional import require
 from spikesim.config_io import read_json_object
-from spikesim.outputs import atomic_write_file, make_dirs, output_folder, writable
+from spikesim.outputs import (atomic_write_file, check_results_owned, make_dirs, output_folder, record_results_owned,
+                              writable)
 from spikesim.preset_rule import RECON_AXES  # the axes the quality presets are chosen on
 from spikesim.render_settings import RenderSettings, render_knob
 
@@ -698,8 +699,11 @@ def run_study(cfg: StudyConfig, out: Path, progress: bool = True) -> list[dict[s
 
     for name in ("study.json", "runs", *REPORT_FILES):  # a link where the study writes: refused before any run
         writable(out, name)
+    # a user's study.json or tradeoff.md there was replaced (round ten): refused before any run
+    check_results_owned(out, ["study.json", *REPORT_FILES], "tradeoff")
     out.mkdir(parents=True, exist_ok=True)
     _write_json(out / "study.json", dataclasses.asdict(cfg))
+    record_results_owned(out, ["study.json"], "tradeoff")  # at once: an interrupted study resumes as its own
     runs = plan_runs(cfg)
     jobs = [(sc, li, r) for sc in cfg.scenes for li in cfg.lights for r in runs]
     session = f"{time.time():.0f}"
@@ -1020,6 +1024,7 @@ def plot(rows: Sequence[dict[str, Any]], path: Path, gt_rows: Sequence[dict[str,
 
 
 REPORT_FILES = ("tradeoff.csv", "tradeoff.md", "tradeoff.png")
+PARETO_PLOT = "tradeoff_pareto.png"  # --images DIR: the plot again, for a paper's figures
 
 
 def write_report(rows: Sequence[dict[str, Any]], out: Path, images: Path | None = None,
@@ -1029,15 +1034,21 @@ def write_report(rows: Sequence[dict[str, Any]], out: Path, images: Path | None 
     for name in REPORT_FILES:
         writable(out, name)
     if images is not None:
-        writable(images, "tradeoff_pareto.png")
+        writable(images, PARETO_PLOT)
+        check_results_owned(images, [PARETO_PLOT], "tradeoff", "--images")  # a user's PNG (round ten)
+    ours = check_results_owned(out, REPORT_FILES, "tradeoff")
+    drawn = bool(rows or gt_rows)
     with output_folder(out):
         write_csv([*rows, *gt_rows], out / "tradeoff.csv")
         atomic_write_file(out / "tradeoff.md", lambda f: f.write(markdown_table(rows, gt_rows).encode()))
-        if rows or gt_rows:
+        if drawn:
             plot(rows, out / "tradeoff.png", gt_rows)
-    if (rows or gt_rows) and images is not None:
+        written = [name for name in REPORT_FILES if drawn or name != "tradeoff.png"]
+        record_results_owned(out, written, "tradeoff", stale=ours)  # no earlier plot left beside the new table
+    if drawn and images is not None:
         with output_folder(images):
-            plot(rows, images / "tradeoff_pareto.png", gt_rows)
+            plot(rows, images / PARETO_PLOT, gt_rows)
+            record_results_owned(images, [PARETO_PLOT], "tradeoff")
 
 
 # ---- cache files: written whole (spikesim.outputs: temporary file, then rename; an interrupted study

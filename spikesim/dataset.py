@@ -487,15 +487,21 @@ def manifest_disagreement(root: str | Path, name: str, entries: dict[str, Any]) 
     return out
 
 
-def check_outside_datasets(out: str | Path, roots: Sequence[str | Path], flag: str = "-o") -> None:
-    """Refuse an output folder at or inside one of the dataset roots a command reads: `train -o`
-    and `export -o` wrote into a dataset, which `verify` then reported damaged (round eight)."""
+def check_outside_datasets(out: str | Path, roots: Sequence[str | Path] = (), flag: str = "-o") -> None:
+    """Refuse an output at or inside one of the dataset roots a command reads, or inside any folder
+    that holds a dataset manifest: `train -o` and `export -o` wrote into a dataset, which `verify`
+    then reported damaged (round eight); `compare -o`, `reconstruct -o`, `panel -o` and `inspect
+    --preview` into one read from elsewhere did the same (round ten)."""
     where = Path(out).resolve()
     for root in roots:
         base = Path(root).resolve()
         if where == base or base in where.parents:
             raise ValueError(f"{flag} {out}: inside the dataset {root}, whose files a manifest lists (verify would "
                              "report the outputs as extra files); choose a folder outside it")
+    for base in (where, *where.parents):
+        if (base / MANIFEST).is_file():
+            raise ValueError(f"{flag} {out}: inside the dataset {base} (it holds {MANIFEST}; verify would report the "
+                             "outputs as extra files); choose a folder outside it")
 
 
 def read_manifest(root: str | Path) -> dict[str, Any]:

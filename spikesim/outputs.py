@@ -386,12 +386,29 @@ def _results_record(out: Path) -> dict[str, Any]:
     return files if isinstance(files, dict) else {}
 
 
+def _check_record_path(out: Path, names: Sequence[str], command: str, flag: str) -> None:
+    """The record's own name is no result, and what stands at the record's path is a regular file
+    or nothing: a folder, link or FIFO there failed only after the results were written, leaving
+    them unrecorded, so every rerun refused them; a golden reference named like the record was
+    overwritten by the record (round ten). Refused before any work."""
+    if any(Path(name).name == RESULTS_RECORD for name in names):
+        raise ValueError(f"{out / RESULTS_RECORD}: {RESULTS_RECORD} is where spikesim records which results in a "
+                         f"folder are its own, so no {command} result may take that name; choose another {flag}")
+    path = out / RESULTS_RECORD
+    if path.is_symlink() or (path.exists() and not path.is_file()):
+        raise FileExistsError(f"{path}: is not a regular file (a folder, link or FIFO), where {command} records which "
+                              f"results it wrote there; remove it, or choose another {flag}")
+
+
 def check_results_owned(out: str | Path, names: Sequence[str], command: str, flag: str = "-o") -> list[str]:
     """The names of `names` in `out` that an earlier `command` run wrote (as its record there
     says, with the same content): a rerun replaces those. Any other existing file of those names
-    is the user's: refused, named, before any work."""
+    is the user's: refused, named, before any work. Called again just before the writing, it
+    refuses a file the user put there while the command ran (round ten: golden and panel replaced
+    one)."""
     from .dataset import sha256_file  # imported here: spikesim.dataset imports this module
     out = Path(out)
+    _check_record_path(out, names, command, flag)
     listed = _results_record(out)
     ours, theirs = [], []
     for name in names:
@@ -412,11 +429,26 @@ def check_results_owned(out: str | Path, names: Sequence[str], command: str, fla
     return ours
 
 
-def record_results_owned(out: str | Path, names: Sequence[str], command: str) -> None:
-    """Add the files `names` (just written in `out` by `command`) to the folder's results record."""
+def record_results_owned(out: str | Path, names: Sequence[str], command: str, stale: Sequence[str] = ()) -> None:
+    """Add the files `names` (just written in `out` by `command`) to the folder's results record.
+    `stale`: earlier results of this command (check_results_owned's answer) that this run did not
+    write again, such as a plot a rerun with --no-plot does not draw: removed, if still unchanged,
+    so no earlier run's result stays listed beside the new ones (round ten)."""
     from .dataset import sha256_file
     out = Path(out)
     files = _results_record(out)
+    for name in stale:
+        entry = files.get(name)
+        if name in names or not isinstance(entry, dict) or entry.get("command") != command:
+            continue
+        path = out / name
+        try:
+            if path.is_file() and not path.is_symlink() and entry.get("sha256") == sha256_file(path):
+                remove(out, name)
+        except OSError:
+            continue
+        if not path.exists():
+            del files[name]
     for name in names:
         if (out / name).is_file():
             files[name] = {"command": command, "sha256": sha256_file(out / name)}

@@ -374,16 +374,45 @@ def test_a_sweep_refuses_a_users_sweep_md_before_rendering(tmp_path):
     assert (tmp_path / "sweep.md").read_text() == "my own notes"
 
 
-def test_a_results_record_that_is_no_regular_file_is_not_waited_on(tmp_path):
+def test_a_results_record_that_is_no_regular_file_is_refused_before_work(tmp_path):
     """A FIFO at .spikesim-results.json hung every command that checks it; a link to /dev/zero grew
-    without bound (round nine). It lists nothing: the command's own files there are then refused."""
+    without bound (round nine); a folder there failed only after the results were written, leaving
+    them unrecorded (round ten). Each is refused at the check, unread, naming the path."""
     from spikesim.outputs import RESULTS_RECORD, check_results_owned
     os.mkfifo(tmp_path / RESULTS_RECORD)
-    assert check_results_owned(tmp_path, ["metrics.md"], "evaluate") == []
-    (tmp_path / "metrics.md").write_text("x")
-    with pytest.raises(FileExistsError, match="holds metrics.md"):
+    with pytest.raises(FileExistsError, match="is not a regular file"):
         check_results_owned(tmp_path, ["metrics.md"], "evaluate")
     other = tmp_path / "z"
     other.mkdir()
     (other / RESULTS_RECORD).symlink_to("/dev/zero")
-    assert check_results_owned(other, ["metrics.md"], "evaluate") == []
+    with pytest.raises(FileExistsError, match="is not a regular file"):
+        check_results_owned(other, ["metrics.md"], "evaluate")
+    third = tmp_path / "y"
+    (third / RESULTS_RECORD).mkdir(parents=True)
+    with pytest.raises(FileExistsError, match="is not a regular file"):
+        check_results_owned(third, ["metrics.md"], "evaluate")
+
+
+def test_the_record_name_is_no_result_name(tmp_path):
+    """golden --write -o DIR/.spikesim-results.json wrote its reference, then the record over it (round ten)."""
+    from spikesim.outputs import RESULTS_RECORD, check_results_owned
+    with pytest.raises(ValueError, match="no golden result may take that name"):
+        check_results_owned(tmp_path, [RESULTS_RECORD], "golden")
+
+
+def test_a_rerun_removes_its_own_stale_result_and_keeps_a_changed_one(tmp_path):
+    """sweep --no-plot left the earlier run's sweep.png listed as the new run's (round ten)."""
+    from spikesim.outputs import check_results_owned, record_results_owned, _results_record
+    for name in ("a.md", "a.png", "b.png"):
+        (tmp_path / name).write_text(name)
+    record_results_owned(tmp_path, ["a.md", "a.png", "b.png"], "sweep")
+    (tmp_path / "b.png").write_text("the user's edit")  # changed since: no longer the command's
+    with pytest.raises(FileExistsError, match="holds b.png"):
+        check_results_owned(tmp_path, ["a.md", "a.png", "b.png"], "sweep")
+    ours = check_results_owned(tmp_path, ["a.md", "a.png"], "sweep")
+    assert ours == ["a.md", "a.png"]
+    (tmp_path / "a.md").write_text("new table")
+    record_results_owned(tmp_path, ["a.md"], "sweep", stale=[*ours, "b.png"])
+    assert not (tmp_path / "a.png").exists() and (tmp_path / "b.png").read_text() == "the user's edit"
+    listed = _results_record(tmp_path)
+    assert "a.png" not in listed and listed["a.md"]["command"] == "sweep"
