@@ -109,6 +109,45 @@ def unscored_note(scene: Scene, window: int) -> str | None:
             f"so their centres must be {window} steps apart{apart}")
 
 
+def training_scene_notes(methods: Sequence[Method], scene_names: Sequence[str]) -> list[str]:
+    """A note per checkpoint that trained (or validated) on scenes scored here, as its record
+    (`extra.data_order`, scene names) says: those scores are training fit, not held-out ones.
+    `compare` and `train` refuse such an overlap (model.data.shared_scenes); an evaluation may
+    measure training fit on purpose, so it is said, not refused (round ten: no word at all).
+    Matched by name (a scene of that name in another dataset is named too); shipped weights have
+    no such record."""
+    from model.checkpoint import load_checkpoint
+    from model.methods import ModelMethod
+
+    def base(name: object) -> str:  # several roots' scenes are "folder:name"
+        return str(name).rsplit(":", 1)[-1]
+    notes = []
+    for m in methods:
+        if not isinstance(m, ModelMethod) or m.checkpoint is None:
+            continue
+        try:
+            extra = load_checkpoint(m.checkpoint).get("extra") or {}
+        except (OSError, ValueError):
+            continue  # read once already to build the method; nothing to say
+        order = extra.get("data_order") if isinstance(extra, dict) else None
+        if not (isinstance(order, list) and len(order) == 2 and all(isinstance(part, list) for part in order)):
+            continue  # checkpoints written before the record have none
+        for part, verb in ((order[0], "trained"), (order[1], "validated (its best.pt chosen by their scores)")):
+            theirs = {base(n) for n in part}
+            shared = [n for n in scene_names if base(n) in theirs]
+            if shared:
+                notes.append(f"{m.name} ({m.checkpoint}) {verb} on {len(shared)} of the scenes scored here "
+                             f"({', '.join(shared[:6])}{' ...' if len(shared) > 6 else ''}), as its record "
+                             "(extra.data_order) names them: its scores there measure training fit, not held-out "
+                             "scenes")
+    return notes
+
+
+def notes_markdown(notes: Sequence[str]) -> str:
+    """The notes as a section of metrics.md ("" when there are none)."""
+    return "" if not notes else "\n**Notes**\n\n" + "".join(f"- {n}\n" for n in notes)
+
+
 def evaluate_scene(scene: Scene, methods: Sequence[Method], window: int) -> list[Score]:
     """Every metric of every method on the scene's evaluation run; ground truth clipped at the
     sensor's saturation (y = 1 spike per step: above it no stream differs, model/data.py)."""
@@ -182,6 +221,13 @@ def evaluate_pair(dat: Path, gt: np.ndarray, center: int, methods: Sequence[Meth
     if gt.shape != (height, width):
         raise ValueError(f"--gt is {gt.shape[0]} x {gt.shape[1]} but the stream is read as {height} x {width}; "
                          "check --height/--width (or the image)")
+    # what read_image_y refuses of a file, refused of an array too: a negative or NaN ground truth was
+    # clipped to 0 below and scored (round ten); y is light, >= 0 and finite
+    bad, negative = int(np.count_nonzero(~np.isfinite(gt))), int(np.count_nonzero(np.asarray(gt) < 0))
+    if bad or negative:
+        what = f"{bad} NaN or infinite" if bad else f"{negative} negative (min {float(np.min(gt)):.3g})"
+        raise ValueError(f"--gt (the ground truth of {dat}) has {what} pixel(s) of {gt.size}; the image's y (light, "
+                         "in spikes per step) must be finite and >= 0")
     reader = DatReader(dat, height, width, flip=flip, header_columns=header_columns)
     half = window // 2
     if center - half < 0 or center + (window - half) > reader.num_steps:

@@ -2,14 +2,17 @@
 
     spikesim calibrate --dark DARK.dat --flat FLAT.dat --height H --width W -o mine.toml
     spikesim calibrate --dark DARK.dat --flat LOW.dat --flat HIGH.dat --scene SCENE.dat ... -o mine.toml
-    spikesim calibrate --scene recording.dat --height 250 --width 250 -o mine.toml   # what a scene tells
+    spikesim calibrate --scene recording.dat -o mine.toml   # a scene alone: the recorded period only
 
 - DARK: the lens capped. Gives dark_current_hz, dark_current_spread, and the hot pixels (counted).
 - FLAT: uniform light, below half the saturation rate. Gives gain_spread (which holds the threshold
   mismatch and offset: they act on light alike; the file sets them to 0) and the outlier pixels
   (outlier_pixel_fraction, outlier_gain_spread; 0 where one normal explains the pixels). A second
   flat is combined.
-- SCENE: any recording with texture. Gives row_gain_spread and column_gain_spread.
+- SCENE: a lit recording; checked (a dark one is refused), but nothing is fitted from it.
+  row_gain_spread and column_gain_spread keep the --camera's values: a scene's texture that varies
+  by row or column is in every part of one recording, as a fixed row or column pattern is, so
+  the two cannot be told apart (a car scene of a camera with neither read as 0.24 and 0.16).
 
 Each fitted value is written with its standard error and the recording it came from; every other
 field keeps the --camera it starts from (default: the published realistic camera), and the file
@@ -43,16 +46,22 @@ def read_half_rates(path: Path, height: int | None, width: int | None, flip: boo
 
 def recorded_readout_period_s(path: Path) -> float | None:
     """The readout period the recording's record gives (its sidecar's, or a dataset scene's
-    meta.json's, camera), None when it gives none."""
+    meta.json's: the camera's, else a top-level readout_period_s), None when it gives none. The
+    one reader of a stream's period: inspect takes it too (round ten: inspect read a sidecar only,
+    so a dataset scene recorded at 1e-4 s was shown at 25e-6 s)."""
     from spikesim.config_io import read_json_object
-    from spikesim.stream import recorded_geometry
+    from spikesim.stream import META_LIMIT, check_stream_record, recorded_geometry
 
     rec = recorded_geometry(path)
     if rec is None:
         return None
-    camera = read_json_object(rec["source"], "stream description", finite=False, limit=1 << 24).get("camera")
-    period = camera.get("readout_period_s") if isinstance(camera, dict) else None
-    return float(period) if isinstance(period, (int, float)) and not isinstance(period, bool) else None
+    info = check_stream_record(read_json_object(rec["source"], "stream description", finite=False, limit=META_LIMIT),
+                               rec["source"])  # types and range checked, naming the file
+    camera = info.get("camera")
+    for period in (camera.get("readout_period_s") if isinstance(camera, dict) else None, info.get("readout_period_s")):
+        if isinstance(period, (int, float)) and not isinstance(period, bool):
+            return float(period)
+    return None
 
 
 def readout_period_of(recordings: list[Path], asked: float | None, starting: float) -> tuple[float, str]:
@@ -100,7 +109,7 @@ def calibrated_toml(camera: Any, fitted: list[Any], notes: list[str]) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from spikesim.calibrate import calibrated_camera, combine, fit_dark, fit_flat, fit_outliers, fit_scene
+    from spikesim.calibrate import calibrated_camera, check_scene_lit, combine, fit_dark, fit_flat, fit_outliers
 
     if args.dark is None and not args.flat and args.scene is None:
         raise ValueError("calibrate needs at least one recording: --dark (lens capped), --flat (uniform light) "
@@ -158,11 +167,20 @@ def run(args: argparse.Namespace) -> int:
                      "threshold_mismatch and threshold_offset are set to 0")
     else:
         notes.append("not fitted: gain_spread needs a flat recording (--flat)")
+    # round ten: row and column spreads fitted from a scene were its texture (0.24 and 0.16 from a car
+    # scene of a camera with none; a still textured frame was refused as above the maximum 0.3). One
+    # recording cannot tell a fixed row/column pattern from texture that varies by row or column, so
+    # none is fitted from a scene: the starting camera's values are kept, and the file says so
+    kept = f"they keep the starting camera's values ({base.row_gain_spread:g} and {base.column_gain_spread:g})"
     if args.scene is not None:
-        fitted += fit_scene(read_half_rates(args.scene, args.height, args.width, flip, args.header_columns), dark,
-                            dark_rate=base.dark_current_hz * base.readout_period_s)
+        check_scene_lit(read_half_rates(args.scene, args.height, args.width, flip, args.header_columns), dark,
+                        dark_rate=base.dark_current_hz * base.readout_period_s)
+        notes.append(f"not fitted: row_gain_spread and column_gain_spread from {args.scene.name}: a scene's texture "
+                     "that varies by row or column cannot be told apart from a fixed row or column gain pattern in "
+                     f"one recording; {kept}")
     else:
-        notes.append("not fitted: row_gain_spread and column_gain_spread need a scene recording (--scene)")
+        notes.append(f"not fitted: row_gain_spread and column_gain_spread (calibrate fits them from no recording: "
+                     f"in a scene they cannot be told apart from its texture); {kept}")
     notes.append("not fitted from any recording: comparator and shot noise, reset loss (python -m "
                  "pipelines.real_camera compares a recording with its simulated twin)"
                  + ("" if args.flat else "; outlier pixels need a flat (--flat)"))
@@ -182,12 +200,14 @@ def run(args: argparse.Namespace) -> int:
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("calibrate", help="fit a camera file from your own dark, flat and scene recordings",
+    p = sub.add_parser("calibrate", help="fit a camera file from your own dark and flat recordings",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--dark", type=existing_file, action=StoreOnce, help="a recording with the lens capped (.dat)")
     p.add_argument("--flat", type=existing_file, action="append", default=[],
                    help="a recording of uniform light (.dat); give it twice for two light levels")
-    p.add_argument("--scene", type=existing_file, action=StoreOnce, help="a recording of a textured scene (.dat)")
+    p.add_argument("--scene", type=existing_file, action=StoreOnce,
+                   help="a lit scene recording (.dat): checked, nothing fitted from it (row and column spreads keep "
+                        "--camera's values: one recording cannot tell them from the scene's texture)")
     p.add_argument("--height", type=positive_int, help="rows (default: the stream's sidecar, else 250)")
     p.add_argument("--width", type=positive_int, help="columns (default: the stream's sidecar, else 400)")
     p.add_argument("--header-columns", type=header_columns_arg, default="auto",

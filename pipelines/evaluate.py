@@ -27,8 +27,8 @@ from model.data import open_scenes
 # the library (model/evaluation.py); re-exported here for callers of pipelines.evaluate
 from model.evaluation import (ALL, CONDITIONS, CSV_FIELDS, DEFAULT_OUT, RESULT_FILES, TABLE_ROWS, Score,  # noqa: F401
                               check_results, evaluate, evaluate_pair, evaluate_scene, evaluation_run, group_name,
-                              json_safe, light_condition, markdown_table, method_label, pair_table, pooled,
-                              scores_json, write_results)
+                              json_safe, light_condition, markdown_table, method_label, notes_markdown, pair_table,
+                              pooled, scores_json, training_scene_notes, write_results)
 from model.methods import Method, method_from_spec
 from model.threads import set_cpu_threads
 from pipelines.argtypes import (add_threads_argument, existing_file, nonnegative_int, png_rate, positive_float,
@@ -67,16 +67,22 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
                              f"{', '.join(s.name for s in scenes)})")
         scenes = [s for s in scenes if s.name in wanted]
     rows = evaluate(scenes, methods, args.window, progress=not (args.quiet or args.json))
-    return _report(args, rows, names, {"data": str(args.data)})
+    return _report(args, rows, names, {"data": str(args.data)}, training_scene_notes(methods, [s.name for s in scenes]))
 
 
-def _report(args: argparse.Namespace, rows: Sequence[Score], names: Sequence[str], source: dict) -> int:
-    """Print the tables (or JSON) and write metrics.csv and metrics.md, as --data does."""
+def _report(args: argparse.Namespace, rows: Sequence[Score], names: Sequence[str], source: dict,
+            notes: Sequence[str] = ()) -> int:
+    """Print the tables (or JSON) and write metrics.csv and metrics.md, as --data does. `notes`
+    (a checkpoint scored on scenes it trained on: round ten) go to stderr, the JSON's "notes" and
+    metrics.md."""
+    for note in notes:
+        print(f"[evaluate] note: {note}", file=sys.stderr)
+    table = markdown_table(rows, names) + notes_markdown(notes)
     if args.json:
-        print(json.dumps(json_safe(scores_json(rows, names, source)), indent=2))
+        print(json.dumps(json_safe(scores_json(rows, names, {**source, "notes": list(notes)})), indent=2))
     else:
-        print(markdown_table(rows, names))
-    _write(args, rows, names)
+        print(table)
+    _write(args, rows, names, markdown=table)
     return 0
 
 
@@ -127,8 +133,10 @@ def _evaluate_spikezoo_cmd(args: argparse.Namespace, methods: Sequence[Method], 
     groups = [pooled(mine, group_name(c), m) for c in CONDITIONS for m in names
               if (mine := [r for r in rows if r.method == m and condition[r.scene] == c])]
     rows += groups + [pooled([r for r in rows if r.method == m], ALL, m) for m in names]
+    scenes = list(dict.fromkeys(p.scene or p.name for p in layout.pairs))
     return _report(args, rows, names, {"spikezoo": str(args.spikezoo), "split": args.split,
-                                       "rates": {p.name: p.rate for p in layout.pairs}})
+                                       "rates": {p.name: p.rate for p in layout.pairs}},
+                   training_scene_notes(methods, scenes))
 
 
 def _evaluate_pair_cmd(args: argparse.Namespace, methods: Sequence[Method], names: Sequence[str]) -> int:

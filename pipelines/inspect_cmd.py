@@ -17,7 +17,7 @@ import numpy as np
 
 from pipelines.argtypes import nonnegative_int, output_file_in, positive_int, readout_period_s
 from spikesim.stream import (DatReader, check_recorded_layout, detect_header_columns, open_stream, read_sidecar,
-                             recorded_geometry, stream_geometry)
+                             recorded_geometry, sidecar_path, stream_geometry)
 
 CHUNK_PIXEL_STEPS = 1 << 20  # pixels x steps unpacked at a time (1 MB of bits)
 
@@ -155,13 +155,19 @@ def step_range(path: Path, num_steps: int, start: int, stop: int | None) -> tupl
     return start, stop
 
 
-def _readout_period(args: argparse.Namespace, side: dict[str, Any]) -> float:
-    cam = side.get("camera")  # the sidecar's fields are checked as it is read (spikesim.stream.check_stream_record)
-    recorded = (cam.get("readout_period_s") if isinstance(cam, dict) else None) or side.get("readout_period_s")
+def _readout_period(args: argparse.Namespace) -> float:
+    """--readout-period-s, else the period the stream's record gives (a sidecar's, or a dataset
+    scene's meta.json's), else 25e-6; a flag the record contradicts is refused."""
+    # the record read as calibrate reads it (round ten: inspect read a sidecar only, so a dataset
+    # scene recorded at 1e-4 s was shown at 40,000 Hz and a contradicting flag was taken)
+    from pipelines.calibrate_cmd import recorded_readout_period_s
+    recorded = recorded_readout_period_s(args.path)
     if args.readout_period_s is not None and recorded and not math.isclose(args.readout_period_s, recorded, rel_tol=1e-9):
         # taken silently over the record (round nine); calibrate refuses the same contradiction
-        raise ValueError(f"--readout-period-s {args.readout_period_s:g}: {args.path}'s record gives {recorded:g} s; drop "
-                         "the flag (the record is taken) or give the period it records")
+        side = sidecar_path(args.path)
+        source = side if side.exists() else args.path.parent / "meta.json"
+        raise ValueError(f"--readout-period-s {args.readout_period_s:g}: {args.path}'s record gives {recorded:g} s "
+                         f"({source}); drop the flag (the record is taken) or give the period it records")
     return args.readout_period_s or recorded or 25e-6
 
 
@@ -191,7 +197,7 @@ def run(args: argparse.Namespace) -> int:
     flip = reader.flip
     start, stop = step_range(args.path, len(reader), args.start, args.stop)
     side = read_sidecar(args.path) or {}
-    period = _readout_period(args, side)
+    period = _readout_period(args)
     s = summarize(reader, start, stop, period, args.window)
     s.update({"path": str(args.path), "flip": flip, "header_columns": header, "readout_period_s": period,
               "start": start})
@@ -200,13 +206,19 @@ def run(args: argparse.Namespace) -> int:
     if args.preview:
         from spikesim.imageio import PREVIEW_PERCENTILE, auto_percentile, write_png
         from spikesim.outputs import check_not_link, check_results_owned, output_file, record_results_owned
+        from spikesim.dataset import check_outside_datasets
         preview_path = check_not_link(args.preview)
+        # a preview written into a dataset, which verify then reported as an extra file (round ten)
+        check_outside_datasets(preview_path, [], "--preview")
         check_results_owned(preview_path.parent, [preview_path.name], "inspect", "--preview")  # a user's PNG: refused (round eight)
         a = max(start, (start + stop) // 2 - args.window // 2)
         tfp = reader.read(a, min(stop, a + args.window)).unpack().mean(axis=0)
         # a dark stream's preview is stretched to its 99.5th percentile (it was near-black in low light)
         percentile = PREVIEW_PERCENTILE if args.enhance else auto_percentile(tfp)
         with output_file(args.preview) as preview:  # never through a link; no new empty folder on failure
+            # again just before the write: a file the user put there while the stream was read was
+            # overwritten (round ten)
+            check_results_owned(preview_path.parent, [preview_path.name], "inspect", "--preview")
             write_png(preview, tfp, percentile=percentile)
             record_results_owned(preview_path.parent, [preview_path.name], "inspect")
         s["preview"] = str(args.preview)

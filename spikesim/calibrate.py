@@ -22,7 +22,10 @@ What the recordings determine, and what calibrate writes (docs/sensor.md, "Calib
   gain_spread is the narrow part.
 - scene: the rates relative to their neighbourhood's median; the spread of row and column means of
   that ratio, by the same split-half covariance, less what the pixels' own spread adds to a line's
-  mean (their residual variance over the line's pixels): row_gain_spread and column_gain_spread.
+  mean (their residual variance over the line's pixels): `fit_scene`. It holds the scene's own
+  texture that varies by row or column at scales the median keeps (a car scene of a camera with
+  no row or column pattern gave 0.24 and 0.16, round ten), which one recording cannot tell apart
+  from a fixed pattern; so `spikesim calibrate` does not write it (`check_scene_lit` only).
 """
 from __future__ import annotations
 
@@ -252,20 +255,31 @@ def combine(fits: Sequence[Fitted]) -> Fitted:
 SCENE_MIN_OVER_DARK = 3.0
 
 
-def fit_scene(scene: HalfRates, dark: HalfRates | None = None, dark_rate: float | None = None) -> list[Fitted]:
-    """row_gain_spread and column_gain_spread from a scene: each pixel's rate over its
-    neighbourhood's median (NEIGHBOURHOOD_PX), averaged along rows and columns in each half; the
-    split-half spread of those means across rows (columns). `dark_rate` (spikes per step: the dark
-    recording's, else the camera's dark current) refuses a scene that is no brighter than dark."""
-    from scipy.ndimage import median_filter
-
-    where = f"{Path(scene.path).name} ({scene.steps} steps, scene)"
+def check_scene_lit(scene: HalfRates, dark: HalfRates | None = None, dark_rate: float | None = None) -> None:
+    """A ValueError naming the recording when a scene fires less than SCENE_MIN_OVER_DARK times
+    the dark rate (`dark`'s, else `dark_rate`, spikes per step): it is dark, not a scene."""
     if dark is not None:
         dark_rate = float(dark.mean.mean())
     if dark_rate is not None and float(scene.mean.mean()) < SCENE_MIN_OVER_DARK * dark_rate:
         raise ValueError(f"{scene.path}: a scene recording fires {float(scene.mean.mean()):.3g} spikes per step on "
                          f"average, less than {SCENE_MIN_OVER_DARK:g} times the dark rate ({dark_rate:.3g}): it is dark; "
                          "a scene recording is lit")
+
+
+def fit_scene(scene: HalfRates, dark: HalfRates | None = None, dark_rate: float | None = None) -> list[Fitted]:
+    """row_gain_spread and column_gain_spread from a scene: each pixel's rate over its
+    neighbourhood's median (NEIGHBOURHOOD_PX), averaged along rows and columns in each half; the
+    split-half spread of those means across rows (columns). `dark_rate` (spikes per step: the dark
+    recording's, else the camera's dark current) refuses a scene that is no brighter than dark.
+
+    Only for a scene whose texture the median takes out (smooth, or finer than the neighbourhood):
+    texture that varies by row or column at larger scales is in both halves as a fixed pattern is,
+    and is read as one (round ten: 0.24 and 0.16 from a car scene of a camera with none), which
+    one recording cannot tell apart. `spikesim calibrate` does not use it for that reason."""
+    from scipy.ndimage import median_filter
+
+    where = f"{Path(scene.path).name} ({scene.steps} steps, scene)"
+    check_scene_lit(scene, dark, dark_rate)
     a, b = (scene.a - dark.a, scene.b - dark.b) if dark is not None else (scene.a, scene.b)
     local = median_filter(scene.mean if dark is None else (a + b) / 2, size=NEIGHBOURHOOD_PX, mode="reflect")
     lit = local > max(float(np.percentile(local, 10)), 1e-6)  # where there is light to measure a gain on
@@ -299,15 +313,43 @@ def fit_scene(scene: HalfRates, dark: HalfRates | None = None, dark_rate: float 
     return out
 
 
+#: Which recording (and its flag) each fitted field comes from, for the errors that name it.
+FIELD_RECORDING = {"dark_current_hz": ("--dark", "a dark recording (lens capped)"),
+                   "dark_current_spread": ("--dark", "a dark recording (lens capped)"),
+                   "gain_spread": ("--flat", "a flat recording (uniform light)"),
+                   "outlier_pixel_fraction": ("--flat", "a flat recording (uniform light)"),
+                   "outlier_gain_spread": ("--flat", "a flat recording (uniform light)"),
+                   "row_gain_spread": ("--scene", "a scene recording"),
+                   "column_gain_spread": ("--scene", "a scene recording")}
+
+
 def calibrated_camera(base: SpikeCamera, fitted: Sequence[Fitted]) -> SpikeCamera:
     """`base` with every fitted field set; a fitted gain spread also sets the threshold mismatch and
-    offset to 0 (it holds them: module docstring)."""
+    offset to 0 (it holds them: module docstring). A fitted value the camera model does not take is
+    refused naming the field, its value and error, the recording and the flag, and what to do."""
     changes = {f.field: float(f.value) for f in fitted}
     if "gain_spread" in changes:
         changes.update(threshold_mismatch=0.0, threshold_offset=0.0)
-    return base.replace(**changes)
+    try:
+        return base.replace(**changes)
+    except ValueError as exc:
+        # round ten: "gain_spread=0.333... is above the supported maximum 0.3" named no recording, no flag
+        # and no way forward (a valid camera of gain_spread 0.3 and threshold_offset 0.2 measures 0.36)
+        culprit = next((f for f in fitted if str(exc).startswith(f"{f.field}=")), None)
+        if culprit is None:
+            raise ValueError(f"the camera fitted from {', '.join(sorted({f.source for f in fitted}))} is not one the "
+                             f"camera model takes: {exc}; check those recordings, or calibrate from fewer of them "
+                             "(an unfitted field keeps --camera's value)") from None
+        flag, what = FIELD_RECORDING.get(culprit.field, ("its recording", "its recording"))
+        held = (" (a flat measures gain spread, threshold mismatch and offset together, sqrt(gain^2 + mismatch^2 + "
+                "offset^2), and the file holds them as gain_spread alone)" if culprit.field == "gain_spread" else "")
+        raise ValueError(f"{flag} {culprit.source}: fitted {culprit.field} = {culprit.value:.4g} +- "
+                         f"{culprit.uncertainty:.2g}{held}, outside the camera model's range ({exc}); a camera file "
+                         f"cannot hold it. Check that the recording is {what} of this camera; if it is, its camera "
+                         f"is outside what the simulator models: calibrate without {flag} to keep --camera's "
+                         f"{culprit.field}, or write the camera file by hand") from None
 
 
 __all__ = ["Fitted", "HalfRates", "DarkFit", "half_rates", "split_half_spread", "hot_pixels", "fit_dark", "fit_flat",
            "fit_outliers",
-           "fit_scene", "combine", "calibrated_camera"]
+           "check_scene_lit", "fit_scene", "combine", "calibrated_camera", "FIELD_RECORDING"]

@@ -473,6 +473,17 @@ def read_layout(root: str | Path, split: str = "test", height: int | None = None
         raise FileNotFoundError(f"{spike_dir}: no .dat streams; a Spike-Zoo dataset holds {split}/{SPIKE_DIR}/NAME.dat "
                                 f"with {split}/{GT_DIR}/NAME.png")
     pairs = [_pair(f, spike_dir, gt_dir, h, w, entry, RATE if rate is None else rate) for f in files]
+    if entry is not None:
+        # round ten: pairs the record lists but the folder lacks were left out of the scores (rc 0, 5 of 10 frames)
+        found = {p.name for p in pairs}
+        missing = [name for name in entry["pairs"] if name not in found]
+        if missing:
+            shown = ", ".join(missing[:5]) + (f" and {len(missing) - 5} more" if len(missing) > 5 else "")
+            are = "is" if len(missing) == 1 else "are"
+            raise FileNotFoundError(f"{root / RECORD} lists {len(entry['pairs'])} {split} pairs, but {len(missing)} "
+                                    f"{are} not in {spike_dir}: {shown} (NAME.dat and {GT_DIR}/NAME.png each); "
+                                    "scoring the rest would report part of the export as all of it: restore them, "
+                                    "or export again")
     return SpikeZooLayout(root, split, h, w, pairs, record)
 
 
