@@ -43,12 +43,18 @@ MAP_METHODS = {"tfp": tfp_windows, "tfi": tfi_windows, "black": black_windows, "
 
 @dataclass
 class MapMethod:
-    """TFP or TFI of each window on its own (the paper's baselines), or a trivial floor."""
+    """TFP or TFI of each window on its own (the paper's baselines), or a trivial floor, `chunk`
+    windows at a time (each window's map is its own, so the frames do not depend on it)."""
 
     name: str
     kind: str  # a key of MAP_METHODS
     window: int = 41
-    chunk: int = 64
+    # windows held at once: 64 held 2.9 GB for a 400 x 250 stream whatever --chunk said (round ten)
+    chunk: int = 8
+
+    def __post_init__(self) -> None:
+        if self.chunk < 1:
+            raise ValueError(f"{self.name}: chunk must be >= 1, got {self.chunk}")
 
     def frames(self, source: WindowSource) -> Iterator[tuple[int, torch.Tensor]]:
         fn = MAP_METHODS[self.kind]
@@ -69,10 +75,12 @@ class SpanTFPMethod:
     name: str
     span: int
     window: int = 41
-    chunk: int = 64
+    chunk: int = 8  # windows read at once (round ten: 64, whatever --chunk said)
     KEPT_WINDOWS = 64
 
     def __post_init__(self) -> None:
+        if self.chunk < 1:
+            raise ValueError(f"{self.name}: chunk must be >= 1, got {self.chunk}")
         if self.span % self.window or (self.span // self.window) % 2 == 0:
             raise ValueError(f"tfp:{self.span}: the span must be an odd number of {self.window}-step windows "
                              f"(e.g. {3 * self.window}, {5 * self.window}, {21 * self.window})")
@@ -179,12 +187,12 @@ def method_from_spec(spec: str, window: int = 41, chunk: int = 8, device: str = 
     # a checkpoint path may hold "=" (runs/lr=3e-4/best.pt): an existing file is a path, not label=spec
     label, _, body = spec.partition("=") if "=" in spec and not Path(spec).is_file() else ("", "", spec)
     if body in MAP_METHODS:
-        return MapMethod(label or (body.upper() if body in ("tfp", "tfi") else body), body, window)
+        return MapMethod(label or (body.upper() if body in ("tfp", "tfi") else body), body, window, chunk)
     if body in CLASSIC_METHODS:
         return classic_method(body, label, window, chunk, device)
     span = span_method_spec(body, window)
     if span is not None:
-        return SpanTFPMethod(label or f"TFP-{span}", span, window)
+        return SpanTFPMethod(label or f"TFP-{span}", span, window, chunk)
     from .pretrained import PRETRAINED
     if body in PRETRAINED:
         return ModelMethod(label or pretrained_label(body), None, chunk, device, pretrained=body)

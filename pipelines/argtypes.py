@@ -89,6 +89,24 @@ def bounded_count(limit: int, what: str):
     return parse
 
 
+#: The most steps (and the widest keyframe spacing) a simulation takes: the sensor kernels count
+#: steps in 32 bits (spikesim.sensor_drjit passes them as UInt32), so a step number, plus a
+#: keyframe spacing, must stay below 2**32. --keyframe-every 5000000000 crashed the llvm backend
+#: inside Dr.Jit and --steps 1e23 ran until the disk was full (round ten). 2**31 - 1 steps of even a
+#: 16 x 24 sensor is a 100 GB stream, 15 hours at the 25 us readout.
+MAX_SENSOR_STEPS = 2 ** 31 - 1
+
+
+def sensor_steps(text: str) -> int:
+    """--steps, --keyframe-every of a simulation: an integer in 1..MAX_SENSOR_STEPS."""
+    v = positive_int(text)
+    if v > MAX_SENSOR_STEPS:
+        shown = text if len(text) <= 24 else f"a {len(text)}-digit number"
+        raise argparse.ArgumentTypeError(f"at most {MAX_SENSOR_STEPS:,} (2**31 - 1: the sensor counts steps in 32 "
+                                         f"bits), got {shown}")
+    return v
+
+
 def nonnegative_int(text: str) -> int:
     """An integer >= 0 (an index, a start step, a seed)."""
     v = _number(text, int)

@@ -3,7 +3,7 @@ recording) to PNG frames and a GIF (and an MP4 with the `video` extra: imageio-f
 
 The stream is cut into consecutive windows of T steps from --start; each window gives one frame
 at its centre step. Methods: tfp, tfi, the traditional stp and snm (causal recurrences over the
-stream), or a trained checkpoint (exact chunked inference, memory bounded by --chunk). Display:
+stream), or a trained checkpoint (exact chunked inference); every method holds --chunk windows at once. Display:
 y * scale, clipped, 1/gamma encoded; --enhance stretch maps a percentile of each frame to white
 for very dark results (as the paper does for display), and the default --enhance auto does so for
 the frames that would otherwise be near black. The enhancement touches only the pictures:
@@ -12,7 +12,8 @@ the frames that would otherwise be near black. The enhancement touches only the 
 Geometry (--height, --width, row order) defaults to what the stream's sidecar or dataset
 meta.json records, else 250 x 400 bottom-up. A rerun into the same --out replaces the previous
 run's outputs (png/step_*.png, frames.gif/.mp4/.npy, reconstruct.json), so the folder and its JSON
-describe exactly the last run; other files there are left alone. Outputs are built in a hidden
+describe exactly the last run; other files there are left alone, and so is an output whose content
+is no longer what the run wrote (reconstruct.json records each one's sha256): the rerun refuses. Outputs are built in a hidden
 folder inside --out and moved into place only when the run succeeds.
 """
 from __future__ import annotations
@@ -149,6 +150,7 @@ def reconstruct_file(path: Path, out: Path, method_spec: str = "tfp", height: in
     # SIGTERM as Ctrl-C: the stage folder and the lock are removed (it left both, round nine)
     with sigterm_raises(), output_folder(out), output_lock(out, f"reconstruct {path}", what="reconstruct run"):
         check_outputs(out)  # a link where an output goes: refused before any work
+        check_record(out)  # a reconstruct.json that is no run's record (a folder, the user's notes)
         check_ownership(out)  # and a file of the user's where one goes
         for stale in out.glob(".reconstruct.*.part"):  # a run killed before its clean-up (round nine): under the lock,
             if stale.is_dir() and not stale.is_symlink():  # none is another run's
@@ -163,7 +165,8 @@ def reconstruct_file(path: Path, out: Path, method_spec: str = "tfp", height: in
                        "height": height, "width": width, "header_columns": header_columns, "flip": flip,
                        "display": {"enhance": enhance, "gamma": gamma, "scale": scale, "percentile": percentile},
                        "outputs": sorted([p.name for p in stage.iterdir()] + ["reconstruct.json"]),
-                       "png_frames": sorted(p.name for p in (stage / PNG_DIR).glob(PNG_PATTERN))}
+                       "png_frames": sorted(p.name for p in (stage / PNG_DIR).glob(PNG_PATTERN)),
+                       "sha256": output_digests(stage)}
             if "frames.mp4" in summary["outputs"] and (height % 2 or width % 2):
                 notes.append(f"frames.mp4 is {height + height % 2} x {width + width % 2}: video needs even sides, so "
                              f"the last row or column is repeated (the PNGs and the GIF are {height} x {width})")
@@ -226,31 +229,79 @@ def check_outputs(out: Path) -> None:
             writable(out, PNG_DIR, old.name)
 
 
-def recorded_outputs(out: Path) -> tuple[set[str], set[str] | None]:
+def output_digests(folder: Path) -> dict[str, str]:
+    """The sha256 of every output a run wrote in `folder` but its record (frames.gif/.mp4/.npy,
+    png/step_*.png), by its name in the folder: a rerun replaces only files that still hold what
+    the run wrote (round ten: a user's array saved over a run's frames.npy was deleted)."""
+    from spikesim.dataset import sha256_file
+    names = [n for n in OUTPUT_FILES if n != "reconstruct.json" and (folder / n).is_file()]
+    names += [f"{PNG_DIR}/{p.name}" for p in sorted((folder / PNG_DIR).glob(PNG_PATTERN)) if p.is_file()]
+    return {n: sha256_file(folder / n) for n in names}
+
+
+def check_record(out: Path) -> None:
+    """reconstruct.json in `out` is absent or an earlier run's record: a regular file of JSON
+    with its "outputs" and "method". Anything else is the user's, refused before any work (round
+    ten: a user's notes there were overwritten; a folder there was found only after the frames were
+    moved in, rc 2 with png/ and frames.gif left behind)."""
+    from spikesim.config_io import read_json_object
+    path = out / "reconstruct.json"
+    if not path.exists() and not path.is_symlink():
+        return
+    advice = "a run would replace it: move it, or choose another --out"
+    if not path.is_file() or path.is_symlink():
+        kind = "a directory" if path.is_dir() else "a link" if path.is_symlink() else "not a regular file"
+        raise FileExistsError(f"{path}: is {kind}, where a reconstruct run writes its record; {advice}")
+    try:
+        record = read_json_object(path, "reconstruct record", finite=False)
+    except (OSError, ValueError) as exc:
+        raise FileExistsError(f"{path}: not a reconstruct record ({exc}); {advice}") from None
+    if not {"outputs", "method"} <= record.keys():
+        raise FileExistsError(f"{path}: not a reconstruct record (no \"outputs\" and \"method\"); {advice}")
+
+
+def recorded_outputs(out: Path) -> tuple[set[str], set[str] | None, dict[str, str] | None]:
     """(the outputs an earlier run's reconstruct.json lists, the PNG frames it lists: None for a
-    record made before it listed them, which took every png/step_*.png for its own). The record is
-    read as every small file is (a FIFO or a link to /dev/zero is refused, not waited on)."""
+    record made before it listed them, which took every png/step_*.png for its own, and the sha256
+    of each: None for a record made before it held them, round ten). The record is read as every
+    small file is (a FIFO or a link to /dev/zero is refused, not waited on)."""
     from spikesim.config_io import read_json_object
     try:
         record = read_json_object(out / "reconstruct.json", "reconstruct record", finite=False)
     except (OSError, ValueError):
-        return set(), set()
-    outputs, frames = record.get("outputs", []), record.get("png_frames")
+        return set(), set(), {}
+    outputs, frames, digests = record.get("outputs", []), record.get("png_frames"), record.get("sha256")
     listed = {str(x) for x in outputs} if isinstance(outputs, list) else set()
-    return listed, ({str(x) for x in frames} if isinstance(frames, list) else None)
+    return (listed, ({str(x) for x in frames} if isinstance(frames, list) else None),
+            ({str(k): v for k, v in digests.items()} if isinstance(digests, dict) else None))
 
 
 def check_ownership(out: Path) -> None:
     """A rerun replaces only what an earlier reconstruct run wrote, as its reconstruct.json lists:
     a user's own frames.npy in the folder (the README's simulate --frames example makes one) was
     deleted, a png/step_*.png of theirs removed (rounds seven and nine: a step_009999.png of the
-    user's beside a run's frames). Anything else is refused, named."""
-    listed, frames = recorded_outputs(out) if (out / "reconstruct.json").exists() else (set(), set())
+    user's beside a run's frames). A listed file whose content is no longer what the run wrote
+    (its sha256) is the user's too (round ten). Anything else is refused, named."""
+    listed, frames, digests = (recorded_outputs(out) if (out / "reconstruct.json").exists()
+                               else (set(), set(), {}))
     theirs = [name for name in OUTPUT_FILES if name != "reconstruct.json" and (out / name).exists() and name not in listed]
     png = out / PNG_DIR
     if png.is_dir():
         mine = frames if frames is not None else ({p.name for p in png.glob(PNG_PATTERN)} if PNG_DIR in listed else set())
         theirs += [f"{PNG_DIR}/{p.name}" for p in sorted(png.glob(PNG_PATTERN)) if p.name not in mine]
+    changed: list[str] = []
+    if digests is not None:  # a record before round ten holds no digests: its names are the rule
+        from spikesim.dataset import sha256_file
+        ours = [n for n in OUTPUT_FILES if n != "reconstruct.json" and n in listed and (out / n).exists()]
+        ours += [f"{PNG_DIR}/{p.name}" for p in sorted(png.glob(PNG_PATTERN)) if p.name in (frames or set())] \
+            if png.is_dir() else []
+        changed = [n for n in ours if n not in theirs
+                   and (not (out / n).is_file() or digests.get(n) != sha256_file(out / n))]
+    if changed:
+        shown = ", ".join(changed[:3]) + (f" and {len(changed) - 3} more" if len(changed) > 3 else "")
+        raise FileExistsError(f"{out}: holds {shown}, changed since the reconstruct run wrote it (the sha256 differs "
+                              "from its reconstruct.json's), so yours now; a run would replace or remove it: choose "
+                              "another --out, or move it")
     if theirs:
         shown = ", ".join(theirs[:3]) + (f" and {len(theirs) - 3} more" if len(theirs) > 3 else "")
         raise FileExistsError(f"{out}: holds {shown}, which no reconstruct.json there says a reconstruct run wrote; "
@@ -323,7 +374,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--num-windows", type=positive_int, help="frames to make (default: as many as fit)")
     p.add_argument("--window", type=window_steps, default=41,
                    help="steps per window for tfp/tfi/stp/snm (a model uses its own)")
-    p.add_argument("--chunk", type=positive_int, default=8, help="windows held in memory by a network")
+    p.add_argument("--chunk", type=positive_int, default=8, help="windows held in memory at once, by every method (the frames do not depend on it)")
     p.add_argument("--device", default="auto", help="auto (CUDA when present), cpu, cuda, cuda:N or mps")
     add_threads_argument(p)
     p.add_argument("--enhance", choices=["auto", "none", "gamma", "stretch"], default="auto",

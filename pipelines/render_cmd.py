@@ -26,9 +26,11 @@ MAX_STEPS = 1_000_000  # steps one call may render (a typo such as 0:1e11 would 
 
 
 def _bounded_range(r: range, already: int) -> range:
-    if already + len(r) > MAX_STEPS:
-        raise argparse.ArgumentTypeError(f"{r.start}:{r.stop}:{r.step} selects {len(r)} steps; "
-                                         f"at most {MAX_STEPS} per call")
+    # counted in Python integers: len() of 5:10**21:3 overflowed a C ssize_t, a traceback (round ten)
+    count = max(0, -(-(r.stop - r.start) // r.step))
+    if already + count > MAX_STEPS:
+        raise argparse.ArgumentTypeError(f"{r.start}:{r.stop}:{r.step} selects {count:,} steps; "
+                                         f"at most {MAX_STEPS:,} per call")
     return r
 
 
@@ -124,10 +126,23 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     from spikesim.generation.lock import output_lock
+    from spikesim.generation.run import sigterm_raises
     # the folder is this run's until it ends: two renders into one -o left one's frames unlisted
-    # beside the other's record, and every later render there was refused (round six)
-    with output_folder(args.out), output_lock(args.out, f"render {args.scene}", what="render run"):
+    # beside the other's record, and every later render there was refused (round six). SIGTERM
+    # stops it as Ctrl-C does, so its stage and lock are removed (round ten: both were left).
+    with sigterm_raises(), output_folder(args.out), output_lock(args.out, f"render {args.scene}", what="render run"):
+        remove_dead_stages(args.out)
         return _run(args)
+
+
+def remove_dead_stages(out: Path) -> None:
+    """Remove the stage folders (.render.XXXX.part) of runs killed before their clean-up (SIGKILL,
+    a power cut): under the folder's lock none is another run's (round ten: a killed render's 60
+    files stayed, and no later run removed them)."""
+    from spikesim.outputs import remove
+    for stale in Path(out).glob(".render.*.part"):
+        if stale.is_dir() and not stale.is_symlink():
+            remove(out, stale.name)
 
 
 def _run(args: argparse.Namespace) -> int:

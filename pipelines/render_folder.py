@@ -173,13 +173,20 @@ def listed_frames(folder: Path, keyframe_every: int) -> list[Path] | None:
                              "frames one step (or --keyframe-every steps) apart")
         if (gap := gaps.pop()) != keyframe_every:
             raise ValueError(f"{base}: its frames are steps {gap} apart ({RECORD}); give --keyframe-every {gap}")
+    # every frame must have its digest: a record with "sha256": {} (or none) let swapped frames through,
+    # rc 0 (round ten); a record of a render before round nine, which wrote none, is re-rendered
     digests = record.get("sha256")
-    if isinstance(digests, dict):  # records before round nine hold none
-        from spikesim.dataset import sha256_file
-        for f in sorted(files):
-            if isinstance(digests.get(f), str) and sha256_file(base / f) != digests[f]:
-                raise ValueError(f"{base / f}: not the frame the render wrote (its sha256 differs from {RECORD}'s): "
-                                 "swapped or altered; render again")
+    digests = digests if isinstance(digests, dict) else {}
+    if missing := [f for f in sorted(files) if not isinstance(digests.get(f), str)]:
+        raise ValueError(f"{base / RECORD}: records no sha256 of {missing[0]}"
+                         f"{f' and {len(missing) - 1} more frame(s)' if len(missing) > 1 else ''}, so the frames "
+                         "cannot be checked to be the render's: the record is damaged or from an older version; "
+                         "render again")
+    from spikesim.dataset import sha256_file
+    for f in sorted(files):
+        if sha256_file(base / f) != digests[f]:
+            raise ValueError(f"{base / f}: not the frame the render wrote (its sha256 differs from {RECORD}'s): "
+                             "swapped or altered; render again")
     return [base / f for f in sorted(files)]
 
 

@@ -13,7 +13,7 @@ import numpy as np
 
 from pipelines.argtypes import (seed_int, add_device_argument, add_light_power_factor_argument, camera_spec, existing_file, load_camera,
                                 nonnegative_float,
-                                output_file, positive_int)
+                                output_file, positive_int, sensor_steps)
 from spikesim import outputs
 from spikesim.camera import SpikeCamera
 from spikesim.config_io import standard_json
@@ -24,6 +24,7 @@ log = logging.getLogger("spikesim.simulate")
 
 NPY_MAGIC = b"\x93NUMPY"  # the first bytes of every .npy file (numpy.lib.format)
 DEFAULT_STEPS = 2000  # steps of the pattern and of a rendered scene when --steps is not given
+DEFAULT_PEAK_Y = 0.25  # the built-in pattern's y of white when --peak-y is not given
 
 
 def camera_from_args(args: argparse.Namespace) -> SpikeCamera:
@@ -76,7 +77,7 @@ def frames_from_source(args: argparse.Namespace, cam: SpikeCamera, sensor_device
     if args.scene is not None:
         from spikesim.render import SceneRenderer
         settings = settings or scene_settings(args)
-        r = SceneRenderer(args.scene, light=args.light, camera=cam, motion=args.motion, lights=args.lights,
+        r = SceneRenderer(args.scene, light=args.light or "normal", camera=cam, motion=args.motion, lights=args.lights,
                           spp=settings.values["spp"], seed=args.seed, device=args.device,
                           light_power_factor=settings.values["light_power_factor"])
         steps = DEFAULT_STEPS if args.steps is None else args.steps
@@ -95,10 +96,35 @@ def frames_from_source(args: argparse.Namespace, cam: SpikeCamera, sensor_device
         steps = frames_steps(args.steps, arr.shape[0], k, src)
         n = keyframe_count(steps, k)
         return (np.asarray(arr[i]) for i in range(n)), {"source": str(src), "frames": n}, steps
-    pattern = MovingPattern(height=cam.height, width=cam.width, peak_y=args.peak_y,
+    peak = DEFAULT_PEAK_Y if args.peak_y is None else args.peak_y
+    pattern = MovingPattern(height=cam.height, width=cam.width, peak_y=peak,
                             readout_period_s=cam.readout_period_s, seed=args.seed)
     steps = DEFAULT_STEPS if args.steps is None else args.steps
-    return pattern.frames(keyframe_count(steps, k), every=k), {"source": "moving_pattern", "peak_y": args.peak_y}, steps
+    return pattern.frames(keyframe_count(steps, k), every=k), {"source": "moving_pattern", "peak_y": peak}, steps
+
+
+def check_source_flags(args: argparse.Namespace) -> None:
+    """--light lights a rendered --scene and --peak-y the built-in pattern: given with another
+    source they were ignored without a word (round ten: `--frames RENDERFOLDER --light low --peak-y
+    0.9` simulated the render's own light, rc 0, where --spp was refused)."""
+    if args.light is not None and args.scene is None:
+        if args.frames is not None and Path(args.frames).is_dir():
+            from pipelines.render_folder import RECORD, read_record
+            base = Path(args.frames)
+            base = base if (base / RECORD).is_file() else base.parent if (base.parent / RECORD).is_file() else None
+            record = (read_record(base) or {}) if base is not None else {}
+            light = record.get("light", {}).get("name") if isinstance(record.get("light"), dict) else None
+            if base is not None:
+                said = f" (light {light!r}, {base / RECORD})" if isinstance(light, str) else f" ({base / RECORD})"
+                raise ValueError(f"--light {args.light}: the render fixed the light of the --frames {args.frames}"
+                                 f"{said}; drop --light, or render again with --light {args.light}")
+        raise ValueError(f"--light {args.light} applies to a rendered scene; give --scene too (frames are lit "
+                         "as they were made)")
+    if args.peak_y is not None and (args.frames is not None or args.scene is not None):
+        source, light = ((f"--frames {args.frames}", "frames are lit as they were made") if args.frames is not None
+                         else (f"--scene {args.scene}", "a scene's light is --light and --light-power-factor"))
+        raise ValueError(f"--peak-y {args.peak_y:g} sets the built-in pattern's brightness, not that of {source}; "
+                         f"drop --peak-y ({light})")
 
 
 def _camera_file_sizes(camera: Any) -> bool:
@@ -266,11 +292,14 @@ def run(args: argparse.Namespace) -> int:
     from spikesim.simulate import Simulator
 
     check_outputs(args)
+    check_source_flags(args)
     cam = camera_from_args(args)
     if args.frames is not None and args.height is None and args.width is None and not _camera_file_sizes(args.camera):
         size = frames_size(Path(args.frames), args.keyframe_every)  # the frames' own size, not the default camera's 250 x 400
         if size is not None:
             cam = cam.replace(height=size[0], width=size[1])
+    elif args.frames is not None and Path(args.frames).is_dir():
+        check_folder_size(args, cam)
     if args.frames is not None and Path(args.frames).is_dir():
         cam = render_camera_fields(cam, Path(args.frames), args.camera)
     backend = args.backend
@@ -284,6 +313,7 @@ def run(args: argparse.Namespace) -> int:
         backend = device if backend == "auto" else backend   # the sensor where the frames are
     sim = Simulator(cam, backend=backend, seed=args.seed)  # an unavailable backend fails first
     frames, source, steps = frames_from_source(args, cam, sim.backend_name, settings)
+    check_free_space(args, cam, steps)
     log.info("simulating on backend %s, %dx%d, from %s", sim.backend_name, cam.width, cam.height,
              source.get("scene") or source.get("source"))
     t0 = time.perf_counter()
@@ -324,6 +354,46 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def check_folder_size(args: argparse.Namespace, cam: SpikeCamera) -> None:
+    """A folder of EXR frames of another size than --height/--width (or a camera file) ask for:
+    refused naming the frames' size and what to do (round ten: the error advised
+    `SpikeCamera.realistic(height=..., width=...)`, a Python call, to a command-line user)."""
+    from pipelines.render_folder import RECORD, listed_frames
+    folder = Path(args.frames)
+    size = frames_size(folder, args.keyframe_every)
+    if size is None or size == (cam.height, cam.width):
+        return
+    first = (listed_frames(folder, args.keyframe_every) or exr_files(folder))[0]  # frames_size read it
+    whose = ("the render folder's" if (folder / RECORD).is_file() or (folder.parent / RECORD).is_file()
+             else "the folder's")
+    given = ("--height/--width" if args.height is not None or args.width is not None
+             else f"the --camera {args.camera}")
+    raise ValueError(f"--frames {folder}: {whose} frames ({first.name} and on) are {size[0]} x {size[1]} (H x W), "
+                     f"but {given} ask for {cam.height} x {cam.width}; drop --height/--width (the frames give the "
+                     f"size), or give --height {size[0]} --width {size[1]}")
+
+
+def check_free_space(args: argparse.Namespace, cam: SpikeCamera, steps: int) -> None:
+    """The stream (and its twin) must fit on the disk: --steps 1e23 was simulated until the disk was
+    full (round ten). Checked before the simulation; a stream replaced by this run frees its size."""
+    import shutil
+
+    from spikesim.stream import frame_bytes
+    outs = [Path(args.out)] + ([twin_path(Path(args.out))] if args.twin else [])
+    need = len(outs) * steps * frame_bytes(cam.height, cam.width)
+    parent = next((p for p in Path(args.out).absolute().parents if p.exists()), None)
+    if parent is None:
+        return
+    try:
+        free = shutil.disk_usage(parent).free + sum(p.stat().st_size for p in outs if p.is_file())
+    except OSError:
+        return
+    if need > free:
+        raise ValueError(f"--out {args.out}: {steps:,} steps of {cam.height} x {cam.width} make "
+                         f"{need / 1e9:.3g} GB of stream{'s' if len(outs) > 1 else ''}, but {parent} has "
+                         f"{free / 1e9:.3g} GB free; simulate fewer --steps, or write elsewhere")
+
+
 def twin_path(out: Path) -> Path:
     """Where `simulate --twin` writes the noise-free twin of stream `out`: NAME_twin.dat beside it."""
     return out.with_name(f"{out.stem}_twin{out.suffix or '.dat'}")
@@ -342,19 +412,22 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                      help="an (N, H, W) .npy array of y, or a folder of EXR frames (a render -o folder: the frames "
                           "its render.json lists)")
     src.add_argument("--scene", help="a bundled scene (ball, car, cook, fan, rotate) or a scene XML to render")
-    src.add_argument("--light", default="normal",
-                     help="lighting condition of the scene (normal, low; a scene XML without a lights.json: normal, its own emitters)")
+    src.add_argument("--light", default=None,
+                     help="lighting condition of a --scene (default normal; low; a scene XML without a lights.json: "
+                          "normal, its own emitters)")
     src.add_argument("--motion", type=existing_file, help="motion file (default: motion.json beside the XML)")
     src.add_argument("--lights", type=existing_file, help="lights file (default: lights.json beside the XML)")
     src.add_argument("--spp", type=positive_int, help="render samples per pixel (default: the scene's sampler, else 4)")
     add_light_power_factor_argument(src)
     add_device_argument(src, sensor="backend")
-    src.add_argument("--peak-y", type=peak_y, default=0.25, help="pattern brightness: y of white (spikes/step)")
-    src.add_argument("--steps", type=positive_int,
-                     help=f"sensor steps to simulate, whatever --keyframe-every is (default: {DEFAULT_STEPS} for "
-                          "the pattern and a scene; every step the --frames cover)")
-    src.add_argument("--keyframe-every", type=positive_int, default=1,
-                     help="frames are keyframes this many steps apart; the sensor interpolates (default 1)")
+    src.add_argument("--peak-y", type=peak_y, default=None,
+                     help=f"the built-in pattern's brightness: y of white (spikes/step; default {DEFAULT_PEAK_Y})")
+    src.add_argument("--steps", type=sensor_steps,
+                     help=f"sensor steps to simulate, whatever --keyframe-every is, at most 2**31 - 1 (default: "
+                          f"{DEFAULT_STEPS} for the pattern and a scene; every step the --frames cover)")
+    src.add_argument("--keyframe-every", type=sensor_steps, default=1,
+                     help="frames are keyframes this many steps apart, at most 2**31 - 1; the sensor interpolates "
+                          "(default 1)")
     add_camera_arguments(p)
     p.add_argument("--backend", default="auto", choices=["auto", "numpy", "llvm", "cuda"],
                    help="sensor backend: auto (cuda > llvm > numpy), the NumPy reference, Dr.Jit CPU or GPU")
