@@ -597,6 +597,8 @@ def run_training(experiment: ExperimentConfig, train_scenes: Sequence[Scene], va
         raise ValueError(f"validation scenes: {len(both)} are also training scenes ({', '.join(both[:3])}"
                          f"{' ...' if len(both) > 3 else ''}): validation on training scenes measures nothing "
                          "held out; give other scenes, or split one dataset by scene (model.data.split_scenes)")
+    from spikesim.dataset import check_outside_datasets
+    check_outside_datasets(out_dir, [], "out_dir")  # `train -o` refused it; the API wrote a run there (round eleven)
     with output_folder(out_dir):
         if int(os.environ.get("RANK", "0")) != 0:  # under torchrun rank 0 holds the folder for every rank
             return _train(experiment, train_scenes, val_scenes, out_dir, device, resume, progress, overwrite, init)

@@ -58,8 +58,13 @@ def recorded_readout_period_s(path: Path) -> float | None:
     info = check_stream_record(read_json_object(rec["source"], "stream description", finite=False, limit=META_LIMIT),
                                rec["source"])  # types and range checked, naming the file
     camera = info.get("camera")
+    from spikesim.camera import READOUT_PERIOD_RANGE_S
+    lo, hi = READOUT_PERIOD_RANGE_S
     for period in (camera.get("readout_period_s") if isinstance(camera, dict) else None, info.get("readout_period_s")):
         if isinstance(period, (int, float)) and not isinstance(period, bool):
+            if not lo <= period <= hi:  # the flag's range: inspect showed 1e-300 s as 1e300 Hz (round eleven)
+                raise ValueError(f"{rec['source']}: readout_period_s {period:g} s is outside {lo:g} to {hi:g} s "
+                                 "(10 MHz to 1 Hz), the range of any camera: the record is damaged; correct that field")
             return float(period)
     return None
 
@@ -118,6 +123,8 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"-o {args.out}: a camera file is TOML; name it *.toml")
     if args.out.exists() and not args.overwrite:
         raise FileExistsError(f"-o {args.out}: the file exists (--overwrite to replace it)")
+    from spikesim.dataset import check_outside_datasets
+    check_outside_datasets(args.out)  # a camera file written into a dataset (round eleven)
     if len(args.flat) > 2:
         raise ValueError(f"--flat: given {len(args.flat)} times; calibrate combines one or two flats (two light levels)")
     given = [p for p in (args.dark, *args.flat) if p is not None]  # a flat may also serve as the --scene

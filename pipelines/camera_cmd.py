@@ -31,6 +31,8 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError(f"--write {out}: a camera file written with comments is TOML; name it *.toml")
         if out.exists() and not args.overwrite:
             raise FileExistsError(f"--write {out}: the file exists (--overwrite to replace it)")
+        from spikesim.dataset import check_outside_datasets
+        check_outside_datasets(out, [], "--write")  # a camera file written into a dataset (round eleven)
         with outputs.output_file(out):  # a link is refused; a failed write leaves nothing, naming the file
             outputs.atomic_write_text(out, camera_toml(preset=args.preset))
         print(f"[camera] wrote {out} ({args.preset}); edit it and pass --camera {out}", file=sys.stderr)

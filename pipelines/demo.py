@@ -39,7 +39,8 @@ def run(args: argparse.Namespace) -> int:
     from spikesim.dataset import open_dataset
     from spikesim.imageio import write_png
     from spikesim._drjit import resolve_device
-    from spikesim.outputs import check_results_owned, make_dirs, record_results_owned, writable
+    from spikesim.dataset import check_outside_datasets
+    from spikesim.outputs import check_results_owned, make_dirs, record_results_owned, recorded_results, writable
     from model.evaluation import RESULT_FILES
     from spikesim.stats import dark_pixel_fraction
 
@@ -60,7 +61,10 @@ def run(args: argparse.Namespace) -> int:
     # the tables and previews this run writes: a user's metrics.md in -o was replaced (round ten)
     results = [*RESULT_FILES, *(f"previews/{j.name}_{kind}_p99.png" for j in jobs
                                 for kind in ("gt", *(m.name for m in methods if m.name not in FLOORS)))]
-    check_results_owned(out, results, "demo")
+    ours = check_results_owned(out, results, "demo")
+    # an earlier run's previews of scenes or methods this run does not draw (round eleven)
+    earlier = [name for name in recorded_results(out, "demo") if name not in results]
+    check_outside_datasets(out, [], "-o")
     todo = [j.name for j in jobs if job_status(j, out / "llr") != "done"]
     if todo:
         print(f"[demo] rendering {', '.join(todo)} at {preset.width}x{preset.height}, {jobs[0].num_steps} steps "
@@ -70,7 +74,10 @@ def run(args: argparse.Namespace) -> int:
               file=sys.stderr)
     generate(jobs, out / "llr", workers=args.workers, info={"kind": "demo"}, show_progress=not args.quiet,
              device=device, overwrite_stale=args.overwrite)
-    scenes = open_dataset(out / "llr")
+    # the scenes of this run only: -o/llr keeps every scene an earlier demo made there, and those
+    # were scored and drawn over the user's files too (round eleven)
+    asked = {j.name for j in jobs}
+    scenes = [sc for sc in open_dataset(out / "llr") if sc.name in asked]
     t_gen = time.perf_counter() - t0
     for sc in scenes:
         s = sc.stream()
@@ -103,7 +110,7 @@ def run(args: argparse.Namespace) -> int:
         for m in (m for m in methods if m.name not in FLOORS):  # the floors show nothing
             frame = next(f for i, f in m.frames(src) if i == mid)
             write_png(writable(out, "previews", f"{sc.name}_{m.name}_p99.png"), np.asarray(frame), percentile=99.5)
-    record_results_owned(out, results, "demo")
+    record_results_owned(out, results, "demo", stale=[*ours, *earlier])
     print(f"[demo] done in {time.perf_counter() - t0:.0f} s (rendering and simulation {t_gen:.0f} s); "
           f"data in {out / 'llr'}, table in {out / 'metrics.md'}, previews in {out / 'previews'} (each image "
           "stretched to its own 99.5th percentile: _p99)", file=sys.stderr)

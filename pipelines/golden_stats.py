@@ -91,6 +91,8 @@ def _write(args: argparse.Namespace) -> int:
     from spikesim.outputs import check_not_link, check_results_owned, record_results_owned
 
     check_not_link(args.output)  # a link at -o is refused before the measurement, not after
+    from spikesim.dataset import check_outside_datasets
+    check_outside_datasets(args.output)  # a reference written into a dataset (round eleven)
     out = Path(args.output)
     check_results_owned(out.parent, [out.name], "golden")  # a user's JSON there is refused, not replaced (round eight)
     camera, backend = _camera(args), _backend(args.backend)

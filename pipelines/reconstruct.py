@@ -148,6 +148,8 @@ def reconstruct_file(path: Path, out: Path, method_spec: str = "tfp", height: in
     # one run per folder: two runs into one -o left one run's frames under the other's reconstruct.json
     from spikesim.generation.run import sigterm_raises
     # SIGTERM as Ctrl-C: the stage folder and the lock are removed (it left both, round nine)
+    from spikesim.dataset import check_outside_datasets
+    check_outside_datasets(out, [], "--out")  # frames written into a dataset, which verify reported (round eleven)
     with sigterm_raises(), output_folder(out), output_lock(out, f"reconstruct {path}", what="reconstruct run"):
         check_outputs(out)  # a link where an output goes: refused before any work
         check_record(out)  # a reconstruct.json that is no run's record (a folder, the user's notes)

@@ -59,6 +59,10 @@ def cmd_tradeoff(args: argparse.Namespace) -> int:
     require("matplotlib", "plot", "the trade study's plot")  # before any run, not after hours of them
     from spikesim.generation.lock import output_lock
     from spikesim.outputs import output_folder
+    from spikesim.dataset import check_outside_datasets
+    check_outside_datasets(out)  # a study written into a dataset (round eleven)
+    if args.images is not None:
+        check_outside_datasets(args.images, [], "--images")
     with output_folder(out), output_lock(out, "tradeoff", what="tradeoff run"):
         from spikesim.outputs import check_results_owned
         from pipelines.tradeoff_study import PARETO_PLOT, REPORT_FILES

@@ -487,6 +487,16 @@ def manifest_disagreement(root: str | Path, name: str, entries: dict[str, Any]) 
     return out
 
 
+def _is_dataset_manifest(root: Path) -> bool:
+    """Whether `root/manifest.json` is a spikesim dataset's: a web app's or an extension's manifest
+    above an output blocked every output below it (round eleven)."""
+    try:
+        read_manifest(root)
+    except (OSError, ValueError):
+        return False
+    return True
+
+
 def check_outside_datasets(out: str | Path, roots: Sequence[str | Path] = (), flag: str = "-o") -> None:
     """Refuse an output at or inside one of the dataset roots a command reads, or inside any folder
     that holds a dataset manifest: `train -o` and `export -o` wrote into a dataset, which `verify`
@@ -499,7 +509,7 @@ def check_outside_datasets(out: str | Path, roots: Sequence[str | Path] = (), fl
             raise ValueError(f"{flag} {out}: inside the dataset {root}, whose files a manifest lists (verify would "
                              "report the outputs as extra files); choose a folder outside it")
     for base in (where, *where.parents):
-        if (base / MANIFEST).is_file():
+        if (base / MANIFEST).is_file() and _is_dataset_manifest(base):
             raise ValueError(f"{flag} {out}: inside the dataset {base} (it holds {MANIFEST}; verify would report the "
                              "outputs as extra files); choose a folder outside it")
 

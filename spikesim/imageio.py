@@ -90,7 +90,12 @@ def read_image_y(path: str | Path, scale: float = 1.0) -> np.ndarray:
     if negative:
         raise ValueError(f"{path} has {negative} negative pixel(s) (min {float(y.min()):.3g}) of {y.size}; the image's "
                          "y (light, in spikes per step) must be >= 0")
-    return (y * np.float32(scale)).astype(np.float32)
+    with np.errstate(over="ignore", invalid="ignore"):
+        scaled = (y * np.float32(scale)).astype(np.float32) if np.isfinite(np.float32(scale)) else None
+    if scaled is None or not np.isfinite(scaled).all():  # the image was finite: the scale overflowed (round eleven)
+        raise ValueError(f"scale {scale:g} (--gt-scale): {path}'s y times it overflows float32 (max 3.4e38); "
+                         "give a smaller scale")
+    return scaled
 
 
 #: PIL image modes read as grey or colour (an alpha channel, coverage and not light, is dropped).

@@ -429,6 +429,13 @@ def check_results_owned(out: str | Path, names: Sequence[str], command: str, fla
     return ours
 
 
+def recorded_results(out: str | Path, command: str) -> list[str]:
+    """The names the folder's results record lists as `command`'s (as stale candidates: a rerun
+    that writes fewer results, such as a demo of other scenes, drops the rest)."""
+    return [name for name, entry in _results_record(Path(out)).items()
+            if isinstance(entry, dict) and entry.get("command") == command]
+
+
 def record_results_owned(out: str | Path, names: Sequence[str], command: str, stale: Sequence[str] = ()) -> None:
     """Add the files `names` (just written in `out` by `command`) to the folder's results record.
     `stale`: earlier results of this command (check_results_owned's answer) that this run did not
@@ -446,9 +453,8 @@ def record_results_owned(out: str | Path, names: Sequence[str], command: str, st
             if path.is_file() and not path.is_symlink() and entry.get("sha256") == sha256_file(path):
                 remove(out, name)
         except OSError:
-            continue
-        if not path.exists():
-            del files[name]
+            pass
+        del files[name]  # removed, or changed since: the user's now, no longer listed as the command's
     for name in names:
         if (out / name).is_file():
             files[name] = {"command": command, "sha256": sha256_file(out / name)}

@@ -52,7 +52,7 @@ def test_panel_refuses_a_stream_too_small_for_its_scores_naming_it(tmp_path, cap
 def test_panel_refuses_an_output_inside_a_dataset(dat16, tmp_path, capsys):
     ds = tmp_path / "ds"
     (ds / "fan_low").mkdir(parents=True)
-    (ds / "manifest.json").write_text("{}")
+    (ds / "manifest.json").write_text(json.dumps({"scenes": {}}))
     code, err = run_cli(panel(dat16, ds / "fan_low" / "p.png"), capsys)
     assert code == 2 and "inside the dataset" in err, err
     assert not (ds / "fan_low" / "p.png").exists()
