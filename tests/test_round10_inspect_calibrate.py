@@ -45,7 +45,7 @@ def test_inspect_preview_inside_a_dataset_is_refused(tmp_path, capsys):
     as an extra file (round ten)."""
     ds = tmp_path / "ds"
     dat = scene_folder(ds / "fan_normal")
-    (ds / "manifest.json").write_text("{}")
+    (ds / "manifest.json").write_text('{"scenes": {}}')
     for preview in (ds, ds / "fan_normal" / "p.png"):
         code, err = run_cli(["inspect", dat, "--preview", preview], capsys)
         line = one_line(err)
