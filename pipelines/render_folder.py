@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import re
 import shutil
 from pathlib import Path
 from typing import Any
@@ -141,6 +142,14 @@ def recorded_camera_fields(folder: Path) -> dict[str, float]:
             and not isinstance(v, bool) and v > 0}
 
 
+def natural_key(name: str) -> tuple:
+    """Sort key of a file name with the numbers in it compared as numbers: frame_2.exr before
+    frame_10.exr (as text, frame_10 came first: round eleven). The name itself breaks ties
+    (frame_01 and frame_1)."""
+    parts = re.split(r"(\d+)", name)
+    return tuple(int(p) if i % 2 else p for i, p in enumerate(parts)) + (name,)
+
+
 def listed_frames(folder: Path, keyframe_every: int) -> list[Path] | None:
     """The EXR frames `simulate --frames folder` reads when `folder` is a render folder (holding
     render.json) or a kind subfolder of one: only those its record lists, in step order, checked
@@ -187,8 +196,16 @@ def listed_frames(folder: Path, keyframe_every: int) -> list[Path] | None:
         if sha256_file(base / f) != digests[f]:
             raise ValueError(f"{base / f}: not the frame the render wrote (its sha256 differs from {RECORD}'s): "
                              "swapped or altered; render again")
-    return [base / f for f in sorted(files)]
+    # in the record's step order, numbers compared as numbers: sorted as text, step_1000000.exr came before
+    # step_999960.exr and the stream was silently reordered, rc 0 (round eleven)
+    step_of = {f"{wanted}/step_{n:06d}.exr": n for n in (steps if isinstance(steps, list) else [])
+               if isinstance(n, int) and not isinstance(n, bool)}
+    if all(f in step_of for f in files):
+        ordered = sorted(files, key=lambda f: step_of[f])
+    else:  # a file named otherwise: the numbers in the names, compared as numbers
+        ordered = sorted(files, key=natural_key)
+    return [base / f for f in ordered]
 
 
 __all__ = ["RECORD", "KINDS", "read_record", "recorded_files", "check_output_folder", "replace_outputs",
-           "listed_frames", "remove_stage"]
+           "listed_frames", "natural_key", "remove_stage"]

@@ -114,12 +114,20 @@ def check_source_flags(args: argparse.Namespace) -> None:
             base = base if (base / RECORD).is_file() else base.parent if (base.parent / RECORD).is_file() else None
             record = (read_record(base) or {}) if base is not None else {}
             light = record.get("light", {}).get("name") if isinstance(record.get("light"), dict) else None
+            # the render's own light given again: it said "render again with --light normal" (round eleven)
+            if base is not None and light == args.light:
+                raise ValueError(f"--light {args.light}: --light is not taken with --frames (the render's own "
+                                 f"light {light!r} is used, {base / RECORD}); drop --light")
             if base is not None:
                 said = f" (light {light!r}, {base / RECORD})" if isinstance(light, str) else f" ({base / RECORD})"
                 raise ValueError(f"--light {args.light}: the render fixed the light of the --frames {args.frames}"
                                  f"{said}; drop --light, or render again with --light {args.light}")
-        raise ValueError(f"--light {args.light} applies to a rendered scene; give --scene too (frames are lit "
-                         "as they were made)")
+        if args.frames is not None:
+            raise ValueError(f"--light {args.light} applies to a rendered --scene only; the --frames {args.frames} "
+                             "are lit as they were made; drop --light")
+        # round eleven: with no frames given, it said "frames are lit as they were made"
+        raise ValueError(f"--light {args.light} applies to a rendered --scene only; the built-in pattern's "
+                         "brightness is --peak-y")
     if args.peak_y is not None and (args.frames is not None or args.scene is not None):
         source, light = ((f"--frames {args.frames}", "frames are lit as they were made") if args.frames is not None
                          else (f"--scene {args.scene}", "a scene's light is --light and --light-power-factor"))
@@ -191,8 +199,12 @@ def load_npy_frames(path: Path, cam: SpikeCamera) -> np.ndarray:
         raise ValueError(f"{path}: not a readable .npy array ({exc})") from exc
     if arr.ndim != 3:
         raise ValueError(f"{path}: expected an (N, H, W) array of y, got shape {arr.shape}")
-    if not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
-        raise ValueError(f"{path}: dtype {arr.dtype} is not numeric; expected y as floats")
+    # an integer array (an 8-bit image, 0..255) was taken as y = 200 spikes/step: a saturated stream,
+    # rc 0 (round eleven); bool and other non-float dtypes are refused alike
+    if not np.issubdtype(arr.dtype, np.floating):
+        raise ValueError(f"{path}: dtype {arr.dtype}, but frames are linear y (spikes/step) as floats; an 8-bit or "
+                         "other integer image must be scaled to y (and linearised, undoing its gamma) first, e.g. "
+                         "saved as float32")
     if arr.shape[0] == 0:
         raise ValueError(f"{path}: holds no frames (shape {arr.shape})")
     if arr.shape[1:] != (cam.height, cam.width):
@@ -203,8 +215,10 @@ def load_npy_frames(path: Path, cam: SpikeCamera) -> np.ndarray:
 
 
 def exr_files(folder: Path) -> list[Path]:
-    """The folder's EXR frames in name order."""
-    files = sorted(folder.glob("*.exr"))
+    """The folder's EXR frames in natural name order: numbers in the names compared as numbers
+    (round eleven: frame_0 ... frame_11.exr, not zero-padded, were read as 0, 1, 10, 11, 2, ...)."""
+    from pipelines.render_folder import natural_key
+    files = sorted(folder.glob("*.exr"), key=lambda p: natural_key(p.name))
     if not files:
         raise FileNotFoundError(f"{folder}: no .exr frames in this folder")
     return files
@@ -227,7 +241,13 @@ def _checked_exr_frames(files: list[Path], cam: SpikeCamera) -> Iterator[np.ndar
 def frames_steps(steps: int | None, num_frames: int, keyframe_every: int, source: Path) -> int:
     """The steps to simulate from `num_frames` stored frames: --steps (refused beyond what the
     frames cover, rather than simulating fewer steps without a word), else all they cover."""
+    from pipelines.argtypes import MAX_SENSOR_STEPS
     covered = steps_covered(num_frames, keyframe_every)
+    # --steps has this bound; the count the frames give had none and ran 2**31 steps (round eleven)
+    if steps is None and covered > MAX_SENSOR_STEPS:
+        raise ValueError(f"--frames {source}: {num_frames} keyframes with --keyframe-every {keyframe_every} cover "
+                         f"{covered:,} steps, more than the sensor's {MAX_SENSOR_STEPS:,} (2**31 - 1); give a "
+                         "smaller --keyframe-every, or --steps of at most that")
     if steps is not None and steps > covered:
         what = (f"{num_frames} frames" if keyframe_every == 1
                 else f"{num_frames} keyframes {keyframe_every} steps apart")
@@ -287,11 +307,21 @@ def simulated_stream(path: Path) -> bool:
 
 
 def run(args: argparse.Namespace) -> int:
+    from spikesim.generation.run import sigterm_raises
+    # SIGTERM stops the run as Ctrl-C does, so the partial stream (.NAME.XXXX.part) is removed and it says
+    # "interrupted" (round eleven: SIGTERM left the hidden .part behind)
+    with sigterm_raises():
+        return _run(args)
+
+
+def _run(args: argparse.Namespace) -> int:
     from pipelines.inspect_cmd import summarize
     from spikesim._drjit import resolve_device
     from spikesim.simulate import Simulator
 
     check_outputs(args)
+    from spikesim.dataset import check_outside_datasets
+    check_outside_datasets(args.out)  # a stream written into a dataset, which verify then reported (round eleven)
     check_source_flags(args)
     cam = camera_from_args(args)
     if args.frames is not None and args.height is None and args.width is None and not _camera_file_sizes(args.camera):
@@ -409,8 +439,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("simulate", help="irradiance frames -> spike stream (.dat + JSON sidecar)")
     src = p.add_argument_group("irradiance source (default: the built-in moving pattern)")
     src.add_argument("--frames", type=frames_path,
-                     help="an (N, H, W) .npy array of y, or a folder of EXR frames (a render -o folder: the frames "
-                          "its render.json lists)")
+                     help="an (N, H, W) .npy array of y (floats), or a folder of EXR frames (a render -o folder: the "
+                          "frames its render.json lists, in step order; another folder: its .exr files in natural "
+                          "name order, numbers compared as numbers, so frame_2.exr comes before frame_10.exr)")
     src.add_argument("--scene", help="a bundled scene (ball, car, cook, fan, rotate) or a scene XML to render")
     src.add_argument("--light", default=None,
                      help="lighting condition of a --scene (default normal; low; a scene XML without a lights.json: "

@@ -30,11 +30,13 @@ def dataset_root(tmp_path):
 @pytest.mark.parametrize("argv", [
     lambda ds: ["golden", "--write", "--seeds", "1", "-o", ds / "golden.json"],
     lambda ds: ["camera", "--write", ds / "mine.toml"],
+    lambda ds: ["simulate", "--steps", "50", "--height", "8", "--width", "8", "--backend", "numpy", "--quiet",
+                "-o", ds / "fan_low" / "extra.dat"],
     lambda ds: ["sweep", "--scenes", "fan", "--methods", "tfp", "--levels", "2", "--height", "16", "--width", "24",
                 "--windows", "1", "--spp", "1", "--gt-spp", "1", "--quiet", "-o", ds / "sw"],
     lambda ds: ["tradeoff", "--scenes", "fan", "--light", "low", "--height", "16", "--width", "24", "-o", ds / "t",
                 "--quiet"],
-], ids=["golden", "camera", "sweep", "tradeoff"])
+], ids=["golden", "camera", "simulate", "sweep", "tradeoff"])
 def test_commands_refuse_an_output_inside_a_dataset(dataset_root, capsys, argv):
     before = sorted(p.name for p in dataset_root.rglob("*"))
     code, err = run_cli(argv(dataset_root), capsys)
