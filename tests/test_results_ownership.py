@@ -26,15 +26,17 @@ def panel(dat, out, *extra):
 
 def test_panel_checks_its_output_again_as_it_writes(dat16, tmp_path, capsys, monkeypatch):
     """A PNG the user puts at -o while the methods run is refused, not replaced."""
-    import pipelines.panel as panel_mod
+    from pipelines.cli import build_parser
     target = tmp_path / "p.png"
-    real = panel_mod.compose_panel
+    # the command's own module namespace (another test may have reloaded pipelines.panel since)
+    run_globals = build_parser().parse_args([str(a) for a in panel(dat16, target)]).func.__globals__
+    real = run_globals["compose_panel"]
 
     def compose_then_user_writes(*a, **k):
         target.write_bytes(b"the user's picture")
         return real(*a, **k)
 
-    monkeypatch.setattr(panel_mod, "compose_panel", compose_then_user_writes)
+    monkeypatch.setitem(run_globals, "compose_panel", compose_then_user_writes)
     code, err = run_cli(panel(dat16, target), capsys)
     assert code == 2 and "holds p.png, which no earlier panel run wrote" in one_line(err), err
     assert target.read_bytes() == b"the user's picture"

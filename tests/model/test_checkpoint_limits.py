@@ -206,18 +206,21 @@ def test_a_checkpoint_config_with_a_400_digit_number_is_one_line(tmp_path, secti
         model_from_checkpoint(tmp_path / "big.pt")
 
 
-def test_panel_refuses_non_finite_frames(tmp_path, dat, monkeypatch, capsys):
+def test_panel_refuses_non_finite_frames(tmp_path, monkeypatch, capsys):
     import model.methods as methods
+    # 16 x 16: panel refuses a smaller stream before any method runs (round ten)
+    frames = np.random.default_rng(0).random((7 * 2, 16, 16)) < 0.3
+    dat = write_dat(tmp_path / "s16.dat", SpikeStream.from_bool(frames))
 
     class Overflowing:
         name, window = "overflowing", 7
 
         def frames(self, source):
             for i in range(source.num_windows):
-                yield i, np.full((12, 16), np.nan, np.float32)
+                yield i, np.full((16, 16), np.nan, np.float32)
 
     monkeypatch.setattr(methods, "method_from_spec", lambda *a, **k: Overflowing())
-    code, err = run_cli(["panel", dat, "-o", tmp_path / "p.png", "--height", 12, "--width", 16, "--header-columns", 0,
+    code, err = run_cli(["panel", dat, "-o", tmp_path / "p.png", "--height", 16, "--width", 16, "--header-columns", 0,
                          "--window", 7, "--methods", "tfp", "--device", "cpu"], capsys)
     line = one_line(err)
     assert code == 2 and "overflowing" in line and "NaN" in line, line
