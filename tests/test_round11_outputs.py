@@ -118,8 +118,8 @@ def test_sigterm_to_sweep_leaves_no_lock_and_no_temporary_folder(tmp_path):
     (tmp_path / "tmp").mkdir()
     out = tmp_path / "sw"
     proc = subprocess.Popen([sys.executable, "-m", "pipelines.cli", "sweep", "--scenes", "fan", "--methods", "tfp",
-                             "--levels", "2", "--height", "16", "--width", "24", "--windows", "1", "--spp", "1",
-                             "--gt-spp", "1", "--quiet", "-o", str(out)], cwd=ROOT, env=env,
+                             "--levels", "9", "--height", "16", "--width", "24", "--windows", "3", "--spp", "1",
+                             "--gt-spp", "4", "--quiet", "-o", str(out)], cwd=ROOT, env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and not (out / ".spikesim.lock").exists():
@@ -128,7 +128,7 @@ def test_sigterm_to_sweep_leaves_no_lock_and_no_temporary_folder(tmp_path):
     time.sleep(1.0)
     proc.send_signal(signal.SIGTERM)
     _, err = proc.communicate(timeout=120)
-    assert proc.returncode != 0 or not (out / ".spikesim.lock").exists()
+    assert proc.returncode in (130, 143), (proc.returncode, err.decode())  # stopped, not finished before the signal
     assert not (out / ".spikesim.lock").exists(), err.decode()
     assert list((tmp_path / "tmp").iterdir()) == [], err.decode()
 
