@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from pipelines.gpu_campaign import (DEFAULT_PART, OPTIONAL, PART_DEADLINE_S, PARTS, PROFILES, STAGE_NAMES, STATUSES,
+from pipelines.gpu_campaign import (DEFAULT_PART, OPTIONAL, PART_DEADLINE_S, PARTS, PROFILES, RECIPE_CALL, STAGE_NAMES, STATUSES,
                                     TABLE1_CALL, TRADEOFF_CALL, Options)
 from pipelines.gpu_campaign.outputs import (MAX_FILES, combined_logs, join_weight_parts, out_problems,
                                             write_weights)
@@ -28,8 +28,9 @@ needs_llvm = pytest.mark.skipif(not HAS_LLVM, reason="the dry run renders and si
 STAGE_KEYS = {"name", "status", "seconds", "figures", "log", "note", "commands", "returncode", "time_box_s",
               "started", "part"}
 #: The stages the dry runs below run: all but table1, whose five trainings take about 45 s of their
-#: own; tests/test_campaign_table1.py runs it (slow) and checks its logic on stand-in commands (fast).
-RUN = tuple(s for s in STAGE_NAMES if s != "table1")
+#: own (tests/test_campaign_table1.py runs it, slow, and checks its logic on stand-in commands, fast),
+#: and recipe, which has a call of its own (RECIPE_CALL; tests/test_campaign_recipe.py, likewise).
+RUN = tuple(s for s in STAGE_NAMES if s not in ("table1", "recipe"))
 
 
 def _campaign(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
@@ -183,12 +184,14 @@ def test_a_failing_and_a_hanging_stage_are_recorded_and_later_stages_still_run(t
 
 
 def test_the_parts_cover_every_stage_once_in_order():
-    assert sorted(set(PARTS["1"]) | set(PARTS["2"])) == sorted(STAGE_NAMES)
+    # every stage but recipe, which has a call of its own (RECIPE_CALL = part `recipe`), and `all`
+    assert sorted(set(PARTS["1"]) | set(PARTS["2"]) | {"recipe"}) == sorted(STAGE_NAMES)
+    assert PARTS["recipe"] == RECIPE_CALL[1] and RECIPE_CALL[0] == "recipe" and "recipe" in PARTS["all"]
     for name in ("1", "2", "all"):  # the two-call parts and `all`: in stage order
         assert list(PARTS[name]) == sorted(PARTS[name], key=STAGE_NAMES.index)
-    # the one-call part: every stage once, in order of value, the ones run only where time is left last
+    # the one-call part: every stage but recipe once, in order of value, the ones run only where time is left last
     one = PARTS["one"]
-    assert sorted(one) == sorted(STAGE_NAMES)
+    assert sorted(one) == sorted(set(STAGE_NAMES) - {"recipe"})
     assert one[:7] == ("install", "bench_sensor", "bench_render", "llr", "rllr", "train", "export")
     assert one[7:] == OPTIONAL["one"] == ("gpu_tests", "evaluate", "tradeoff", "table1")
     # the trade study's full-size points: only where time is left, in part one, part 1 and `all`;

@@ -15,11 +15,11 @@ One job per module, each importing only those above it in this list, so data flo
 from __future__ import annotations
 
 from pipelines.gpu_campaign.options import (DATA_STAGES, DEFAULT_PART, INJECTIONS, OPTIONAL, PART_DEADLINE_S, PARTS,
-                                            PROFILES, ROOT, STAGE_NAMES, TABLE1_CALL, TRADEOFF_CALL, Options,
+                                            PROFILES, RECIPE_CALL, ROOT, STAGE_NAMES, TABLE1_CALL, TRADEOFF_CALL, Options,
                                             Profile)
 from pipelines.gpu_campaign.outputs import join_weight_parts
 from pipelines.gpu_campaign.records import STATUSES, StageRecord
 from pipelines.gpu_campaign.runner import SCHEMA_VERSION, earlier_outputs, run_campaign, summary_of
 
 __all__ = ["Options", "Profile", "PROFILES", "PARTS", "DEFAULT_PART", "OPTIONAL", "TABLE1_CALL", "TRADEOFF_CALL", "PART_DEADLINE_S", "STAGE_NAMES",
-           "STATUSES", "DATA_STAGES", "INJECTIONS", "ROOT", "StageRecord", "run_campaign", "summary_of", "earlier_outputs", "join_weight_parts", "SCHEMA_VERSION"]
+           "STATUSES", "DATA_STAGES", "INJECTIONS", "RECIPE_CALL", "ROOT", "StageRecord", "run_campaign", "summary_of", "earlier_outputs", "join_weight_parts", "SCHEMA_VERSION"]

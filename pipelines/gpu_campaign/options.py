@@ -17,8 +17,8 @@ from pathlib import Path
 
 #: The repository root: the stages run their commands from it, and the carried wheels lie in it.
 ROOT = Path(__file__).resolve().parents[2]
-STAGE_NAMES = ("install", "gpu_tests", "bench_sensor", "bench_render", "llr", "rllr", "train", "evaluate", "export",
-               "tradeoff", "table1")
+STAGE_NAMES = ("install", "gpu_tests", "bench_sensor", "bench_render", "llr", "rllr", "train", "evaluate", "recipe",
+               "export", "tradeoff", "table1")
 PARTS = {
     # one call, in order of value: what only a GPU can measure first, then a short training and its
     # weights; gpu_tests, evaluate, the trade study's full-size points and table1 last, only where
@@ -28,13 +28,16 @@ PARTS = {
     "1": ("install", "gpu_tests", "bench_sensor", "bench_render", "llr", "rllr", "tradeoff"),
     "2": ("install", "llr", "rllr", "train", "evaluate", "export", "table1"),
     "all": STAGE_NAMES,
+    # the shipped network's recipe at GPU scale (RECIPE_CALL): its own call, the benches after it
+    # only where time is left
+    "recipe": ("install", "recipe", "export", "bench_sensor", "bench_render"),
 }
 DEFAULT_PART = "one"
 #: Stages of a part that run only where time is left: no earlier stage keeps its least box for them.
 #: table1 (the Table-1 networks at equal training FLOP) needs most of a call: in a part it runs
 #: after everything else, where time is left; a call of its own (TABLE1_CALL) gives it its time.
 OPTIONAL = {"one": ("gpu_tests", "evaluate", "tradeoff", "table1"), "1": ("tradeoff",), "2": ("table1",),
-            "all": ("tradeoff", "table1")}
+            "all": ("tradeoff", "table1"), "recipe": ("bench_sensor", "bench_render")}
 #: The call that gives table1 its time on a lent GPU: part one's datasets, then table1 alone
 #: (`--stages install llr rllr table1`, part `one`'s 540 s); `Profile.table1_call_plan_s` is its
 #: time line. With a warm machine after part 1 (or 2), `--part 2 --stages table1` gives it 555 s.
@@ -43,9 +46,14 @@ TABLE1_CALL = ("one", ("install", "llr", "rllr", "table1"))
 #: on the GPU, all five LLR scenes under both lights, resumable: a later call goes on where the box
 #: cut it): `--stages install tradeoff`, part `one`'s 540 s.
 TRADEOFF_CALL = ("one", ("install", "tradeoff"))
+#: The call that trains the shipped network's recipe at GPU scale (stage recipe: its six training
+#: sets and two validation sets made on the GPU from the commands of docs/model.md, then `lrrep_span`
+#: fine-tuned from the shipped `lrrep` at a larger batch and crop) and hands its weights back
+#: (`recipe_weights.pt`), to be scored off the GPU on the held-out sets: part `recipe`, 540 s.
+RECIPE_CALL = ("recipe", ("install", "recipe", "export", "bench_sensor", "bench_render"))
 #: Seconds a call of each part may take by default (`--deadline-minutes`): a device call is killed
 #: at 600; part `one` leaves 60 of them for a stage's grace (20 s), the last writes and the start.
-PART_DEADLINE_S = {"one": 540.0, "1": 555.0, "2": 555.0, "all": 555.0}
+PART_DEADLINE_S = {"one": 540.0, "1": 555.0, "2": 555.0, "all": 555.0, "recipe": 540.0}
 #: Stages whose data a later call reuses instead of measuring again (resumable datasets).
 DATA_STAGES = ("llr", "rllr")
 INJECTIONS = ("fail", "timeout")
@@ -109,6 +117,22 @@ class Profile:
     table1_call_plan_s: dict[str, float] = dataclasses.field(default_factory=dict)
     """The seconds each stage of TABLE1_CALL is planned to take (the tests check that it fits the
     boxes and part `one`'s deadline); empty where the profile has no such plan."""
+    recipe_sets: tuple[tuple[str, str, tuple[str, ...]], ...] = ()
+    """Stage recipe's datasets, made in this order: (name, role "train" or "val", `generate rllr`
+    options). best.pt is chosen on the "val" ones."""
+    recipe_train: tuple[str, ...] = ()
+    """Stage recipe's `train` options (config, --init, the batch, crop, rate and loaders at this scale)."""
+    recipe_config: str = "lrrep_span"
+    recipe_seed: int = 9
+    """The training seed of stage recipe (the CPU runs of the sixth stage used 7 and 8)."""
+    recipe_train_least_s: float = 180.0
+    """Seconds of stage recipe's box that making the data leaves to training (a set is skipped, or
+    cut with its complete scenes kept, so that training keeps them)."""
+    recipe_set_least_s: float = 10.0
+    """A set is started only with this many seconds left before training's share."""
+    recipe_overhead_s: float = 45.0
+    """Seconds of recipe training that are not steps: start-up, validations, saving."""
+    recipe_max_minutes: float | None = None
 
     def boxes_of(self, part: str) -> dict[str, tuple[float, float]]:
         """Every stage's (least, most) seconds in a call of `part`."""
@@ -138,9 +162,38 @@ class Profile:
             raise ValueError(f"profile {self.name}: table1 needs networks with unique labels and non-negative times")
         if not set(self.table1_call_plan_s) <= set(TABLE1_CALL[1]):
             raise ValueError(f"profile {self.name}: table1_call_plan_s for {sorted(self.table1_call_plan_s)}")
+        names = [n for n, _, _ in self.recipe_sets]
+        if (not any(role == "train" for _, role, _ in self.recipe_sets) or len(set(names)) != len(names)
+                or not all(n.replace("_", "").isalnum() for n in names)
+                or not all(role in ("train", "val") for _, role, _ in self.recipe_sets)):
+            raise ValueError(f"profile {self.name}: recipe needs training sets with unique plain names and roles "
+                             f"'train' or 'val', got {[(n, r) for n, r, _ in self.recipe_sets]}")
+        if min(self.recipe_train_least_s, self.recipe_set_least_s, self.recipe_overhead_s) < 0:
+            raise ValueError(f"profile {self.name}: recipe times must be non-negative")
 
 
 _TINY = ("--height", "16", "--width", "24", "--workers", "1", "--quality", "balanced")
+# The sixth stage's data (docs/model.md, "The sixth stage"), with the same seeds, made on the GPU:
+# five photo sets (panning and still cameras, dark to saturation) and eight rendered natural scenes,
+# validated on eight natural and eight photo scenes of their own seeds
+_RLLR = ("--preset", "paper", "--steps", "369", "--gt-stride", "41")
+_PHOTO = (*_RLLR, "--content", "photo", "--workers", "8")
+_NATURAL = (*_RLLR, "--content", "natural", "--spp", "2", "--gt-spp", "48", "--darkening", "log-uniform", "--workers", "4")
+_SCALES = ("--scales", "1", "0.5", "0.25")
+_SIXTH_STAGE_SETS = (
+    ("val_photo8", "val", (*_PHOTO, "--scales", "0.5", "--count", "8", "--darkening", "log-uniform", "--seed", "401")),
+    ("rllr_photo48", "train", (*_PHOTO, *_SCALES, "--count", "48", "--darkening", "log-uniform", "--seed", "400")),
+    ("rllr_photo_bright48", "train", (*_PHOTO, *_SCALES, "--count", "48", "--darkening", "uniform", "--peak-y", "2",
+                                      "--seed", "403")),
+    ("rllr_photo_still48", "train", (*_PHOTO, *_SCALES, "--still-share", "1", "--count", "48", "--darkening",
+                                     "log-uniform", "--seed", "404")),
+    ("rllr_photo_bright_still48", "train", (*_PHOTO, *_SCALES, "--still-share", "1", "--count", "48", "--darkening",
+                                            "uniform", "--peak-y", "2", "--seed", "405")),
+    ("rllr_photo_vbright_still48", "train", (*_PHOTO, *_SCALES, "--still-share", "1", "--count", "48", "--darkening",
+                                             "uniform", "--peak-y", "3", "--seed", "406")),
+    ("val_nat8", "val", (*_NATURAL, "--scales", "0.5", "--count", "8", "--seed", "301")),
+    ("rllr_nat8tr", "train", (*_NATURAL, *_SCALES, "--count", "8", "--seed", "300")),
+)
 PROFILES: dict[str, Profile] = {
     "gpu": Profile(
         "gpu", "cuda", "cuda", True,
@@ -164,20 +217,27 @@ PROFILES: dict[str, Profile] = {
         # RLLR slice and training take what is left of their call
         boxes={"install": (30, 90), "gpu_tests": (30, 120), "bench_sensor": (30, 90), "bench_render": (30, 90),
                "llr": (60, 240), "rllr": (60, 600), "train": (150, 3600), "evaluate": (90, 180),
-               "export": (15, 60), "tradeoff": (120, 3600), "table1": (150, 3600)},
+               "recipe": (240, 3600), "export": (15, 60), "tradeoff": (120, 3600), "table1": (150, 3600)},
         # part `one` (docs/gpu_campaign.md, "On the GPU: one call of 9 minutes"): the expected seconds of docs/gpu_campaign.md
         # (install 15-30, bench_sensor 30-60, bench_render 20-40, LLR under 2 min) as the mosts, so
         # that even when every stage before training uses its whole box (60 + 60 + 45 + 135 + 90 =
         # 390 s) training keeps its least (120 s) and export its own (15 s) within the 540 s; the
         # RLLR slice is one or two scenes in 60-90 s; training takes what is left but export's least
         part_boxes={"one": {"install": (30, 60), "bench_sensor": (20, 60), "bench_render": (20, 45),
-                            "llr": (60, 135), "rllr": (60, 90), "train": (120, 3600), "export": (15, 60)}},
+                            "llr": (60, 135), "rllr": (60, 90), "train": (120, 3600), "export": (15, 60)},
+                    # RECIPE_CALL: install (24.5 s on the first GPU), then the recipe takes all but
+                    # export's least; the benches only where time is left
+                    "recipe": {"install": (30, 60), "recipe": (240, 3600), "export": (10, 60),
+                               "bench_sensor": (20, 60), "bench_render": (20, 45)}},
         part_rllr_count={"one": 2},
         # the time line: the expected seconds above (mid-range, the LLR at its 2-minute goal, one RLLR
         # scene at a pace that fits 75 s), training then given what is left of 540 but export's least
         # (540 - 300 - 15 = 225 s of box, of which 220 used), 5 s for the writes between stages
         part_plan_s={"one": {"install": 30, "bench_sensor": 45, "bench_render": 30, "llr": 120, "rllr": 75,
-                             "train": 220, "export": 15}},
+                             "train": 220, "export": 15},
+                     # the data in at most 320 s (the rest of the box but training's least), training
+                     # in what is left; export in seconds
+                     "recipe": {"install": 30, "recipe": 490, "export": 10}},
         # a bare machine in part 2 (the first call's datasets lost): the LLR (under 2 min is the
         # goal) and 1-3 RLLR scenes, which leaves training about 3 minutes
         catch_up_s={"llr": 150, "rllr": 90}, grace_s=20.0,
@@ -192,7 +252,14 @@ PROFILES: dict[str, Profile] = {
         # TABLE1_CALL in part one's 540 s: the datasets at part one's plan, then table1 takes what
         # is left (540 - 225 - 5 s of writes = 310 s of box): 15 s of cost count, 5 x 30 s of
         # overheads, 75 s of scoring and 5 x 12 s of steps (85 % of their 14 s share)
-        table1_call_plan_s={"install": 30, "llr": 120, "rllr": 75, "table1": 305}),
+        table1_call_plan_s={"install": 30, "llr": 120, "rllr": 75, "table1": 305},
+        # the sixth stage's recipe at GPU scale: its weights (--init lrrep), its config and schedule,
+        # four times the batch and twice the crop side (16 x more pixels a step), the rate doubled
+        # (the square root of the batch's factor), fp32 as on the CPU, 8 loader processes
+        recipe_sets=_SIXTH_STAGE_SETS,
+        recipe_train=("--config", "lrrep_span", "--init", "lrrep", "--lr", "2e-4", "--batch-size", "32", "--crop", "48",
+                      "--num-workers", "8", "--precision", "fp32", "--lr-schedule", "cosine"),
+        recipe_seed=9, recipe_train_least_s=180.0, recipe_set_least_s=10.0, recipe_overhead_s=45.0),
     "dry-run": Profile(
         "dry-run", "llvm", "cpu", False,
         bench_sensor=("--stages", "sensor", "--backends", "llvm", "--streams", "2", "--height", "16", "--width", "24",
@@ -213,7 +280,7 @@ PROFILES: dict[str, Profile] = {
         train_config="tiny", train_overhead_s=10.0, train_max_minutes=0.1, llr_windows=3,
         boxes={"install": (5, 60), "gpu_tests": (5, 120), "bench_sensor": (5, 120), "bench_render": (5, 120),
                "llr": (5, 180), "rllr": (5, 180), "train": (10, 180), "evaluate": (5, 120), "export": (2, 60),
-               "tradeoff": (30, 180), "table1": (30, 240)},
+               "recipe": (30, 300), "tradeoff": (30, 180), "table1": (30, 240)},
         part_boxes={}, part_rllr_count={}, part_plan_s={},
         catch_up_s={"llr": 180, "rllr": 180}, grace_s=5.0,
         # the same five rows at the tiny size: `tiny` for the paper's network, the published ones at
@@ -224,7 +291,23 @@ PROFILES: dict[str, Profile] = {
         table1_overhead_s=6.0, table1_eval_s=20.0, table1_max_minutes=0.02,
         # measured on the loaded 2-core VM (2026-11-26): 10 s of cost count, 5-7 s a training
         # process, 6 s of scoring: 47 s
-        table1_call_plan_s={"install": 5, "llr": 5, "rllr": 8, "table1": 50}),
+        table1_call_plan_s={"install": 5, "llr": 5, "rllr": 8, "table1": 50},
+        # the same recipe at the tiny size: a photo and a natural training set, a photo validation set
+        # (6 windows: the network's span is 5), the shipped weights fine-tuned for a few steps
+        recipe_sets=(
+            ("val_photo1", "val", ("--preset", "small", "--height", "16", "--width", "24", "--steps", "246",
+                                   "--gt-stride", "41", "--content", "photo", "--scales", "1", "--count", "1",
+                                   "--seed", "401", "--workers", "1")),
+            ("rllr_photo2", "train", ("--preset", "small", "--height", "16", "--width", "24", "--steps", "246",
+                                      "--gt-stride", "41", "--content", "photo", "--scales", "1", "--count", "2",
+                                      "--darkening", "log-uniform", "--seed", "400", "--workers", "1")),
+            ("rllr_nat1", "train", ("--preset", "small", "--height", "16", "--width", "24", "--steps", "246",
+                                    "--gt-stride", "41", "--content", "natural", "--scales", "1", "--count", "1",
+                                    "--spp", "1", "--gt-spp", "2", "--seed", "300", "--workers", "1"))),
+        recipe_train=("--config", "lrrep_span", "--init", "lrrep", "--crop", "16", "--batch-size", "2", "--max-steps",
+                      "4", "--threads", "1", "--precision", "fp32", "--lr-schedule", "cosine"),
+        recipe_seed=9, recipe_train_least_s=20.0, recipe_set_least_s=2.0, recipe_overhead_s=10.0,
+        recipe_max_minutes=0.1),
 }
 
 
@@ -291,5 +374,5 @@ class Options:
         return self.rllr_count or self.profile.part_rllr_count.get(self.part, self.profile.rllr_count)
 
 
-__all__ = ["ROOT", "STAGE_NAMES", "PARTS", "DEFAULT_PART", "OPTIONAL", "TABLE1_CALL", "TRADEOFF_CALL", "PART_DEADLINE_S", "DATA_STAGES",
+__all__ = ["ROOT", "STAGE_NAMES", "PARTS", "DEFAULT_PART", "OPTIONAL", "TABLE1_CALL", "TRADEOFF_CALL", "RECIPE_CALL", "PART_DEADLINE_S", "DATA_STAGES",
            "INJECTIONS", "Profile", "PROFILES", "Options"]

@@ -108,8 +108,9 @@ def _torch_doc(path: Path) -> dict[str, Any]:
 
 
 def write_weights(checkpoint: Path, out: Path, work: Path, max_bytes: int = MAX_FILE_BYTES,
-                  provenance: dict[str, Any] | None = None) -> list[dict[str, Any]]:
-    """The network of a training checkpoint as weights-only files in `out`, each under `max_bytes`.
+                  provenance: dict[str, Any] | None = None, stem: str = "weights") -> list[dict[str, Any]]:
+    """The network of a training checkpoint as weights-only files in `out`, each under `max_bytes`
+    (named `stem`.pt, `stem`_bf16.pt and `stem`_fp32.partIofN.pt; `stem` "weights" by default).
 
     fp32 in `weights.pt` where that fits. Otherwise (the paper's network is 21.3 MiB in fp32):
     `weights_bf16.pt`, loadable as it is by `evaluate`, `reconstruct` and `model_from_checkpoint`
@@ -126,7 +127,7 @@ def write_weights(checkpoint: Path, out: Path, work: Path, max_bytes: int = MAX_
     limit = max_bytes - min(_WEIGHTS_MARGIN_BYTES, max_bytes // 8)
     out.mkdir(parents=True, exist_ok=True)
     if fp32_path.stat().st_size <= limit:
-        target = out / "weights.pt"
+        target = out / f"{stem}.pt"
         outputs.atomic_write_bytes(target, fp32_path.read_bytes())  # a link there is refused, not followed
         return [{**file_record(target), "dtype": "float32", "weights_sha256": exported["weights_sha256"]}]
     doc = _torch_doc(fp32_path)
@@ -137,7 +138,7 @@ def write_weights(checkpoint: Path, out: Path, work: Path, max_bytes: int = MAX_
     bf16_doc = {**doc, "model_state": low, "weights_sha256": state_fingerprint(low),
                 "extra": {**doc.get("extra", {}), "cast": {"dtype": "bfloat16", "from": "float32",
                                                            "float32_weights_sha256": exported["weights_sha256"]}}}
-    bf16_path = _save_within(bf16_doc, out / "weights_bf16.pt", work, max_bytes, "even in bf16")
+    bf16_path = _save_within(bf16_doc, out / f"{stem}_bf16.pt", work, max_bytes, "even in bf16")
     records.append({**file_record(bf16_path), "dtype": "bfloat16", "weights_sha256": bf16_doc["weights_sha256"]})
 
     sizes = {k: v.numel() * v.element_size() for k, v in state.items()}
@@ -153,7 +154,7 @@ def write_weights(checkpoint: Path, out: Path, work: Path, max_bytes: int = MAX_
     for i, keys in enumerate(groups, 1):
         part = {"format_version": FORMAT_VERSION, "kind": "spikesim weights part", "part": i, "parts": len(groups),
                 "header": header, "model_state": {k: state[k] for k in keys}}
-        path = _save_within(part, out / f"weights_fp32.part{i}of{len(groups)}.pt", work, max_bytes,
+        path = _save_within(part, out / f"{stem}_fp32.part{i}of{len(groups)}.pt", work, max_bytes,
                             "with one tensor alone")
         records.append({**file_record(path), "dtype": "float32", "part": i, "parts": len(groups),
                         "weights_sha256": exported["weights_sha256"]})
@@ -290,6 +291,8 @@ def report_markdown(summary: dict[str, Any]) -> str:
               f"| data-wait share | {_fmt(train.get('data_wait_share'), '.2f')} |",
               f"| best validation aligned PSNR | {_fmt(train.get('best_val_psnr_aligned'), '.2f', ' dB')} |"]
 
+    lines += _recipe_lines(_stage(summary, "recipe"))
+
     ev = _stage(summary, "evaluate").get("figures", {})
     methods = ev.get("methods", {})
     lines += ["", "## Evaluation on the LLR of stage llr", ""]
@@ -311,6 +314,28 @@ def report_markdown(summary: dict[str, Any]) -> str:
     lines += _tradeoff_lines(_stage(summary, "tradeoff"))
     lines += _table1_lines(_stage(summary, "table1"))
     return "\n".join(lines).rstrip() + "\n"
+
+
+def _recipe_lines(stage: dict[str, Any]) -> list[str]:
+    """Stage recipe: each dataset made (scenes, seconds, status) and the training run's figures."""
+    fig = stage.get("figures", {})
+    lines = ["", "## The shipped network's recipe at GPU scale (stage recipe)", ""]
+    if not fig:
+        return lines + [f"{NOT_MEASURED} ({stage.get('status', '?')}{': ' + stage['note'] if stage.get('note') else ''})"]
+    lines += ["| dataset | role | scenes | seconds | status |", "|---|---|---|---|---|"]
+    for name, r in fig.get("sets", {}).items():
+        lines.append(f"| {name} | {r.get('role', '?')} | {r.get('scenes', '?')} | {_fmt(r.get('seconds'), '.1f')} | "
+                     f"{r.get('status', '?')}{' (' + r['note'] + ')' if r.get('note') else ''} |")
+    vals = fig.get("validations") or []
+    lines += ["", "| figure | this run |", "|---|---|",
+              f"| config, `train` options | {fig.get('config', '?')}, `{' '.join(fig.get('train_args', []))}` |",
+              f"| training scenes, budget | {fig.get('data_scenes', NOT_MEASURED)}, {_fmt(fig.get('budget_minutes'), '.2f', ' min')} |",
+              f"| steps, samples/s (median) | {fig.get('steps', NOT_MEASURED)}, {_fmt(fig.get('samples_per_s_steady'), '.3g')} |",
+              f"| seconds per step (median) | {_fmt(fig.get('seconds_per_step_steady'), '.3g')} |",
+              f"| data-wait share | {_fmt(fig.get('data_wait_share'), '.2f')} |",
+              f"| validation aligned PSNR (step: dB) | {', '.join(f'{s}: {v:.2f}' for s, v in vals) or NOT_MEASURED} |",
+              f"| best | {_fmt(fig.get('best_val_psnr_aligned'), '.2f', ' dB')} |"]
+    return lines
 
 
 def _tradeoff_lines(stage: dict[str, Any]) -> list[str]:

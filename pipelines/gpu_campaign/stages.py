@@ -46,7 +46,7 @@ WINDOW = 41
 #: What the campaign makes in its work folder: the folders (the datasets and the training run are
 #: written by `spikesim` children, which take the folder they are given as their root and guard
 #: only what lies inside it) and the records.
-WORK_FOLDERS = ("logs", "site", "llr", "rllr", "run", "evaluate", "export", "table1")
+WORK_FOLDERS = ("logs", "site", "llr", "rllr", "run", "evaluate", "export", "table1", "recipe_data", "recipe_run")
 STATE_FILE = "state.json"
 #: In a training run the campaign made: the token its state.json records (`Campaign.owns_run`).
 RUN_MARKER = ".gpu_campaign_run"
@@ -65,7 +65,7 @@ def _not_a(mode: int) -> str | None:
 def _work_files() -> list[tuple[str, ...]]:
     """Every file the campaign itself writes, truncates or removes under --work."""
     logs = [("logs", f"{n}{ext}") for n in (*STAGE_NAMES, "campaign") for ext in (".log", ".stdout")]
-    return [(STATE_FILE,), *logs, ("run", RUN_MARKER), ("table1", RUN_MARKER)]
+    return [(STATE_FILE,), *logs, ("run", RUN_MARKER), ("table1", RUN_MARKER), ("recipe_run", RUN_MARKER)]
 
 
 def check_work(work: Path) -> None:
@@ -567,15 +567,39 @@ def _steady_rate(log: Path) -> dict[str, Any]:
     return out
 
 
-def _checkpoint(c: Campaign) -> Path | None:
-    """The checkpoint of the training run this campaign made in --work/run (none in a run it did not)."""
-    run = c.o.work / "run"
-    if not c.owns_run():
+def _checkpoint(c: Campaign, folder: str = "run") -> Path | None:
+    """The checkpoint of the training run this campaign made in --work/`folder` (run/: stage train's;
+    recipe_run/: stage recipe's); none in a run it did not make."""
+    run = c.o.work / folder
+    if not c.owns_run(folder):
         return None
     for name in ("best.pt", "last.pt"):  # best.pt needs a validation scene; last.pt is always written
         if (run / name).is_file():
             return run / name
     return None
+
+
+def _train_figures(c: Campaign, result: CommandResult, folder: str) -> dict[str, Any]:
+    """What a `spikesim train` of this campaign printed and logged (its JSON, the steady rate), and
+    the checkpoint it left in --work/`folder` with its weights' fingerprint."""
+    figures: dict[str, Any] = {}
+    if result.returncode == 0 or (result.timed_out and _checkpoint(c, folder)):
+        try:
+            doc = _json_of(result.stdout)
+        except StageFailed:
+            doc = {}
+        keep = ("steps", "epoch", "precision", "samples_per_s", "data_wait_share", "train_seconds", "planned_steps",
+                "best_val_psnr_aligned", "last_loss", "weights_sha256", "stopped_by")
+        figures.update({k: doc[k] for k in keep if k in doc})
+        if doc.get("steps") and doc.get("train_seconds"):
+            figures["seconds_per_step"] = doc["train_seconds"] / doc["steps"]
+        figures.update(_steady_rate(c.o.work / folder / "train_log.csv"))
+    ckpt = _checkpoint(c, folder)
+    figures["checkpoint"] = None if ckpt is None else str(ckpt)
+    if ckpt is not None:  # the weights exported: best.pt's (validated several times a run), not the last step's
+        from model.checkpoint import load_checkpoint
+        figures["checkpoint_weights_sha256"] = load_checkpoint(ckpt)["weights_sha256"]
+    return figures
 
 
 def stage_train(c: Campaign) -> dict[str, Any]:
@@ -596,23 +620,89 @@ def stage_train(c: Campaign) -> dict[str, Any]:
                         "--budget-minutes", f"{minutes:.3f}", "--seed", str(c.o.seed), "--device", c.p.torch_device,
                         "--quiet", "-o", str(run))
     figures: dict[str, Any] = {"config": c.p.train_config, "data_scenes": len(scenes), "budget_minutes": minutes}
-    if result.returncode == 0 or (result.timed_out and _checkpoint(c)):
-        try:
-            doc = _json_of(result.stdout)
-        except StageFailed:
-            doc = {}
-        keep = ("steps", "epoch", "precision", "samples_per_s", "data_wait_share", "train_seconds", "planned_steps",
-                "best_val_psnr_aligned", "last_loss", "weights_sha256", "stopped_by")
-        figures.update({k: doc[k] for k in keep if k in doc})
-        if doc.get("steps") and doc.get("train_seconds"):
-            figures["seconds_per_step"] = doc["train_seconds"] / doc["steps"]
-        figures.update(_steady_rate(run / "train_log.csv"))
-    ckpt = _checkpoint(c)
-    figures["checkpoint"] = None if ckpt is None else str(ckpt)
-    if ckpt is not None:  # the weights exported: best.pt's (validated several times a run), not the last step's
-        from model.checkpoint import load_checkpoint
-        figures["checkpoint_weights_sha256"] = load_checkpoint(ckpt)["weights_sha256"]
+    figures.update(_train_figures(c, result, "run"))
     check_command(result, "spikesim train", figures)
+    return figures
+
+
+def _validations(run: Path) -> list[tuple[int, float]]:
+    """(step, validation aligned PSNR in dB) of every validation a run logged (its val_log.csv)."""
+    out: list[tuple[int, float]] = []
+    try:
+        with (run / "val_log.csv").open(newline="") as f:
+            for row in csv.DictReader(f):
+                v = float(row["psnr_aligned"])
+                if math.isfinite(v):
+                    out.append((int(float(row["step"])), round(v, 3)))
+    except (OSError, KeyError, ValueError):
+        pass
+    return out
+
+
+def stage_recipe(c: Campaign) -> dict[str, Any]:
+    """The shipped network's recipe at GPU scale (RECIPE_CALL): the sixth stage's datasets made on
+    the GPU with their own seeds and commands (the profile's `recipe_sets`, each set in a box that
+    leaves training its least; one cut keeps its complete scenes, one that fails is left out and
+    named), then `train` with the profile's recipe (`--init lrrep`, the larger batch and crop) on
+    every training set made, best.pt chosen on the validation sets made, for what is left of the
+    box. The weights come back through stage export (recipe_weights.pt), to be scored off the GPU
+    on the held-out sets, as every network here is."""
+    root = c.work_path("recipe_data")
+    ours = c.check_run_folder("recipe_run", "training run")  # before any data is made: a user's run stops us
+    outputs.make_dirs(c.o.work, "recipe_data")
+    sets: dict[str, dict[str, Any]] = {}
+    figures: dict[str, Any] = {"config": c.p.recipe_config, "sets": sets, "seed": c.p.recipe_seed,
+                               "train_args": list(c.p.recipe_train)}
+    for name, role, args in c.p.recipe_sets:
+        box = c.left() - c.p.recipe_train_least_s
+        rec: dict[str, Any] = {"role": role, "command": shlex.join(["spikesim", "generate", "rllr", *args])}
+        sets[name] = rec
+        if box < c.p.recipe_set_least_s:
+            rec.update(status="skipped", scenes=len(complete_scenes(root / name)),
+                       note=f"{max(box, 0):.0f} s left before training's {c.p.recipe_train_least_s:.0f} s")
+            continue
+        argv = ("generate", "rllr", *args, "--device", c.p.drjit_device, "--json", "--quiet",
+                "-o", str(c.work_path("recipe_data", name)))
+        result = c.spikesim(*argv, box_s=box)
+        seconds = result.seconds
+        if result.returncode != 0 and not result.timed_out and "--workers" in argv:
+            # several processes on one GPU were never run before this stage: on a failure the set is
+            # made again in one process (generation resumes: complete scenes are kept), and said so
+            i = argv.index("--workers")
+            if argv[i + 1] != "1" and c.left() - c.p.recipe_train_least_s >= c.p.recipe_set_least_s:
+                rec["retried"] = f"failed with --workers {argv[i + 1]} (exit status {result.returncode}); made again with --workers 1"
+                result = c.spikesim(*argv[:i + 1], "1", *argv[i + 2:], box_s=c.left() - c.p.recipe_train_least_s)
+                seconds += result.seconds
+        rec.update(seconds=round(seconds, 2), scenes=len(complete_scenes(root / name)),
+                   status="ok" if result.returncode == 0 else "timeout" if result.timed_out else "failed")
+        if result.returncode == 0:
+            try:
+                rec.update(_generated(_json_of(result.stdout)))
+            except StageFailed:
+                pass
+    usable = {role: [str(root / n) for n, r, _ in c.p.recipe_sets if r == role and sets[n]["status"] == "ok"
+                     and sets[n]["scenes"]] for role in ("train", "val")}
+    # a set cut by its box keeps its complete scenes, but its manifest is that of a run in progress:
+    # only finished sets are trained on (a reader checks a dataset against its record)
+    figures["train_sets"], figures["val_sets"] = [Path(p).name for p in usable["train"]], [Path(p).name for p in usable["val"]]
+    figures["data_seconds"] = round(sum(r.get("seconds", 0.0) for r in sets.values()), 2)
+    if not usable["train"]:
+        raise StageFailed("no training set was made in full (the sets' records say why; logs.txt has the commands)",
+                          figures)
+    c.take_run_folder("recipe_run", ours)
+    run = c.work_path("recipe_run")
+    minutes = max(c.left() - c.p.recipe_overhead_s, 6.0) * 0.85 / 60
+    if c.p.recipe_max_minutes is not None:
+        minutes = min(minutes, c.p.recipe_max_minutes)
+    val = ["--val-data", *usable["val"]] if usable["val"] else []
+    result = c.spikesim("train", *c.p.recipe_train, "--data", *usable["train"], *val, "--budget-minutes",
+                        f"{minutes:.3f}", "--seed", str(c.p.recipe_seed), "--device", c.p.torch_device, "--quiet",
+                        "-o", str(run))
+    figures["budget_minutes"] = minutes
+    figures["data_scenes"] = sum(sets[Path(p).name]["scenes"] for p in usable["train"])
+    figures.update(_train_figures(c, result, "recipe_run"))
+    figures["validations"] = _validations(run)
+    check_command(result, "spikesim train (recipe)", figures)
     return figures
 
 
@@ -843,13 +933,27 @@ def stage_table1(c: Campaign) -> dict[str, Any]:
 
 
 def stage_export(c: Campaign) -> dict[str, Any]:
+    """The checkpoints this campaign trained as weights-only files: stage train's as weights*.pt,
+    stage recipe's as recipe_weights*.pt (each run's best.pt where it validated, else last.pt)."""
+    exported: list[dict[str, Any]] = []
+    checkpoints = []
     ckpt = _checkpoint(c)
-    if ckpt is None:
-        raise SkipStage("no checkpoint to export (stage train made none)")
-    provenance = {"campaign": c.p.name, "config": c.p.train_config, "data": "RLLR slice of stage rllr",
-                  "seed": c.o.seed, "source": ckpt.name}
-    files = write_weights(ckpt, c.o.out, outputs.make_dirs(c.o.work, "export"), provenance=provenance)
-    return {"checkpoint": str(ckpt), "files": files}
+    if ckpt is not None:
+        checkpoints.append(ckpt)
+        provenance = {"campaign": c.p.name, "config": c.p.train_config, "data": "RLLR slice of stage rllr",
+                      "seed": c.o.seed, "source": ckpt.name}
+        exported += write_weights(ckpt, c.o.out, outputs.make_dirs(c.o.work, "export"), provenance=provenance)
+    recipe = _checkpoint(c, "recipe_run")
+    if recipe is not None:
+        checkpoints.append(recipe)
+        provenance = {"campaign": c.p.name, "config": c.p.recipe_config, "stage": "recipe",
+                      "data": "the sixth stage's sets made on the GPU (stage recipe)",
+                      "train_args": list(c.p.recipe_train), "seed": c.p.recipe_seed, "source": recipe.name}
+        exported += write_weights(recipe, c.o.out, outputs.make_dirs(c.o.work, "export", "recipe"),
+                                  provenance=provenance, stem="recipe_weights")
+    if not checkpoints:
+        raise SkipStage("no checkpoint to export (neither stage train nor stage recipe made one)")
+    return {"checkpoint": str(checkpoints[0]), "checkpoints": [str(p) for p in checkpoints], "files": exported}
 
 
 def stage_tradeoff(c: Campaign) -> dict[str, Any]:
@@ -887,7 +991,8 @@ def stage_tradeoff(c: Campaign) -> dict[str, Any]:
 STAGES: dict[str, Callable[[Campaign], dict[str, Any]]] = {
     "install": stage_install, "gpu_tests": stage_gpu_tests, "bench_sensor": stage_bench_sensor,
     "bench_render": stage_bench_render, "llr": stage_llr, "rllr": stage_rllr, "train": stage_train,
-    "evaluate": stage_evaluate, "export": stage_export, "tradeoff": stage_tradeoff, "table1": stage_table1,
+    "evaluate": stage_evaluate, "recipe": stage_recipe, "export": stage_export, "tradeoff": stage_tradeoff,
+    "table1": stage_table1,
 }
 
 
