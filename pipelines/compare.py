@@ -167,7 +167,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     out = Path(args.out)
     from spikesim.dataset import check_outside_datasets
     from spikesim.generation.lock import output_lock
-    from spikesim.outputs import check_results_owned, output_folder, record_results_owned
+    from spikesim.outputs import check_results_owned, output_folder, results_writing
     from model.comparison import COMPARE_FILES
     from model.evaluation import RESULT_FILES
     # checkpoints written into the test data, which verify then reported damaged (round ten)
@@ -212,15 +212,17 @@ def cmd_compare(args: argparse.Namespace) -> int:
                                                                         steps_per_run(checkpoints).items()},
                 "configs": {label: exp.to_dict() for label, exp in args.configs}, "study": args.study,
                 "costs": costs, "jobs": args.jobs}
-        check_results_owned(out, tables, "compare", "--out")  # again: a file put there while it trained
-        write_comparison(stats, rows, text, meta, out)
-        if study is not None:  # one folder can hold every study (runs shared): each keeps its own table
-            from model.evaluation import json_safe
-            from spikesim.outputs import atomic_write_text, writable
-            atomic_write_text(writable(out, f"study_{study.name}.md"), text)
-            atomic_write_text(writable(out, f"study_{study.name}.json"), json.dumps(json_safe(
-                {**meta, "statistics": [{**dataclasses.asdict(s), "values": list(s.values)} for s in stats]}), indent=1))
-        record_results_owned(out, tables, "compare")
+        # checked again (a file put there while it trained); each table recorded as it is written,
+        # so an interrupted or failed write leaves none the rerun refuses (round twelve)
+        with results_writing(out, tables, "compare", "--out"):
+            write_comparison(stats, rows, text, meta, out)
+            if study is not None:  # one folder can hold every study (runs shared): each keeps its own table
+                from model.evaluation import json_safe
+                from spikesim.outputs import atomic_write_text, writable
+                atomic_write_text(writable(out, f"study_{study.name}.md"), text)
+                atomic_write_text(writable(out, f"study_{study.name}.json"), json.dumps(json_safe(
+                    {**meta, "statistics": [{**dataclasses.asdict(s), "values": list(s.values)} for s in stats]}),
+                    indent=1))
         if args.json:
             from model.evaluation import json_safe
             print(json.dumps(json_safe({**meta, "statistics": [{**dataclasses.asdict(s), "values": list(s.values), "n": s.n}

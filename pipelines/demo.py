@@ -40,7 +40,7 @@ def run(args: argparse.Namespace) -> int:
     from spikesim.imageio import write_png
     from spikesim._drjit import resolve_device
     from spikesim.dataset import check_outside_datasets
-    from spikesim.outputs import check_results_owned, make_dirs, record_results_owned, recorded_results, writable
+    from spikesim.outputs import check_results_owned, make_dirs, recorded_results, results_writing, writable
     from model.evaluation import RESULT_FILES
     from spikesim.stats import dark_pixel_fraction
 
@@ -91,26 +91,29 @@ def run(args: argparse.Namespace) -> int:
                   "shows the large shapes those spikes allow)", file=sys.stderr)
     rows = evaluate(scenes, methods, 41, progress=False)
     names = [m.name for m in methods]
-    check_results_owned(out, results, "demo")  # again: a file put there while it rendered
-    write_results(rows, names, out)
-    if args.json:
-        print(json.dumps(json_safe(scores_json(rows, names, {"data": str(out / "llr")})), indent=2))
-    else:
-        print(markdown_table(rows, names))
-    # previews of the middle window of each scene's run (a network sees the whole run, as in the
-    # table): every image stretched to its own 99.5th percentile, so a person sees what each method
-    # made, dark or bright (a shared scale shows low-light TFP black and TFI white)
-    make_dirs(out, "previews")
-    for sc in scenes:
-        first, n = evaluation_run(sc, 41)
-        mid = n // 2
-        write_png(writable(out, "previews", f"{sc.name}_gt_p99.png"), sc.ground_truth(first + mid * 41),
-                  percentile=99.5)
-        src = StepWindows(sc.spikes, first - 20, 41, n)
-        for m in (m for m in methods if m.name not in FLOORS):  # the floors show nothing
-            frame = next(f for i, f in m.frames(src) if i == mid)
-            write_png(writable(out, "previews", f"{sc.name}_{m.name}_p99.png"), np.asarray(frame), percentile=99.5)
-    record_results_owned(out, results, "demo", stale=[*ours, *earlier])
+    # checked again (a file put there while it rendered); the earlier run's results removed first,
+    # with its previews of scenes this run does not draw (round eleven), and each new one recorded
+    # as it is written: a demo stopped while drawing left results every rerun refused (round twelve)
+    with results_writing(out, results, "demo", stale=[*ours, *earlier]):
+        write_results(rows, names, out)
+        if args.json:
+            print(json.dumps(json_safe(scores_json(rows, names, {"data": str(out / "llr")})), indent=2))
+        else:
+            print(markdown_table(rows, names))
+        # previews of the middle window of each scene's run (a network sees the whole run, as in the
+        # table): every image stretched to its own 99.5th percentile, so a person sees what each method
+        # made, dark or bright (a shared scale shows low-light TFP black and TFI white)
+        make_dirs(out, "previews")
+        for sc in scenes:
+            first, n = evaluation_run(sc, 41)
+            mid = n // 2
+            write_png(writable(out, "previews", f"{sc.name}_gt_p99.png"), sc.ground_truth(first + mid * 41),
+                      percentile=99.5)
+            src = StepWindows(sc.spikes, first - 20, 41, n)
+            for m in (m for m in methods if m.name not in FLOORS):  # the floors show nothing
+                frame = next(f for i, f in m.frames(src) if i == mid)
+                write_png(writable(out, "previews", f"{sc.name}_{m.name}_p99.png"), np.asarray(frame),
+                          percentile=99.5)
     print(f"[demo] done in {time.perf_counter() - t0:.0f} s (rendering and simulation {t_gen:.0f} s); "
           f"data in {out / 'llr'}, table in {out / 'metrics.md'}, previews in {out / 'previews'} (each image "
           "stretched to its own 99.5th percentile: _p99)", file=sys.stderr)

@@ -97,13 +97,13 @@ def _results_folder(args: argparse.Namespace) -> Path | None:
 def _write(args: argparse.Namespace, rows: Sequence[Score], names: Sequence[str], markdown: str | None = None) -> None:
     """metrics.csv and metrics.md, replacing only an earlier evaluation's (the folder's record says
     which files evaluate wrote): a user's metrics.md of the same name was replaced (round eight)."""
-    from spikesim.outputs import check_results_owned, record_results_owned
+    from spikesim.outputs import results_writing
     target = _results_folder(args)
     if target is None:
         return
-    replaced = check_results_owned(target, RESULT_FILES, "evaluate")
-    csv_path, md_path = write_results(rows, names, target, markdown=markdown)
-    record_results_owned(target, RESULT_FILES, "evaluate")
+    # each table recorded as it is written: a full disk at the record orphaned both (round twelve)
+    with results_writing(target, RESULT_FILES, "evaluate") as replaced:
+        csv_path, md_path = write_results(rows, names, target, markdown=markdown)
     again = "; -o DIR to keep each" if args.out is None else ""
     print(f"[evaluate] wrote {csv_path} and {md_path}" + (f" (replacing an earlier evaluation's{again})"
                                                             if replaced else ""), file=sys.stderr)

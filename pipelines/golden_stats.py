@@ -88,7 +88,7 @@ def _num(x: float) -> Any:
 def _write(args: argparse.Namespace) -> int:
     from spikesim.progress import progress_bar
 
-    from spikesim.outputs import check_not_link, check_results_owned, record_results_owned
+    from spikesim.outputs import check_not_link, check_results_owned, results_writing
 
     check_not_link(args.output)  # a link at -o is refused before the measurement, not after
     from spikesim.dataset import check_outside_datasets
@@ -102,9 +102,9 @@ def _write(args: argparse.Namespace) -> int:
     seeds = list(range(count))
     with progress_bar(total=len(seeds), desc="golden reference", unit="seed", quiet=args.json) as bar:
         reference = golden.measure_reference(camera, backend, seeds, progress=bar)
-    check_results_owned(out.parent, [out.name], "golden")  # again: a file put there while it measured (round ten)
-    path = golden.write_reference(reference, args.output)
-    record_results_owned(out.parent, [out.name], "golden")
+    # checked again (a file put there while it measured: round ten), recorded as it is written (round twelve)
+    with results_writing(out.parent, [out.name], "golden"):
+        path = golden.write_reference(reference, args.output)
     if args.json:
         print(json.dumps({"wrote": str(path), "backend": reference["backend"], "seeds": seeds,
                           "statistics": sum(len(e) for e in reference["stats"].values())}, indent=2))

@@ -205,7 +205,7 @@ def run(args: argparse.Namespace) -> int:
         s["sidecar"] = {k: side[k] for k in ("seed", "backend", "keyframe_every", "irradiance") if k in side}
     if args.preview:
         from spikesim.imageio import PREVIEW_PERCENTILE, auto_percentile, write_png
-        from spikesim.outputs import check_not_link, check_results_owned, output_file, record_results_owned
+        from spikesim.outputs import check_not_link, check_results_owned, output_file, results_writing
         from spikesim.dataset import check_outside_datasets
         preview_path = check_not_link(args.preview)
         # a preview written into a dataset, which verify then reported as an extra file (round ten)
@@ -217,10 +217,10 @@ def run(args: argparse.Namespace) -> int:
         percentile = PREVIEW_PERCENTILE if args.enhance else auto_percentile(tfp)
         with output_file(args.preview) as preview:  # never through a link; no new empty folder on failure
             # again just before the write: a file the user put there while the stream was read was
-            # overwritten (round ten)
-            check_results_owned(preview_path.parent, [preview_path.name], "inspect", "--preview")
-            write_png(preview, tfp, percentile=percentile)
-            record_results_owned(preview_path.parent, [preview_path.name], "inspect")
+            # overwritten (round ten); recorded under the record's lock as it is written (round twelve:
+            # concurrent previews into one folder lost entries)
+            with results_writing(preview_path.parent, [preview_path.name], "inspect", "--preview"):
+                write_png(preview, tfp, percentile=percentile)
         s["preview"] = str(args.preview)
         s["preview_stretched"] = percentile is not None
     if args.json:

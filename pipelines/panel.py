@@ -106,9 +106,9 @@ def run(args: argparse.Namespace) -> int:
     image = compose_panel(frames, captions)
     with outputs.output_file(args.out) as out:
         # again, as it is written: a PNG the user put there while the methods ran was replaced (round ten)
-        outputs.check_results_owned(out_path.parent, [out_path.name], "panel")
-        outputs.atomic_write_with(out, lambda tmp: image.save(tmp, format="PNG"))
-        outputs.record_results_owned(out_path.parent, [out_path.name], "panel")
+        # recorded as it is written (round twelve: a full disk at the record orphaned it)
+        with outputs.results_writing(out_path.parent, [out_path.name], "panel"):
+            outputs.atomic_write_with(out, lambda tmp: image.save(tmp, format="PNG"))
     doc = {"read": read, "scores": scores, "out": str(out),
            "measures": {"flat_noise": "std / mean in the flattest 10 % of 16 x 16 blocks of the reference (lower: "
                                       "less noise)",

@@ -357,20 +357,23 @@ def run_sweep(scenes: Sequence[str] = ("ball", "car", "cook", "fan", "rotate"), 
                   "gt_spp": gt_spp, "seed": seed, "light": light,
                   "not_best_below_saturation": {m: losing_levels(rows, m, saturation) for m in names}}
         if out is not None:
-            from spikesim.outputs import check_results_owned, record_results_owned
-            check_results_owned(out, RESULT_FILES, "sweep")  # again: a file the user put there while it ran (round ten)
-            buf = io.StringIO(newline="")
-            w = csv.DictWriter(buf, fieldnames=list(rows[0]))
-            w.writeheader()
-            w.writerows(rows)
-            atomic_write_text(writable(out, "sweep.csv"), buf.getvalue())
-            atomic_write_text(writable(out, "sweep.md"), md)
-            atomic_write_json(writable(out, "sweep.json"), record, indent=1)
-            if draw_plot:
-                plot(rows, names, saturation, writable(out, "sweep.png"),
-                     f"{', '.join(r.name for r in rendered)} at {camera.height} x {camera.width}, {windows} windows")
+            from spikesim.outputs import results_writing
             written = [name for name in RESULT_FILES if draw_plot or name != "sweep.png"]
-            record_results_owned(out, written, "sweep", stale=ours)  # a --no-plot rerun drops the old plot (round ten)
+            # checked again (a file the user put there while it ran: round ten); the earlier run's
+            # results removed first (a --no-plot rerun drops the old plot: round ten) and each new one
+            # recorded as it is written, so a sweep stopped while plotting leaves only its own tables,
+            # which the rerun replaces (round twelve: refused, beside the last run's plot)
+            with results_writing(out, written, "sweep", stale=ours):
+                buf = io.StringIO(newline="")
+                w = csv.DictWriter(buf, fieldnames=list(rows[0]))
+                w.writeheader()
+                w.writerows(rows)
+                atomic_write_text(writable(out, "sweep.csv"), buf.getvalue())
+                atomic_write_text(writable(out, "sweep.md"), md)
+                atomic_write_json(writable(out, "sweep.json"), record, indent=1)
+                if draw_plot:
+                    plot(rows, names, saturation, writable(out, "sweep.png"),
+                         f"{', '.join(r.name for r in rendered)} at {camera.height} x {camera.width}, {windows} windows")
         return SweepResult(rows, record, md)
 
 

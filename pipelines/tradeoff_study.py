@@ -47,7 +47,7 @@ import numpy as np
 
 from spikesim._optional import require
 from spikesim.config_io import read_json_object
-from spikesim.outputs import (atomic_write_file, check_results_owned, make_dirs, output_folder, record_results_owned,
+from spikesim.outputs import (atomic_write_file, check_results_owned, make_dirs, output_folder, results_writing,
                               writable)
 from spikesim.preset_rule import RECON_AXES  # the axes the quality presets are chosen on
 from spikesim.render_settings import RenderSettings, render_knob
@@ -702,8 +702,8 @@ def run_study(cfg: StudyConfig, out: Path, progress: bool = True) -> list[dict[s
     # a user's study.json or tradeoff.md there was replaced (round ten): refused before any run
     check_results_owned(out, ["study.json", *REPORT_FILES], "tradeoff")
     out.mkdir(parents=True, exist_ok=True)
-    _write_json(out / "study.json", dataclasses.asdict(cfg))
-    record_results_owned(out, ["study.json"], "tradeoff")  # at once: an interrupted study resumes as its own
+    with results_writing(out, ["study.json"], "tradeoff"):  # recorded at once: an interrupted study resumes as its own
+        _write_json(out / "study.json", dataclasses.asdict(cfg))
     runs = plan_runs(cfg)
     jobs = [(sc, li, r) for sc in cfg.scenes for li in cfg.lights for r in runs]
     session = f"{time.time():.0f}"
@@ -1038,17 +1038,17 @@ def write_report(rows: Sequence[dict[str, Any]], out: Path, images: Path | None 
         check_results_owned(images, [PARETO_PLOT], "tradeoff", "--images")  # a user's PNG (round ten)
     ours = check_results_owned(out, REPORT_FILES, "tradeoff")
     drawn = bool(rows or gt_rows)
-    with output_folder(out):
+    written = [name for name in REPORT_FILES if drawn or name != "tradeoff.png"]
+    # the earlier report removed first (no earlier plot left beside the new table: round ten) and
+    # each file recorded as it is written: an interrupted plot left tables every rerun refused (round twelve)
+    with output_folder(out), results_writing(out, written, "tradeoff", stale=ours):
         write_csv([*rows, *gt_rows], out / "tradeoff.csv")
         atomic_write_file(out / "tradeoff.md", lambda f: f.write(markdown_table(rows, gt_rows).encode()))
         if drawn:
             plot(rows, out / "tradeoff.png", gt_rows)
-        written = [name for name in REPORT_FILES if drawn or name != "tradeoff.png"]
-        record_results_owned(out, written, "tradeoff", stale=ours)  # no earlier plot left beside the new table
     if drawn and images is not None:
-        with output_folder(images):
+        with output_folder(images), results_writing(images, [PARETO_PLOT], "tradeoff", "--images"):
             plot(rows, images / PARETO_PLOT, gt_rows)
-            record_results_owned(images, [PARETO_PLOT], "tradeoff")
 
 
 # ---- cache files: written whole (spikesim.outputs: temporary file, then rename; an interrupted study

@@ -20,18 +20,22 @@ write, replace or delete a file outside that folder:
 - `open_in_place` (and `in_place_fd`) open a file written in place (a log, a lock, an appended
   CSV) never through a symlink and never when the file has another name: writing through a hard
   link planted at its name would change a file outside the output (docs/CONTRACTS.md).
-- `check_results_owned` / `record_results_owned` keep a record of the results a command wrote in
-  a folder it shares with the user, so a rerun replaces its own and refuses to replace theirs.
+- `check_results_owned` / `results_writing` keep a record of the results a command wrote in a
+  folder it shares with the user, so a rerun replaces its own and refuses to replace theirs; each
+  result is recorded (under a lock) before it is renamed into place, so an interrupted or failed
+  run never leaves a result its own rerun refuses.
 """
 from __future__ import annotations
 
 import contextlib
 import errno
+import fcntl
 import json
 import os
 import secrets
 import shutil
 import stat
+import threading
 from pathlib import Path
 from typing import Any, BinaryIO, Callable, Iterator, Sequence
 
@@ -129,11 +133,11 @@ def atomic_write_with(path: str | Path, write: Callable[[Path], Any], suffix: st
         raise IsADirectoryError(errno.EISDIR, "is a directory, expected a file name", str(path))
     tmp = new_temp_beside(path, suffix)
     try:
-        write(tmp)
-        os.replace(tmp, path)
-    except OSError as exc:
-        tmp.unlink(missing_ok=True)
-        raise naming(exc, path) from exc
+        try:
+            write(tmp)
+        except OSError as exc:
+            raise naming(exc, path) from exc
+        _put(tmp, path)  # an OSError names `path`, or the results record where that failed
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
@@ -370,12 +374,22 @@ __all__ = ["parent_fd", "move_into", "in_place_fd", "open_in_place", "HARD_LINK_
 #: replaced, "replacing an earlier evaluation's").
 RESULTS_RECORD = ".spikesim-results.json"
 
+#: The lock beside the record, held (an exclusive flock) for each read-modify-write of the record,
+#: so two commands writing one folder at once never lose each other's entries (round twelve: of 12
+#: `inspect --preview` runs into one folder, as few as 3 were recorded). It exists only while a
+#: command updates the record (removed while held, as spikesim.generation.lock removes its own);
+#: one left by a killed command is the toolkit's, reused, never refused as the user's.
+RESULTS_LOCK = ".spikesim-results.lock"
+
+#: The names a command keeps in a results folder for itself: never a result's name.
+RESULTS_OWN_FILES = (RESULTS_RECORD, RESULTS_LOCK)
+
 
 def _results_record(out: Path) -> dict[str, Any]:
     """The folder's results record, read as every small file is (a FIFO there hung the command, a
     link to /dev/zero grew without bound: round nine); an unreadable one lists nothing."""
     from .config_io import read_json_object
-    path = out / RESULTS_RECORD
+    path = Path(out) / RESULTS_RECORD
     if not path.exists() and not path.is_symlink():
         return {}
     try:
@@ -386,27 +400,88 @@ def _results_record(out: Path) -> dict[str, Any]:
     return files if isinstance(files, dict) else {}
 
 
+def _write_record(out: Path, files: dict[str, Any]) -> None:
+    """The record written whole; an OSError (a full disk) names the record."""
+    atomic_write_json(writable(out, RESULTS_RECORD), {"files": files}, indent=1)
+
+
+@contextlib.contextmanager
+def _record_lock(out: Path) -> Iterator[None]:
+    """Hold the folder's record lock (RESULTS_LOCK, an exclusive flock, waiting for another command
+    that holds it) for one read-modify-write of the record. The lock file is never opened through a
+    link or a second name (in_place_fd) and must be a regular file; it is removed while held, and a
+    command that locked it just as it was removed locks the new one (as generation.lock does)."""
+    path = writable(out, RESULTS_LOCK)
+    while True:
+        fd = in_place_fd(path, os.O_RDWR | os.O_CREAT | getattr(os, "O_NONBLOCK", 0))
+        try:
+            if not stat.S_ISREG(os.fstat(fd).st_mode):
+                raise FileExistsError(f"{path}: is not a regular file, where spikesim locks the folder's results "
+                                      "record; remove it")
+            fcntl.flock(fd, fcntl.LOCK_EX)
+            try:
+                now = os.stat(path, follow_symlinks=False)
+                mine = os.fstat(fd)
+                same = (now.st_ino, now.st_dev) == (mine.st_ino, mine.st_dev)
+            except FileNotFoundError:
+                same = False
+        except BaseException:
+            os.close(fd)
+            raise
+        if same:
+            break
+        os.close(fd)  # its holder removed it as we locked it: lock the file there now
+    try:
+        yield
+    finally:
+        with contextlib.suppress(OSError):
+            path.unlink()  # removed while held: a command waiting on it locks a new one
+        os.close(fd)  # closing the descriptor releases the flock
+
+
 def _check_record_path(out: Path, names: Sequence[str], command: str, flag: str) -> None:
-    """The record's own name is no result, and what stands at the record's path is a regular file
-    or nothing: a folder, link or FIFO there failed only after the results were written, leaving
-    them unrecorded, so every rerun refused them; a golden reference named like the record was
-    overwritten by the record (round ten). Refused before any work."""
-    if any(Path(name).name == RESULTS_RECORD for name in names):
-        raise ValueError(f"{out / RESULTS_RECORD}: {RESULTS_RECORD} is where spikesim records which results in a "
-                         f"folder are its own, so no {command} result may take that name; choose another {flag}")
-    path = out / RESULTS_RECORD
-    if path.is_symlink() or (path.exists() and not path.is_file()):
-        raise FileExistsError(f"{path}: is not a regular file (a folder, link or FIFO), where {command} records which "
-                              f"results it wrote there; remove it, or choose another {flag}")
+    """The record's own name (and its lock's) is no result, and what stands at the record's and the
+    lock's paths is a regular file or nothing: a folder, link or FIFO there failed only after the
+    results were written, leaving them unrecorded, so every rerun refused them; a golden reference
+    named like the record was overwritten by the record (round ten). Refused before any work."""
+    for name in names:
+        if Path(name).name in RESULTS_OWN_FILES:
+            own = Path(name).name
+            raise ValueError(f"{out / own}: {own} is where spikesim records which results in a folder are its own, "
+                             f"so no {command} result may take that name; choose another {flag}")
+    for own in RESULTS_OWN_FILES:
+        path = out / own
+        if path.is_symlink() or (path.exists() and not path.is_file()):
+            raise FileExistsError(f"{path}: is not a regular file (a folder, link or FIFO), where {command} records "
+                                  f"which results it wrote there; remove it, or choose another {flag}")
+
+
+def _is_own(entry: Any, path: Path, command: str) -> bool:
+    """Whether the file at `path` is one `command` wrote, as its record `entry` says: a regular file
+    whose sha256 is the one recorded, or the one it had before (`previous`: a result recorded just
+    before it replaced its own earlier one, whose rename an interruption may have stopped)."""
+    from .dataset import sha256_file  # imported here: spikesim.dataset imports this module
+    if not (isinstance(entry, dict) and entry.get("command") == command):
+        return False
+    known = {entry.get("sha256"), entry.get("previous")} - {None}
+    try:
+        return path.is_file() and not path.is_symlink() and sha256_file(path) in known
+    except OSError:
+        return False
+
+
+def _refusal(out: Path, theirs: Sequence[str], command: str, flag: str) -> FileExistsError:
+    return FileExistsError(f"{out}: holds {', '.join(theirs)}, which no earlier {command} run wrote there (or it "
+                           f"was changed since); {command} would replace {'it' if len(theirs) == 1 else 'them'}: "
+                           f"choose another {flag}, or move them")
 
 
 def check_results_owned(out: str | Path, names: Sequence[str], command: str, flag: str = "-o") -> list[str]:
     """The names of `names` in `out` that an earlier `command` run wrote (as its record there
     says, with the same content): a rerun replaces those. Any other existing file of those names
-    is the user's: refused, named, before any work. Called again just before the writing, it
-    refuses a file the user put there while the command ran (round ten: golden and panel replaced
-    one)."""
-    from .dataset import sha256_file  # imported here: spikesim.dataset imports this module
+    is the user's: refused, named, before any work. `results_writing` checks again just before
+    the writing, which refuses a file the user put there while the command ran (round ten: golden
+    and panel replaced one)."""
     out = Path(out)
     _check_record_path(out, names, command, flag)
     listed = _results_record(out)
@@ -415,17 +490,9 @@ def check_results_owned(out: str | Path, names: Sequence[str], command: str, fla
         path = out / name
         if not path.exists() and not path.is_symlink():
             continue
-        entry = listed.get(name)
-        try:
-            same = (isinstance(entry, dict) and entry.get("command") == command and path.is_file()
-                    and not path.is_symlink() and entry.get("sha256") == sha256_file(path))
-        except OSError:
-            same = False
-        (ours if same else theirs).append(name)
+        (ours if _is_own(listed.get(name), path, command) else theirs).append(name)
     if theirs:
-        raise FileExistsError(f"{out}: holds {', '.join(theirs)}, which no earlier {command} run wrote there (or it "
-                              f"was changed since); {command} would replace {'it' if len(theirs) == 1 else 'them'}: "
-                              f"choose another {flag}, or move them")
+        raise _refusal(out, theirs, command, flag)
     return ours
 
 
@@ -436,26 +503,132 @@ def recorded_results(out: str | Path, command: str) -> list[str]:
             if isinstance(entry, dict) and entry.get("command") == command]
 
 
-def record_results_owned(out: str | Path, names: Sequence[str], command: str, stale: Sequence[str] = ()) -> None:
-    """Add the files `names` (just written in `out` by `command`) to the folder's results record.
-    `stale`: earlier results of this command (check_results_owned's answer) that this run did not
-    write again, such as a plot a rerun with --no-plot does not draw: removed, if still unchanged,
-    so no earlier run's result stays listed beside the new ones (round ten)."""
-    from .dataset import sha256_file
-    out = Path(out)
-    files = _results_record(out)
-    for name in stale:
+def _drop_own(out: Path, files: dict[str, Any], names: Sequence[str], command: str) -> bool:
+    """Remove each of `names` that `files` lists as `command`'s and is unchanged, and drop every such
+    entry (a changed file is the user's now: kept, no longer listed). Whether `files` changed."""
+    changed = False
+    for name in dict.fromkeys(names):
         entry = files.get(name)
-        if name in names or not isinstance(entry, dict) or entry.get("command") != command:
+        if not isinstance(entry, dict) or entry.get("command") != command:
             continue
         path = out / name
         try:
-            if path.is_file() and not path.is_symlink() and entry.get("sha256") == sha256_file(path):
+            if _is_own(entry, path, command):
                 remove(out, name)
-        except OSError:
-            pass
-        del files[name]  # removed, or changed since: the user's now, no longer listed as the command's
-    for name in names:
-        if (out / name).is_file():
-            files[name] = {"command": command, "sha256": sha256_file(out / name)}
-    atomic_write_json(writable(out, RESULTS_RECORD), {"files": files}, indent=1)
+        except (OSError, ValueError):
+            continue  # not removed: still listed, so a rerun removes it
+        del files[name]
+        changed = True
+    return changed
+
+
+def record_results_owned(out: str | Path, names: Sequence[str], command: str, stale: Sequence[str] = ()) -> None:
+    """Add the files `names` (already written in `out` by `command`) to the folder's results record,
+    with their content now. `stale`: earlier results of this command (check_results_owned's answer)
+    that this run did not write again, removed if still unchanged (round ten). Commands write their
+    results inside `results_writing`, which records each before it is renamed into place; this is
+    for files written some other way."""
+    from .dataset import sha256_file
+    out = Path(out)
+    with _record_lock(out):
+        files = _results_record(out)
+        _drop_own(out, files, [name for name in stale if name not in names], command)
+        for name in names:
+            if (out / name).is_file() and not (out / name).is_symlink():
+                files[name] = {"command": command, "sha256": sha256_file(out / name)}
+        _write_record(out, files)
+
+
+class _ResultsWriting:
+    """One `results_writing` block: the folder, the result names and the command."""
+
+    def __init__(self, out: Path, names: Sequence[str], command: str, flag: str):
+        self.out, self.command, self.flag = out, command, flag
+        self.base = os.path.realpath(out)
+        self.names = {os.path.normpath(name): name for name in names}
+
+    def name_of(self, path: Path) -> str | None:
+        """The result name `path` is in this block's folder, or None."""
+        rel = os.path.relpath(os.path.realpath(path), self.base)
+        return self.names.get(os.path.normpath(rel))
+
+    def put(self, tmp: Path, path: Path, name: str) -> None:
+        """Rename the written `tmp` to the result `path`, recording its sha256 first, both under the
+        record lock: a failure to record (a full disk) leaves `path` as it was, and an interruption
+        between the two leaves `path` as it was, whose content the record still accepts (`previous`)."""
+        from .dataset import sha256_file
+        new = sha256_file(tmp)
+        with _record_lock(self.out):
+            files = _results_record(self.out)
+            entry = files.get(name)
+            target = self.out / name
+            previous = None
+            if target.exists() or target.is_symlink():
+                # again, right before the rename: a file the user put there while the command ran
+                if not _is_own(entry, target, self.command):
+                    raise _refusal(self.out, [name], self.command, self.flag)
+                previous = sha256_file(target)
+            files[name] = {"command": self.command, "sha256": new,
+                           **({"previous": previous} if previous not in (None, new) else {})}
+            _write_record(self.out, files)
+            try:
+                os.replace(tmp, path)
+            except OSError as exc:
+                raise naming(exc, path) from exc
+
+
+_WRITING: list[_ResultsWriting] = []
+_WRITING_GUARD = threading.Lock()
+
+
+def _put(tmp: Path, path: Path) -> None:
+    """atomic_write_with's rename: through the record of a `results_writing` block whose result
+    `path` is, else a plain rename (an OSError names `path`)."""
+    with _WRITING_GUARD:
+        blocks = list(_WRITING)
+    for block in reversed(blocks):
+        name = block.name_of(path)
+        if name is not None:
+            block.put(tmp, path, name)
+            return
+    try:
+        os.replace(tmp, path)
+    except OSError as exc:
+        raise naming(exc, path) from exc
+
+
+@contextlib.contextmanager
+def results_writing(out: str | Path, names: Sequence[str], command: str, flag: str = "-o",
+                    stale: Sequence[str] = ()) -> Iterator[list[str]]:
+    """Write the results `names` of `command` in `out` inside this block, each with `atomic_write_*`
+    (directly or through any writer built on them). The block
+
+    - checks `names` again (check_results_owned): a file the user put there while the command
+      ran is refused before anything is written;
+    - removes this command's own earlier results among `names` and `stale` (an earlier run's
+      results this run does not write again, such as a plot a `--no-plot` rerun does not draw:
+      round ten) if unchanged, so the folder never holds a mix of two runs' results (round twelve:
+      a sweep stopped while drawing left its new tables beside the last run's plot); a changed one
+      is the user's now, kept and no longer listed;
+    - records each result's sha256 before renaming it into place, under the record lock: an
+      interrupted or failed run (SIGTERM while plotting, a full disk at the record) leaves only
+      results its record lists, which the rerun replaces as its own (round twelve: every rerun was
+      refused), and concurrent commands never lose each other's entries.
+
+    Yields the names that an earlier run wrote (check_results_owned's answer)."""
+    out = Path(out)
+    ours = check_results_owned(out, names, command, flag)
+    if set(recorded_results(out, command)) & {*names, *stale}:  # (a read-only folder of none: no lock to make)
+        with _record_lock(out):
+            ours = check_results_owned(out, names, command, flag)
+            files = _results_record(out)
+            if _drop_own(out, files, [*names, *stale], command):
+                _write_record(out, files)
+    block = _ResultsWriting(out, names, command, flag)
+    with _WRITING_GUARD:
+        _WRITING.append(block)
+    try:
+        yield ours
+    finally:
+        with _WRITING_GUARD:
+            _WRITING.remove(block)
