@@ -18,14 +18,18 @@ import numpy as np
 import torch
 
 from .methods import method_from_spec
-from .streaming import TensorWindows
+from .streaming import StepWindows, TensorWindows
 from .threads import set_cpu_threads
 
 
 def check_spike_array(spikes: Any) -> torch.Tensor:
     """A spike stream as a bool tensor (steps, H, W): a spike array is bool or holds only 0 and 1.
     Anything else (NaN, 0.3, 255, -1, complex numbers, an empty frame) is a ValueError that says
-    what it holds, never a plausible-looking reconstruction of it."""
+    what it holds, never a plausible-looking reconstruction of it. A `spikesim.stream.SpikeStream`
+    is unpacked (it was refused as "dtype object", round twelve)."""
+    from spikesim.stream import SpikeStream
+    if isinstance(spikes, SpikeStream):
+        spikes = spikes.unpack()
     if isinstance(spikes, torch.Tensor):
         s = spikes.detach().cpu()
     else:
@@ -78,8 +82,10 @@ def reconstruct(spikes: Any, method: str = "lrrep", window: int = 41, threads: i
                 header_columns: int | str | None = "auto", flip: bool | None = None,
                 drop_partial: bool = False) -> np.ndarray:
     """Frames (M, H, W), float32 on the y scale (expected spikes per step), one per whole `window`-step
-    window of `spikes`: a (steps, H, W) 0/1 array (NumPy or torch, row 0 at the top) or the path
-    of a `.dat` stream, read as `spikesim reconstruct` reads one: `height`/`width`/`flip` as recorded
+    window of `spikes`: a (steps, H, W) 0/1 array (NumPy or torch, row 0 at the top), a
+    `spikesim.stream.SpikeStream` (what `DatReader.read` returns), a `DatReader`, or the path
+    of a `.dat` stream, read as `spikesim reconstruct` reads one, a few windows at a time (memory
+    bounded by `chunk`, not by the file): `height`/`width`/`flip` as recorded
     beside it unless given (else 250 x 400, rows bottom-up), `header_columns` detected unless given,
     `drop_partial` for a file cut off mid-frame. `method` is any spec
     `evaluate` takes (lrrep, tfp, tfi, tfp:N, a checkpoint path, label=spec). `device` (cpu, cuda,
@@ -90,31 +96,58 @@ def reconstruct(spikes: Any, method: str = "lrrep", window: int = 41, threads: i
         method = str(method)
     if not isinstance(method, str) or not method.strip():
         raise ValueError(f"method: expected a method spec (lrrep, tfp, tfi, tfp:N, a checkpoint path), got {method!r}")
+    if isinstance(window, np.integer) and not isinstance(window, np.bool_):
+        window = int(window)  # as height=np.int64(16) is taken (round twelve)
+    from spikesim.stream import DatReader, SpikeStream
     if isinstance(spikes, (str, Path)):
         from spikesim.stream import open_stream  # what `reconstruct FILE.dat` takes, with the same defaults
-        reader, _ = open_stream(Path(spikes), height, width, flip, header_columns, drop_partial)
-        spikes = reader.read().unpack()
-    else:  # an array carries its own size and orientation: what only a file needs is refused, not ignored
+        spikes, _ = open_stream(Path(spikes), height, width, flip, header_columns, drop_partial)
+    else:  # an array (or a SpikeStream, a DatReader) carries its own size and orientation: what only a
+        # file needs is refused, not ignored
         for name, value, default in (("flip", flip, None), ("header_columns", header_columns, "auto"),
                                      ("drop_partial", drop_partial, False)):
             if value != default:
                 raise ValueError(f"{name}: applies to a .dat path; an array is read as it is (row 0 at the top)")
-    s = check_spike_array(spikes)
-    for name, value, got in (("height", height, s.shape[1]), ("width", width, s.shape[2])):
+    if isinstance(spikes, (DatReader, SpikeStream)):
+        # read window by window, as `spikesim reconstruct` reads a file (model.streaming.StepWindows): the
+        # whole stream unpacked, then copied, held 3.6 GB for a 40 MB file (round twelve); a SpikeStream
+        # (DatReader.read) was refused as "dtype object"
+        stream = spikes
+        steps, h, w = len(stream), stream.height, stream.width
+        if isinstance(stream, DatReader):
+            read_steps = lambda a, b: stream.read(a, b).unpack()  # noqa: E731  (pipelines/reconstruct.py's reader)
+        else:
+            read_steps = stream.unpack
+    else:
+        s = check_spike_array(spikes)
+        steps, h, w = s.shape
+    if min(steps, h, w) == 0:
+        raise ValueError(f"spikes: every side must hold at least one step or pixel, got shape {(steps, h, w)}")
+    for name, value, got in (("height", height, h), ("width", width, w)):
         if value is not None and value != got:
-            raise ValueError(f"{name}={value}, but the array's frames are {s.shape[1]} x {s.shape[2]}")
+            raise ValueError(f"{name}={value}, but the array's frames are {h} x {w}")
     if not (isinstance(window, int) and not isinstance(window, bool) and window >= 1 and window % 2 == 1):
         raise ValueError(f"window: expected an odd number of steps >= 1 (41 for the shipped networks), got {window!r}")
-    m = s.shape[0] // window
+    m = steps // window
     if m < 1:
-        raise ValueError(f"spikes: {s.shape[0]} steps hold no whole {window}-step window")
+        raise ValueError(f"spikes: {steps} steps hold no whole {window}-step window")
     from .training import resolve_device
     device = str(resolve_device(device, "device"))  # "mps" blamed the weights and "gpu" raised torch's own error
     set_cpu_threads(threads)
     chosen = method_from_spec(method, window, chunk, device)
-    source = TensorWindows((s[: m * window] != 0).reshape(m, window, *s.shape[1:]))
-    frames = [f for _, f in chosen.frames(source)]
-    return torch.stack([torch.as_tensor(f) for f in frames]).float().numpy()
-
+    if isinstance(spikes, (DatReader, SpikeStream)):
+        source: Any = StepWindows(read_steps, 0, window, m)
+    else:
+        source = TensorWindows((s[: m * window] != 0).reshape(m, window, *s.shape[1:]))
+    out: np.ndarray | None = None
+    made = 0
+    for i, f in chosen.frames(source):
+        frame = torch.as_tensor(f).float().numpy()
+        if out is None:  # filled in place: a list of frames, then a stacked copy, held the frames twice
+            out = np.empty((m, *frame.shape), np.float32)
+        out[i] = frame
+        made = max(made, i + 1)
+    assert out is not None
+    return out[:made] if made < m else out
 
 __all__ = ["reconstruct", "check_spike_array"]

@@ -394,8 +394,16 @@ class BatchSimulator:
             raise ValueError(f"frame {self._frames_seen}: shape {arr.shape}, expected {self._frame_shape()} "
                              "for this camera; a camera of another size is --height/--width on the command line, "
                              "SpikeCamera.realistic(height=..., width=...) in Python")
-        if not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
-            raise ValueError(f"frame {self._frames_seen}: dtype {arr.dtype} is not numeric")
+        if np.issubdtype(arr.dtype, np.integer):
+            # an 8-bit image (0..255) was taken as y = 200 spikes/step: a saturated stream, silently, while
+            # `spikesim simulate` refuses such frames (round eleven; the library, round twelve)
+            raise ValueError(f"frame {self._frames_seen}: dtype {arr.dtype}, but frames are float luminance, linear y "
+                             "(expected spikes per step); an 8-bit or other integer image must be scaled to y (and "
+                             "linearised, undoing its gamma) first, e.g. y = (img / 255.0) ** 2.2 * peak_y, or for "
+                             "values that already are y, frames.astype(np.float32)")
+        if not np.issubdtype(arr.dtype, np.floating):
+            raise ValueError(f"frame {self._frames_seen}: dtype {arr.dtype} is not numeric; frames are float "
+                             "luminance, linear y (expected spikes per step)")
         return arr.reshape(-1)
 
     def _block_of(self, rows: list) -> Any:

@@ -66,6 +66,7 @@ class SpikeStream:
 
     def counts(self, start: int = 0, stop: int | None = None, chunk: int = 4096) -> np.ndarray:
         """Spikes per pixel over [start, stop), int64 (H, W), without unpacking it all at once."""
+        _check_chunk(chunk, "SpikeStream.counts")
         stop = self.num_steps if stop is None else stop
         total = np.zeros(self.height * self.width, dtype=np.int64)
         for a in range(start, stop, chunk):
@@ -76,9 +77,19 @@ class SpikeStream:
 
     @classmethod
     def from_bool(cls, frames: np.ndarray) -> "SpikeStream":
+        """Pack (N, H, W) spike frames, row 0 at the top: bool, or numbers that are all 0 or 1 (0.3 and
+        255 were taken as spikes, while model.reconstruct refuses them: round twelve)."""
         frames = np.asarray(frames)
         if frames.ndim != 3:
             raise ValueError(f"expected (N, H, W) spike frames, got shape {frames.shape}")
+        if frames.dtype != np.bool_:
+            if frames.dtype.kind not in "iuf":
+                raise ValueError(f"spike frames are bool or hold only 0 and 1, got dtype {frames.dtype}")
+            bad = ~((frames == 0) | (frames == 1))
+            if bad.any():
+                first = frames[bad][0].item()
+                raise ValueError(f"spike frames hold only 0 and 1 (or are bool); these hold {first!r} "
+                                 f"({int(bad.sum())} value(s) that are neither, dtype {frames.dtype})")
         n, h, w = frames.shape
         return cls(pack_frames(frames), h, w)
 
@@ -95,6 +106,22 @@ class SpikeStream:
     def __eq__(self, other: object) -> bool:
         return (isinstance(other, SpikeStream) and self.shape == other.shape
                 and bool(np.array_equal(self.packed, other.packed)))
+
+
+def _check_chunk(chunk: Any, who: str) -> None:
+    """A chunk size is a positive integer: 0 raised "range() arg 3 must not be zero" and -1 gave
+    no chunks at all (round twelve)."""
+    if isinstance(chunk, bool) or not isinstance(chunk, (int, np.integer)) or chunk < 1:
+        raise ValueError(f"{who}: chunk must be a positive number of frames, got {chunk!r}")
+
+
+def _check_stream_arg(stream: Any, who: str) -> None:
+    """`stream` is a SpikeStream: an array failed with "'numpy.ndarray' object has no attribute
+    'height'" (round twelve)."""
+    if not isinstance(stream, SpikeStream):
+        raise TypeError(f"{who}: expected a SpikeStream, got {type(stream).__module__}.{type(stream).__name__}"
+                        + ("; SpikeStream.from_bool(frames) packs (N, H, W) 0/1 frames (row 0 at the top)"
+                           if isinstance(stream, np.ndarray) or hasattr(stream, "__array__") else ""))
 
 
 def pack_frames(frames: np.ndarray) -> np.ndarray:
@@ -162,6 +189,7 @@ class DatWriter:
         self.num_steps = 0
 
     def write(self, stream: SpikeStream) -> None:
+        _check_stream_arg(stream, "DatWriter.write")
         if (stream.height, stream.width) != (self.height, self.width):
             raise ValueError(f"stream is {stream.height}x{stream.width}, writer is {self.height}x{self.width}")
         data = _flip_packed(stream.packed, self.height, self.width) if self.flip else stream.packed
@@ -204,6 +232,7 @@ class DatWriter:
 
 def write_dat(path: str | Path, stream: SpikeStream, flip: bool = True) -> Path:
     """Write a stream as a PKU `.dat` file (atomically)."""
+    _check_stream_arg(stream, "write_dat")
     with DatWriter(path, stream.height, stream.width, flip=flip) as w:
         w.write(stream)
     return Path(path)
@@ -264,6 +293,10 @@ class DatReader:
         return SpikeStream(raw, h, self.width)
 
     def iter_chunks(self, chunk: int = 1024) -> Iterator[SpikeStream]:
+        _check_chunk(chunk, "DatReader.iter_chunks")
+        return self._chunks(chunk)
+
+    def _chunks(self, chunk: int) -> Iterator[SpikeStream]:
         for a in range(0, self.num_steps, chunk):
             yield self.read(a, min(self.num_steps, a + chunk))
 

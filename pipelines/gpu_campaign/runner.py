@@ -48,8 +48,9 @@ from spikesim import outputs
 from pipelines.gpu_campaign.options import DATA_STAGES, ROOT, STAGE_NAMES, Options
 from pipelines.gpu_campaign.outputs import check_out, combined_logs, file_record, report_markdown
 from pipelines.gpu_campaign.records import SCHEMA_VERSION, STATUSES, StageRecord
-from pipelines.gpu_campaign.stages import (STAGES, Campaign, SkipStage, StageFailed, check_command, check_work,
-                                           complete_scenes, read_state_doc)
+from pipelines.gpu_campaign.stages import (CAMPAIGN, STATE_FILE, STAGES, Campaign, SkipStage, StageFailed,
+                                           check_command, check_work, check_work_owner, complete_scenes, new_state,
+                                           read_state_doc)
 #: The files a campaign writes in its output folder, besides the weights (weights*.pt).
 OUT_FILES = ("summary.json", "logs.txt", "report.md")
 
@@ -202,7 +203,7 @@ def summary_of(c: Campaign, state: dict[str, StageRecord], started: str, finishe
                "drjit": versions.get("drjit"), "mitsuba": versions.get("mitsuba"),
                "drjit_cuda": install.get("drjit_cuda"), "drjit_llvm": install.get("drjit_llvm")}
     counts = {s: sum(1 for r in stages if r["status"] == s) for s in STATUSES}
-    return {"schema": SCHEMA_VERSION, "campaign": "spikesim gpu-campaign", "mode": c.p.name, "part": c.o.part,
+    return {"schema": SCHEMA_VERSION, "campaign": CAMPAIGN, "mode": c.p.name, "part": c.o.part,
             "selected": list(c.o.selected), "seed": c.o.seed, "started": started, "finished": finished,
             "seconds": round(c.elapsed(), 3), "deadline_s": c.o.deadline_s, "machine": machine,
             "code": dict(_code_identity()), "counts": counts, "stages": stages, "files": []}
@@ -222,9 +223,9 @@ def write_outputs(c: Campaign, summary: dict[str, Any]) -> dict[str, Any]:
     outputs.atomic_write_text(out / "report.md", report_markdown(summary))
     summary["files"] = [file_record(p) for p in sorted(out.iterdir()) if p.is_file() and p.name != "summary.json"]
     outputs.atomic_write_text(out / "summary.json", json.dumps(summary, indent=2, default=str) + "\n")
-    outputs.atomic_write_text(outputs.writable(c.o.work, "state.json"), json.dumps(
-        {"schema": SCHEMA_VERSION, "mode": c.p.name, "seed": c.o.seed, "run_token": c.run_token,
-         "stages": {s["name"]: s for s in summary["stages"] if s["name"] in c.records or s.get("started")}},
+    outputs.atomic_write_text(outputs.writable(c.o.work, STATE_FILE), json.dumps(
+        new_state(c.p.name, c.o.seed, c.run_token,
+                  {s["name"]: s for s in summary["stages"] if s["name"] in c.records or s.get("started")}),
         indent=2, default=str))
     check_out(out)
     return summary
@@ -238,6 +239,11 @@ def run_campaign(options: Options, progress: Callable[[str], None] | None = None
     # before anything is written or removed: no link on the way to what the campaign writes under
     # --work, and no folder, FIFO or device where it keeps a file (state.json, a log)
     check_work(options.work)
+    # nor a --work that holds the user's own state.json or logs, or lies in a dataset (round twelve:
+    # they were replaced and deleted); nor an output folder in a dataset, which every command refuses
+    check_work_owner(options.work)
+    from spikesim.dataset import check_outside_datasets
+    check_outside_datasets(out, flag="-o")
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out}: exists and is not a folder")
     if out.is_dir():
@@ -251,6 +257,10 @@ def run_campaign(options: Options, progress: Callable[[str], None] | None = None
             outputs.remove(out, p.name)
     options.work.mkdir(parents=True, exist_ok=True)
     c = Campaign(options)
+    if not (options.work / STATE_FILE).exists():  # before the first log: a call killed in its first stage
+        # leaves logs a later call can tell are the campaign's (check_work_owner)
+        outputs.atomic_write_text(outputs.writable(options.work, STATE_FILE),
+                                  json.dumps(new_state(options.profile.name, options.seed), indent=2))
     outputs.make_dirs(options.work, "logs")
     state = _load_state(options)
     c.run_token = _load_run_token(options)

@@ -6,7 +6,8 @@ so what is measured is what users run and a stage that hangs is stopped.
 
 Under --work the campaign writes only through `spikesim.outputs` (`check_work` refuses, before
 anything runs, a link on the way to anything it writes there, or a folder or FIFO where it keeps a
-file), and it removes a training run (run/, or table1/'s runs) only when its own record says it
+file; `check_work_owner` a state.json or logs/ that are not the campaign's, and a --work in a
+dataset), and it removes a training run (run/, or table1/'s runs) only when its own record says it
 trained it (`RUN_MARKER`).
 
 It reads the invocation (options.py) and fills the stages' records (records.py); the run
@@ -101,6 +102,71 @@ def check_work(work: Path) -> None:
         elif (what := _not_a(mode)) is not None:
             refuse(shown, f"is {what}, where the campaign keeps a file{' (its records)' if parts == (STATE_FILE,) else ''}"
                           " (remove it, or choose another --work)")
+
+
+#: What a campaign's state.json says it is (and summary.json: runner.summary_of).
+CAMPAIGN = "spikesim gpu-campaign"
+#: The keys of a state.json written before it named the campaign (round twelve).
+_LEGACY_STATE_KEYS = {"schema", "mode", "seed", "run_token", "stages"}
+
+
+def is_campaign_state(doc: Any) -> bool:
+    """Whether `doc` (a state.json's JSON) is a campaign's state as the campaign writes it
+    (`new_state`, runner.write_outputs): an object naming the campaign, with a schema number and
+    its stages; or one written before it named the campaign (exactly its keys)."""
+    if not isinstance(doc, dict) or isinstance(doc.get("schema"), bool) or not isinstance(doc.get("schema"), int):
+        return False
+    if doc.get("campaign") == CAMPAIGN:
+        return True
+    return {"schema", "mode", "seed", "stages"} <= set(doc) <= _LEGACY_STATE_KEYS
+
+
+def new_state(mode: str, seed: Any, run_token: str | None = None, stages: dict | None = None) -> dict[str, Any]:
+    """The JSON a campaign keeps in --work/state.json."""
+    doc: dict[str, Any] = {"schema": SCHEMA_VERSION, "campaign": CAMPAIGN, "mode": mode, "seed": seed}
+    if run_token is not None:
+        doc["run_token"] = run_token
+    doc["stages"] = stages if stages is not None else {}
+    return doc
+
+
+def check_work_owner(work: Path) -> None:
+    """Refuse, before anything is written, a --work that is not the campaign's to write: one at or
+    inside a dataset (verify would then report the campaign's state.json and logs/ as extra
+    files), a state.json that is not a campaign's state (the user's own file would be replaced),
+    and in logs/ anything but the campaign's own logs, or those without a campaign's state.json
+    beside them (the campaign truncates, replaces and deletes them). An empty or new folder, or one
+    an earlier campaign filled, is accepted. A ValueError names what is there."""
+    from spikesim.dataset import check_outside_datasets
+
+    check_outside_datasets(work, flag="--work")
+    state = work / STATE_FILE
+    ours = False
+    if state.is_file() and not state.is_symlink():
+        try:
+            doc = read_state_doc(work)
+        except ValueError as exc:
+            raise ValueError(f"--work {work}: {state} is not a campaign's state ({str(exc).splitlines()[0][:160]}): "
+                             "the campaign would replace it; move it, or choose another --work") from None
+        if not is_campaign_state(doc):
+            raise ValueError(f"--work {work}: {state} is not a campaign's state (no \"schema\" and \"campaign\": "
+                             f"\"{CAMPAIGN}\"): the campaign would replace it; move it, or choose another --work")
+        ours = True
+    logs = work / "logs"
+    if logs.is_dir() and not logs.is_symlink():
+        names = {p[1] for p in _work_files() if p[0] == "logs"}
+        held = sorted(p.name for p in logs.iterdir())
+        # the campaign's own logs, and the temporary file of one a killed call left (outputs.new_temp_beside)
+        temp = re.compile(r"\.(.+)\.[0-9a-f]{8}\.part")
+        others = [n for n in held if (n not in names and not ((m := temp.fullmatch(n)) and m.group(1) in names))
+                  or (logs / n).is_symlink() or not (logs / n).is_file()]
+        if others or (held and not ours):
+            shown = others or held
+            why = ("files the campaign does not write" if others else
+                   f"files, and no campaign's {STATE_FILE} says it wrote them")
+            raise ValueError(f"--work {work}: {logs} holds {why} ({', '.join(shown[:5])}"
+                             f"{', ...' if len(shown) > 5 else ''}): the campaign would replace or delete its logs "
+                             "there; move them, or choose an empty --work (or one an earlier campaign filled)")
 
 
 def read_state_doc(work: Path) -> dict[str, Any] | None:
@@ -199,7 +265,8 @@ class Campaign:
         except ValueError:
             doc = {}
         if doc.get("schema") != SCHEMA_VERSION or not isinstance(doc.get("stages"), dict):
-            doc = {"schema": SCHEMA_VERSION, "mode": self.p.name, "seed": self.o.seed, "stages": {}}
+            doc = new_state(self.p.name, self.o.seed)
+        doc["campaign"] = CAMPAIGN
         doc["run_token"] = self.run_token
         outputs.atomic_write_text(self.work_path(STATE_FILE), json.dumps(doc, indent=2, default=str))
 
@@ -998,4 +1065,5 @@ STAGES: dict[str, Callable[[Campaign], dict[str, Any]]] = {
 
 __all__ = ["Campaign", "CommandResult", "StageFailed", "SkipStage", "STAGES", "CARRIED", "ROOT", "install_wheels",
            "probe_environment", "check_command", "complete_scenes", "check_work", "read_state_doc", "WORK_FOLDERS",
+           "check_work_owner", "is_campaign_state", "new_state", "CAMPAIGN",
            "STATE_FILE", "RUN_MARKER", "table1_costs", "TABLE1_SAMPLES_PER_EPOCH"]

@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Iterator
 
 from spikesim.dataset import LOCK_FILE, inside_root
-from spikesim.outputs import in_place_fd
+from spikesim.outputs import in_place_fd, naming
 
 
 class OutputLockedError(OSError):
@@ -32,6 +32,28 @@ def _holder(fd: int) -> str:
     return text.splitlines()[0] if text else "a process that has not recorded its pid yet"
 
 
+#: The words before the command's own name in a recorded command line (`spikesim generate ...`,
+#: `python -m pipelines.cli sweep ...`).
+_LAUNCHERS = {"spikesim", "-m", "pipelines.cli", "spikesim.cli"}
+
+
+def _holder_kind(holder: str, what: str) -> str:
+    """What the holder is, from the command it recorded ("pid N: sweep ..." -> "sweep run"), so a
+    `tradeoff` blocked by a sweep names the sweep (it said "another tradeoff run ... (pid N: sweep)",
+    round twelve); `what` (the blocked command's own kind) when the record does not tell."""
+    _, sep, command = holder.partition(": ")
+    if not holder.startswith("pid ") or not sep:
+        return "run" if what.endswith(" run") else what
+    for word in command.split():
+        name = os.path.basename(word)
+        if name in _LAUNCHERS or name.startswith("python"):
+            continue
+        if name.replace("-", "").replace("_", "").isalnum() and not name.startswith("-"):
+            return f"{name} run"
+        break
+    return what
+
+
 @contextmanager
 def output_lock(root: str | Path, command: str, what: str = "generate run") -> Iterator[Path]:
     """Hold the output root's lock for the duration of the block, or raise `OutputLockedError`
@@ -40,8 +62,13 @@ def output_lock(root: str | Path, command: str, what: str = "generate run") -> I
     path = inside_root(root, LOCK_FILE, follow=False)
     fd = _lock(root, path, what)
     try:
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, f"pid {os.getpid()}: {' '.join(command.split())}\n".encode(), 0)
+        try:
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, f"pid {os.getpid()}: {' '.join(command.split())}\n".encode(), 0)
+        except OSError as exc:  # a full disk said "[Errno 28] No space left on device", naming no file, and
+            # left the empty lock file, so the output folder made for the run stayed behind (round twelve)
+            path.unlink(missing_ok=True)  # removed while held, as at the end of a run
+            raise naming(exc, path) from exc
         try:
             yield path
         finally:
@@ -64,7 +91,7 @@ def _lock(root: Path, path: Path, what: str = "generate run") -> int:
         except BlockingIOError:
             holder = _holder(fd)
             os.close(fd)
-            raise OutputLockedError(f"{root}: another {what} is writing here ({holder}); "
+            raise OutputLockedError(f"{root}: another {_holder_kind(holder, what)} is writing here ({holder}); "
                                     "wait for it to finish or stop it") from None
         try:
             same = os.stat(path, follow_symlinks=False).st_ino == os.fstat(fd).st_ino
