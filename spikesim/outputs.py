@@ -385,19 +385,32 @@ RESULTS_LOCK = ".spikesim-results.lock"
 RESULTS_OWN_FILES = (RESULTS_RECORD, RESULTS_LOCK)
 
 
+#: Bytes a results record may hold: far above what a folder of results needs (about 180 bytes an
+#: entry: 1 MiB held only about 5,800 long names, round thirteen), still bounded against a link to
+#: a device.
+RESULTS_RECORD_LIMIT = 64 * 2**20
+
+
 def _results_record(out: Path) -> dict[str, Any]:
     """The folder's results record, read as every small file is (a FIFO there hung the command, a
-    link to /dev/zero grew without bound: round nine); an unreadable one lists nothing."""
+    link to /dev/zero grew without bound: round nine). One that cannot be read is refused, naming
+    it: read as empty, the next result rewrote it with one entry, so every earlier result was
+    refused on its rerun, and a user's file of that name was replaced (round thirteen)."""
     from .config_io import read_json_object
     path = Path(out) / RESULTS_RECORD
     if not path.exists() and not path.is_symlink():
         return {}
     try:
-        doc = read_json_object(path, "results record", finite=False)
-    except (OSError, ValueError):
-        return {}
-    files = doc.get("files") if isinstance(doc, dict) else None
-    return files if isinstance(files, dict) else {}
+        doc = read_json_object(path, "results record", finite=False, limit=RESULTS_RECORD_LIMIT)
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"{path}: cannot be read as spikesim's record of the results in {out} "
+                         f"({' '.join(str(exc).split())[:200]}); move it away (the results it listed are then "
+                         "treated as yours and kept), or choose another output folder") from None
+    files = doc.get("files")
+    if not isinstance(files, dict):
+        raise ValueError(f"{path}: is not spikesim's record of the results in {out} (no \"files\" object); move "
+                         "it away, or choose another output folder")
+    return files
 
 
 def _write_record(out: Path, files: dict[str, Any]) -> None:
@@ -405,12 +418,26 @@ def _write_record(out: Path, files: dict[str, Any]) -> None:
     atomic_write_json(writable(out, RESULTS_RECORD), {"files": files}, indent=1)
 
 
+#: The record locks this process holds, by (folder, thread): a results_writing block holds its
+#: folder's lock for the whole block, and the per-file updates inside it take it again.
+_HELD_RECORD_LOCKS: dict[tuple[str, int], int] = {}
+
+
 @contextlib.contextmanager
 def _record_lock(out: Path) -> Iterator[None]:
     """Hold the folder's record lock (RESULTS_LOCK, an exclusive flock, waiting for another command
-    that holds it) for one read-modify-write of the record. The lock file is never opened through a
-    link or a second name (in_place_fd) and must be a regular file; it is removed while held, and a
-    command that locked it just as it was removed locks the new one (as generation.lock does)."""
+    that holds it) for one read-modify-write of the record, or for a whole results_writing block;
+    reentrant in one thread. The lock file is never opened through a link or a second name
+    (in_place_fd) and must be a regular file; it is removed while held, and a command that locked
+    it just as it was removed locks the new one (as generation.lock does)."""
+    key = (os.path.realpath(out), threading.get_ident())
+    if _HELD_RECORD_LOCKS.get(key):
+        _HELD_RECORD_LOCKS[key] += 1
+        try:
+            yield
+        finally:
+            _HELD_RECORD_LOCKS[key] -= 1
+        return
     path = writable(out, RESULTS_LOCK)
     while True:
         fd = in_place_fd(path, os.O_RDWR | os.O_CREAT | getattr(os, "O_NONBLOCK", 0))
@@ -431,9 +458,11 @@ def _record_lock(out: Path) -> Iterator[None]:
         if same:
             break
         os.close(fd)  # its holder removed it as we locked it: lock the file there now
+    _HELD_RECORD_LOCKS[key] = 1
     try:
         yield
     finally:
+        _HELD_RECORD_LOCKS.pop(key, None)
         with contextlib.suppress(OSError):
             path.unlink()  # removed while held: a command waiting on it locks a new one
         os.close(fd)  # closing the descriptor releases the flock
@@ -615,20 +644,33 @@ def results_writing(out: str | Path, names: Sequence[str], command: str, flag: s
       results its record lists, which the rerun replaces as its own (round twelve: every rerun was
       refused), and concurrent commands never lose each other's entries.
 
+    The whole block holds the folder's record lock, so a second command writing results there
+    waits for the first to finish: two `evaluate -o X` at once left one run's metrics.csv beside the
+    other's metrics.md (round thirteen). SIGTERM inside it stops the command as Ctrl-C does
+    (`sigterm_raises`), so no temporary file or lock is left behind (round thirteen).
+
     Yields the names that an earlier run wrote (check_results_owned's answer)."""
+    from .generation.run import sigterm_raises  # the toolkit's one SIGTERM rule (no import cycle at load)
+
     out = Path(out)
-    ours = check_results_owned(out, names, command, flag)
-    if set(recorded_results(out, command)) & {*names, *stale}:  # (a read-only folder of none: no lock to make)
-        with _record_lock(out):
-            ours = check_results_owned(out, names, command, flag)
-            files = _results_record(out)
-            if _drop_own(out, files, [*names, *stale], command):
-                _write_record(out, files)
-    block = _ResultsWriting(out, names, command, flag)
-    with _WRITING_GUARD:
-        _WRITING.append(block)
-    try:
-        yield ours
-    finally:
+    ours = check_results_owned(out, names, command, flag)  # a user's file: refused before the lock
+    with contextlib.ExitStack() as held:
+        held.enter_context(sigterm_raises())
+        try:
+            held.enter_context(_record_lock(out))
+        except FileExistsError:
+            raise  # a folder, link or FIFO at the lock's name: refused, named
+        except OSError:
+            pass  # a folder no file can be made in: the first result's write fails, naming that result
+        ours = check_results_owned(out, names, command, flag)
+        files = _results_record(out)
+        if _drop_own(out, files, [*names, *stale], command):
+            _write_record(out, files)
+        block = _ResultsWriting(out, names, command, flag)
         with _WRITING_GUARD:
-            _WRITING.remove(block)
+            _WRITING.append(block)
+        try:
+            yield ours
+        finally:
+            with _WRITING_GUARD:
+                _WRITING.remove(block)

@@ -211,6 +211,9 @@ class BatchSimulator:
         """Yield the packed spikes chunk by chunk as frames are consumed: objects with
         `.to_numpy()` (uint8 (S, n, bytes)) and, on Dr.Jit backends, `.to_torch()` (the words on
         the device, through DLPack). See `Simulator.stream` for the keyframe rules."""
+        if np.ndim(frames) == 0 and not hasattr(frames, "__iter__"):  # run(0.3): "'float' object is not iterable"
+            raise TypeError(f"frames must be an (N, H, W) array or an iterable of (H, W) frames of luminance y, "
+                            f"got {type(frames).__name__} {frames!r:.40}")
         k = int(keyframe_every)
         if isinstance(keyframe_every, bool) or k != keyframe_every or k < 1:
             raise ValueError(f"keyframe_every must be a positive integer, got {keyframe_every!r}")

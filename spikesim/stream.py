@@ -39,6 +39,11 @@ class SpikeStream:
     width: int
 
     def __post_init__(self) -> None:
+        for name in ("height", "width"):  # height -1 or 2.5 was taken (round thirteen)
+            v = getattr(self, name)
+            if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) or v < 1:
+                raise ValueError(f"SpikeStream {name} must be a positive integer, got {v!r}")
+            setattr(self, name, int(v))
         self.packed = np.asarray(self.packed)
         if self.packed.dtype != np.uint8 or self.packed.ndim != 2:
             raise ValueError(f"packed must be uint8 (N, bytes), got {self.packed.dtype} {self.packed.shape}")
@@ -68,6 +73,12 @@ class SpikeStream:
         """Spikes per pixel over [start, stop), int64 (H, W), without unpacking it all at once."""
         _check_chunk(chunk, "SpikeStream.counts")
         stop = self.num_steps if stop is None else stop
+        for name, v in (("start", start), ("stop", stop)):  # a reversed or outside range counted nothing, silently
+            if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)):
+                raise ValueError(f"SpikeStream.counts: {name} must be an integer, got {v!r}")
+        if not 0 <= start <= stop <= self.num_steps:
+            raise ValueError(f"SpikeStream.counts: steps [{start}, {stop}) are not within the stream's "
+                             f"[0, {self.num_steps}) in order")
         total = np.zeros(self.height * self.width, dtype=np.int64)
         for a in range(start, stop, chunk):
             bits = np.unpackbits(self.packed[a:min(stop, a + chunk)], axis=1, bitorder="little",
@@ -126,6 +137,8 @@ def _check_stream_arg(stream: Any, who: str) -> None:
 
 def pack_frames(frames: np.ndarray) -> np.ndarray:
     n = frames.shape[0]
+    if n == 0:  # no frames: reshape(0, -1) raised NumPy's error instead of the writers' own (round thirteen)
+        return np.zeros((0, frame_bytes(*frames.shape[1:3])), np.uint8)
     flat = np.ascontiguousarray(frames.reshape(n, -1)).astype(bool, copy=False)
     return np.packbits(flat, axis=1, bitorder="little")
 
