@@ -211,7 +211,9 @@ class BatchSimulator:
         """Yield the packed spikes chunk by chunk as frames are consumed: objects with
         `.to_numpy()` (uint8 (S, n, bytes)) and, on Dr.Jit backends, `.to_torch()` (the words on
         the device, through DLPack). See `Simulator.stream` for the keyframe rules."""
-        if np.ndim(frames) == 0 and not hasattr(frames, "__iter__"):  # run(0.3): "'float' object is not iterable"
+        # run(0.3): "'float' object is not iterable" (np.ndim of a list would convert it whole)
+        if isinstance(frames, (int, float, complex, np.generic)) or (isinstance(frames, np.ndarray)
+                                                                     and frames.ndim == 0):
             raise TypeError(f"frames must be an (N, H, W) array or an iterable of (H, W) frames of luminance y, "
                             f"got {type(frames).__name__} {frames!r:.40}")
         k = int(keyframe_every)
