@@ -17,7 +17,7 @@ from spikesim.dataset import check_scene_name
 from spikesim.generation.plan import CONTENTS, DARKENINGS, LOG_DARKENING_MIN
 from spikesim.generation import (PRESETS, bundled_scene, generate, percent, plan_llr, plan_rllr, plan_user,
                                  saturation_summary)
-from spikesim.generation.run import Terminated
+from spikesim.signals import Terminated
 from spikesim.generation.settings import ResolvedSettings, resolve_settings
 from spikesim.quality import QUALITIES
 

@@ -146,7 +146,7 @@ def reconstruct_file(path: Path, out: Path, method_spec: str = "tfp", height: in
     source = StepWindows(lambda a, b: reader.read(a, b).unpack(), start, window, n)
     from spikesim.generation.lock import output_lock
     # one run per folder: two runs into one -o left one run's frames under the other's reconstruct.json
-    from spikesim.generation.run import sigterm_raises
+    from spikesim.signals import sigterm_raises
     # SIGTERM as Ctrl-C: the stage folder and the lock are removed (it left both, round nine)
     from spikesim.dataset import check_outside_datasets
     check_outside_datasets(out, [], "--out")  # frames written into a dataset, which verify reported (round eleven)

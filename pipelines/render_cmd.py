@@ -126,7 +126,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     from spikesim.generation.lock import output_lock
-    from spikesim.generation.run import sigterm_raises
+    from spikesim.signals import sigterm_raises
     # the folder is this run's until it ends: two renders into one -o left one's frames unlisted
     # beside the other's record, and every later render there was refused (round six). SIGTERM
     # stops it as Ctrl-C does, so its stage and lock are removed (round ten: both were left).

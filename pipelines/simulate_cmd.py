@@ -307,7 +307,7 @@ def simulated_stream(path: Path) -> bool:
 
 
 def run(args: argparse.Namespace) -> int:
-    from spikesim.generation.run import sigterm_raises
+    from spikesim.signals import sigterm_raises
     # SIGTERM stops the run as Ctrl-C does, so the partial stream (.NAME.XXXX.part) is removed and it says
     # "interrupted" (round eleven: SIGTERM left the hidden .part behind)
     with sigterm_raises():

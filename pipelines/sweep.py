@@ -322,7 +322,7 @@ def run_sweep(scenes: Sequence[str] = ("ball", "car", "cook", "fan", "rotate"), 
         check_outside_datasets(out)  # tables written into a dataset (round eleven)
     ours: list[str] = []
     with contextlib.ExitStack() as held:
-        from spikesim.generation.run import sigterm_raises
+        from spikesim.signals import sigterm_raises
         # SIGTERM as Ctrl-C: it left the scene's textures in a temporary folder and the lock in -o (round eleven)
         held.enter_context(sigterm_raises())
         if out is not None:  # the folder is this run's until it ends: two sweeps wrote a mix of each other's tables

@@ -39,6 +39,8 @@ import threading
 from pathlib import Path
 from typing import Any, BinaryIO, Callable, Iterator, Sequence
 
+from .signals import sigterm_raises  # the toolkit's one SIGTERM rule
+
 LINK_REFUSED = ("is a symlink; files are not written or deleted through links (remove the link, or choose "
                 "another output folder)")
 
@@ -650,7 +652,6 @@ def results_writing(out: str | Path, names: Sequence[str], command: str, flag: s
     (`sigterm_raises`), so no temporary file or lock is left behind (round thirteen).
 
     Yields the names that an earlier run wrote (check_results_owned's answer)."""
-    from .generation.run import sigterm_raises  # the toolkit's one SIGTERM rule (no import cycle at load)
 
     out = Path(out)
     ours = check_results_owned(out, names, command, flag)  # a user's file: refused before the lock

@@ -103,7 +103,7 @@ def test_a_sigterm_wrapped_by_a_library_is_still_a_termination():
     import os
     import signal
 
-    from spikesim.generation.run import Terminated, sigterm_raises
+    from spikesim.signals import Terminated, sigterm_raises
 
     def library_call():  # what Dr.Jit's frozen functions do with an exception raised inside them
         try:

@@ -80,7 +80,7 @@ def test_a_record_that_cannot_be_read_is_refused_and_left_as_it_was(tmp_path, te
 
 
 def test_sigterm_while_writing_results_leaves_no_temporary_file_or_lock(tmp_path):
-    from spikesim.generation.run import Terminated
+    from spikesim.signals import Terminated
 
     def write(tmp: Path) -> None:
         tmp.write_text("half")

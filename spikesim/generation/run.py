@@ -15,13 +15,10 @@ import json
 import logging
 import os
 import shlex
-import signal
 import sys
-import threading
 import time
-from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Callable, Iterator, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -34,6 +31,7 @@ from spikesim.generation.inputs import changes, job_inputs, legacy_changes
 from spikesim.generation.lock import output_lock
 from spikesim.generation.pace import Pace
 from spikesim.generation.plan import SceneJob, power_label
+from spikesim.signals import Terminated, sigterm_raises  # noqa: F401 (Terminated: re-exported for callers)
 
 log = logging.getLogger("spikesim.generate")
 
@@ -242,40 +240,6 @@ def _copy_hint(root: Path, name: str) -> str:
     except (OSError, ValueError, AttributeError):
         return ""
     return f" (its {META} names {recorded}: a copy?)" if isinstance(recorded, str) and recorded != name else ""
-
-
-class Terminated(KeyboardInterrupt):
-    """The run was asked to stop by SIGTERM. A KeyboardInterrupt, like Ctrl-C, so that the same
-    clean-up runs (work folders removed, workers stopped) and no `except Exception` swallows it."""
-
-
-@contextmanager
-def sigterm_raises() -> Iterator[None]:
-    """Turn SIGTERM into `Terminated` in this (main) thread while the block runs; by default it
-    would end the process at once, leaving the scenes in progress as `.work` debris and saying
-    nothing. A second SIGTERM during the clean-up is ignored (SIGKILL still ends it)."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-
-    stopped: list[str] = []
-
-    def handler(signum: int, frame: Any) -> None:
-        signal.signal(signal.SIGTERM, signal.SIG_IGN)
-        stopped.append(f"terminated ({signal.Signals(signum).name})")
-        raise Terminated(stopped[-1])
-
-    previous = signal.signal(signal.SIGTERM, handler)
-    try:
-        yield
-    except Terminated:
-        raise
-    except BaseException as exc:
-        if stopped:  # raised inside a library call, the signal's exception comes back wrapped (Dr.Jit's frozen
-            raise Terminated(stopped[-1]) from exc  # functions re-raise it as a RuntimeError): still a SIGTERM
-        raise
-    finally:
-        signal.signal(signal.SIGTERM, previous)
 
 
 def _make_root(root: Path) -> list[Path]:

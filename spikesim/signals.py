@@ -1,0 +1,49 @@
+"""The toolkit's one rule for SIGTERM: a long command asked to stop by SIGTERM (a scheduler's time
+limit, `kill`) stops as Ctrl-C does, so the same clean-up runs.
+
+It lives at the bottom of the package, below the dataset writers and the generation pipeline, so
+that every layer that writes output (`spikesim.outputs`, the generators, the pipelines) can use it
+without reaching upstream.
+"""
+from __future__ import annotations
+
+import signal
+import threading
+from contextlib import contextmanager
+from typing import Any, Iterator
+
+__all__ = ["Terminated", "sigterm_raises"]
+
+
+class Terminated(KeyboardInterrupt):
+    """The run was asked to stop by SIGTERM. A KeyboardInterrupt, like Ctrl-C, so that the same
+    clean-up runs (work folders removed, workers stopped) and no `except Exception` swallows it."""
+
+
+@contextmanager
+def sigterm_raises() -> Iterator[None]:
+    """Turn SIGTERM into `Terminated` in this (main) thread while the block runs; by default it
+    would end the process at once, leaving the scenes in progress as `.work` debris and saying
+    nothing. A second SIGTERM during the clean-up is ignored (SIGKILL still ends it)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    stopped: list[str] = []
+
+    def handler(signum: int, frame: Any) -> None:
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        stopped.append(f"terminated ({signal.Signals(signum).name})")
+        raise Terminated(stopped[-1])
+
+    previous = signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    except Terminated:
+        raise
+    except BaseException as exc:
+        if stopped:  # raised inside a library call, the signal's exception comes back wrapped (Dr.Jit's frozen
+            raise Terminated(stopped[-1]) from exc  # functions re-raise it as a RuntimeError): still a SIGTERM
+        raise
+    finally:
+        signal.signal(signal.SIGTERM, previous)
