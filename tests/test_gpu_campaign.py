@@ -43,7 +43,7 @@ def _campaign(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
 @pytest.fixture(scope="module")
 def dry_runs(tmp_path_factory):
     """The dry run as a lent GPU runs it: two calls sharing a work folder, part 1 then part 2
-    (about 30 s in all on the 2-core VM; part 2 without table1, see RUN). Returns {part: (output
+    (about 100 s in all on the 2-core VM; part 2 without table1, see RUN). Returns {part: (output
     folder, summary)} and the work folder."""
     if not HAS_LLVM:
         pytest.skip("the dry run renders and simulates with Dr.Jit's LLVM backend")
@@ -330,11 +330,13 @@ def test_a_stage_is_skipped_with_its_reason_when_time_left_is_below_its_least(tm
     assert by["table1"]["time_box_s"] >= call["table1"]
 
 
+@pytest.mark.slow
 @needs_llvm
 def test_the_one_call_dry_run_runs_every_stage_in_order_of_value(tmp_path):
-    """What a lent GPU now runs, rehearsed: the default part in one call (about 30-45 s here; table1,
-    which comes last, aside: see RUN). With the dry run's time to spare, gpu_tests and evaluate run
-    too, after the weights."""
+    """What a lent GPU now runs, rehearsed: the default part in one call (about 100 s on the 2-core
+    VM; table1, which comes last, aside: see RUN). With the dry run's time to spare, gpu_tests and
+    evaluate run too, after the weights. Slow: the default suite's `dry_runs` fixture already runs
+    every one of these stages, in the two calls a lent GPU used before."""
     out = tmp_path / "out"
     selected = [s for s in PARTS["one"] if s in RUN]
     proc = _campaign("--dry-run", "-o", str(out), "--work", str(tmp_path / "work"), "--json", "--quiet",
