@@ -235,6 +235,8 @@ def _run_parallel(fn: Any, tasks: Sequence[Any], jobs: int, on_done: Any) -> lis
     import concurrent.futures
     import multiprocessing
     from concurrent.futures.process import BrokenProcessPool
+
+    from spikesim.signals import stop_pool_workers
     results = []
     with concurrent.futures.ProcessPoolExecutor(min(jobs, len(tasks)),
                                                 mp_context=multiprocessing.get_context("spawn")) as pool:
@@ -243,6 +245,9 @@ def _run_parallel(fn: Any, tasks: Sequence[Any], jobs: int, on_done: Any) -> lis
             for fut in concurrent.futures.as_completed(futures):
                 results.append(fut.result())
                 on_done(results[-1])
+        except KeyboardInterrupt:  # Ctrl-C or SIGTERM: stop the workers rather than wait for their runs (each
+            stop_pool_workers(pool)  # finishes its step and writes last.pt, so a rerun goes on: round fourteen)
+            raise
         except BrokenProcessPool:  # a worker killed from outside: most often the kernel, for memory
             running = [getattr(t, "name", None) or f"{getattr(t, 'label', '?')} seed {getattr(t, 'seed', '?')}"
                        for f, t in futures.items() if not f.done() or f.exception() is not None]

@@ -436,7 +436,10 @@ def _start_or_resume(out: Path, resume: bool, experiment: ExperimentConfig, run:
     for name in RUN_FILES:  # a link where the run writes is refused, naming it, before anything is written
         writable(out, name)
     if resume:
-        return _resume(last_path, dev, experiment.model, experiment.train, run.model, run.opt, run.sched, run.scaler)
+        start = _resume(last_path, dev, experiment.model, experiment.train, run.model, run.opt, run.sched, run.scaler)
+        if dist.is_main:
+            _restore_config_record(out, experiment)
+        return start
     existing = _run_files_present(out)
     if existing and not overwrite:
         raise FileExistsError(f"{out} holds a run ({', '.join(existing)}): pass --resume (resume=True) to continue "
@@ -452,6 +455,22 @@ def _start_or_resume(out: Path, resume: bool, experiment: ExperimentConfig, run:
             remove(out, "tb", events)
         atomic_write_json(writable(out, "config.json"), experiment.to_dict())
     return 0, 0, 0, -math.inf, {}
+
+
+def _restore_config_record(out: Path, experiment: ExperimentConfig) -> None:
+    """On resume, config.json says the config the run goes on with (its last.pt's): one damaged or
+    edited since was kept as it was, so the folder's record and its checkpoints disagreed (round
+    fourteen). Rewritten, with a warning naming it; an equal one is left untouched."""
+    path = out / "config.json"
+    want = json.loads(json.dumps(experiment.to_dict()))  # as JSON reads it back (lists, not tuples)
+    try:
+        have = json.loads(path.read_text()) if path.is_file() else None
+    except (OSError, ValueError):
+        have = "unreadable"
+    if have != want:
+        why = "missing" if have is None else "unreadable" if have == "unreadable" else "not the config the run goes on with"
+        print(f"[train] {path}: {why}; rewritten", file=sys.stderr)
+        atomic_write_json(writable(out, "config.json"), want)
 
 
 def data_identity(train_scenes: Sequence[Scene], val_scenes: Sequence[Scene]) -> str:

@@ -8,6 +8,7 @@ import sys
 
 from pipelines.argtypes import CommandParsers
 from spikesim.errors import UnavailableError
+from spikesim.signals import TERMINATED_STATUS, Terminated, sigterm_raises
 
 # (module, what it adds); a module whose optional dependencies are missing is skipped with a note.
 _SUBCOMMANDS = (
@@ -48,7 +49,8 @@ EXIT_STATUSES = """exit status:
   2    bad input or a missing resource (a file, a GPU, memory): one line names the flag or file
   1    an unexpected error, shown with its traceback: a bug, please report it
        (`verify` and `golden` also return 1 when their check finds problems, listed above it)
-  130  interrupted (Ctrl-C)"""
+  130  interrupted (Ctrl-C)
+  143  terminated (SIGTERM): stopped as Ctrl-C stops it"""
 
 
 def installed_version() -> str:
@@ -89,10 +91,16 @@ def main(argv: list[str] | None = None) -> int:
     arguments are returned as their status too, so that callers in-process get a number."""
     argv = list(sys.argv[1:] if argv is None else argv)
     command = next((a for a in argv if not a.startswith("-")), None)
+    name = f"spikesim {command}" if command in _COMMAND_MODULE else "spikesim"
     try:
-        return _run(argv, command)
+        # every command follows the toolkit's SIGTERM rule: stopped as Ctrl-C stops it, so its
+        # clean-up runs (round fourteen: SIGTERM to `compare` left its lock and said nothing)
+        with sigterm_raises():
+            return _run(argv, command)
+    except Terminated as exc:
+        print(f"{name}: {exc}", file=sys.stderr)
+        return TERMINATED_STATUS
     except KeyboardInterrupt:  # also while the command's modules load (torch takes seconds)
-        name = f"spikesim {command}" if command in _COMMAND_MODULE else "spikesim"
         print(f"{name}: interrupted", file=sys.stderr)
         return 130
 

@@ -17,12 +17,9 @@ from spikesim.dataset import check_scene_name
 from spikesim.generation.plan import CONTENTS, DARKENINGS, LOG_DARKENING_MIN
 from spikesim.generation import (PRESETS, bundled_scene, generate, percent, plan_llr, plan_rllr, plan_user,
                                  saturation_summary)
-from spikesim.signals import Terminated
+from spikesim.signals import TERMINATED_STATUS as TERMINATED, Terminated
 from spikesim.generation.settings import ResolvedSettings, resolve_settings
 from spikesim.quality import QUALITIES
-
-TERMINATED = 128 + 15  # the shell's status of a process ended by SIGTERM
-
 
 # ---- command line ---------------------------------------------------------------------------------
 def _llr_scene(text: str) -> str:

@@ -154,6 +154,9 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError("--write needs -o REF.json (the project's own reference is replaced only by naming it)")
     if args.output is not None and not args.write:
         raise ValueError("-o goes with --write")
+    if args.seeds is not None and not (args.write or args.power):  # it was ignored (round fourteen)
+        raise ValueError(f"--seeds {args.seeds} goes with --write (the reference's seeds) or --power (seeds per "
+                         "change); a check measures one seed, --seed")
     if args.write:
         return _write(args)
     return _power(args) if args.power else _check(args)

@@ -31,15 +31,20 @@ import contextlib
 import errno
 import fcntl
 import json
+import logging
 import os
+import re
 import secrets
 import shutil
 import stat
+import sys
 import threading
 from pathlib import Path
 from typing import Any, BinaryIO, Callable, Iterator, Sequence
 
 from .signals import sigterm_raises  # the toolkit's one SIGTERM rule
+
+_log = logging.getLogger(__name__)
 
 LINK_REFUSED = ("is a symlink; files are not written or deleted through links (remove the link, or choose "
                 "another output folder)")
@@ -106,14 +111,19 @@ def writing(path: str | Path, stage: str | Path | None = None) -> Iterator[None]
         raise naming(exc, shown) from exc
 
 
+def _temp_stem(path: Path, suffix: str) -> str:
+    """The part of `path`'s name its temporary file keeps: a legal name of up to 255 bytes must
+    leave room for the dot, the random part and the suffix."""
+    room = 255 - 1 - 9 - len(suffix.encode())
+    return path.name.encode()[:room].decode(errors="ignore")
+
+
 def new_temp_beside(path: str | Path, suffix: str = ".part") -> Path:
     """Create an empty `.<name>.<random><suffix>` beside `path` and return it: created
     exclusively (O_EXCL, no link followed), mode 0666 masked by the user's umask like any file
     the user writes. An OSError names `path`."""
     path = Path(path)
-    # a legal name of up to 255 bytes must leave room for the dot, the random part and the suffix
-    room = 255 - 1 - 9 - len(suffix.encode())
-    stem = path.name.encode()[:room].decode(errors="ignore")
+    stem = _temp_stem(path, suffix)
     while True:
         tmp = path.with_name(f".{stem}.{secrets.token_hex(4)}{suffix}")
         try:
@@ -447,7 +457,12 @@ def _record_lock(out: Path) -> Iterator[None]:
             if not stat.S_ISREG(os.fstat(fd).st_mode):
                 raise FileExistsError(f"{path}: is not a regular file, where spikesim locks the folder's results "
                                       "record; remove it")
-            fcntl.flock(fd, fcntl.LOCK_EX)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:  # say whom it waits for: it hung silently behind a suspended sweep
+                _log.warning("%s: waiting for %s to finish writing its results there", out,  # (round fourteen)
+                             _record_holder(fd))
+                fcntl.flock(fd, fcntl.LOCK_EX)
             try:
                 now = os.stat(path, follow_symlinks=False)
                 mine = os.fstat(fd)
@@ -461,6 +476,9 @@ def _record_lock(out: Path) -> Iterator[None]:
             break
         os.close(fd)  # its holder removed it as we locked it: lock the file there now
     _HELD_RECORD_LOCKS[key] = 1
+    with contextlib.suppress(OSError):  # who holds it, for a command that waits (a full disk: unnamed)
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"pid {os.getpid()}: {_command_line()}\n".encode(), 0)
     try:
         yield
     finally:
@@ -468,6 +486,44 @@ def _record_lock(out: Path) -> Iterator[None]:
         with contextlib.suppress(OSError):
             path.unlink()  # removed while held: a command waiting on it locks a new one
         os.close(fd)  # closing the descriptor releases the flock
+
+
+def _command_line() -> str:
+    """This process's command, shortened, as a lock records its holder."""
+    words = [Path(sys.argv[0]).name, *sys.argv[1:]] if sys.argv and sys.argv[0] else ["python"]
+    text = " ".join(" ".join(words).split())
+    return text if len(text) <= 200 else text[:199] + "…"
+
+
+def _record_holder(fd: int) -> str:
+    """The pid and command the record lock's holder wrote there (it may not have written them yet)."""
+    try:
+        text = os.pread(fd, 400, 0).decode("utf-8", "replace").strip()
+    except OSError:
+        text = ""
+    return text.splitlines()[0] if text else "another command"
+
+
+def _stale_temporaries(out: Path, names: Sequence[str]) -> list[Path]:
+    """The temporary files (`new_temp_beside`'s `.<name>.<8 hex>.part`) of `names` in `out`, and of
+    its results record, that a killed command left: regular files only, no link. Called under the
+    folder's record lock, when no other results block of this folder is writing."""
+    wanted: dict[Path, set[str]] = {}
+    for name in (*names, RESULTS_RECORD):
+        target = out / name
+        wanted.setdefault(target.parent, set()).add(_temp_stem(target, ".part"))
+    pattern = re.compile(r"\.(.+)\.[0-9a-f]{8}\.part")
+    found = []
+    for folder, stems in wanted.items():
+        try:
+            entries = list(os.scandir(folder))
+        except OSError:
+            continue
+        for entry in entries:
+            match = pattern.fullmatch(entry.name)
+            if match and match.group(1) in stems and entry.is_file(follow_symlinks=False):
+                found.append(Path(entry.path))
+    return found
 
 
 def _check_record_path(out: Path, names: Sequence[str], command: str, flag: str) -> None:
@@ -494,7 +550,8 @@ def _is_own(entry: Any, path: Path, command: str) -> bool:
     from .dataset import sha256_file  # imported here: spikesim.dataset imports this module
     if not (isinstance(entry, dict) and entry.get("command") == command):
         return False
-    known = {entry.get("sha256"), entry.get("previous")} - {None}
+    # only strings count: a hash edited into a list or object crashed the set (round fourteen)
+    known = {value for value in (entry.get("sha256"), entry.get("previous")) if isinstance(value, str)}
     try:
         return path.is_file() and not path.is_symlink() and sha256_file(path) in known
     except OSError:
@@ -657,6 +714,10 @@ def results_writing(out: str | Path, names: Sequence[str], command: str, flag: s
     ours = check_results_owned(out, names, command, flag)  # a user's file: refused before the lock
     with contextlib.ExitStack() as held:
         held.enter_context(sigterm_raises())
+        # the folder made first (and removed again if the block fails and leaves it empty): a lock
+        # cannot be taken in a folder that does not exist yet, so two first runs into a new -o
+        # wrote without it and mixed their csv and md (round fourteen)
+        held.enter_context(output_folder(out))
         try:
             held.enter_context(_record_lock(out))
         except FileExistsError:
@@ -664,6 +725,9 @@ def results_writing(out: str | Path, names: Sequence[str], command: str, flag: s
         except OSError:
             pass  # a folder no file can be made in: the first result's write fails, naming that result
         ours = check_results_owned(out, names, command, flag)
+        for temporary in _stale_temporaries(out, [*names, *stale]):  # a killed run's (round fourteen)
+            with contextlib.suppress(OSError, ValueError):
+                remove(out, temporary.relative_to(out))
         files = _results_record(out)
         if _drop_own(out, files, [*names, *stale], command):
             _write_record(out, files)

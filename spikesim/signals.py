@@ -12,7 +12,10 @@ import threading
 from contextlib import contextmanager
 from typing import Any, Iterator
 
-__all__ = ["Terminated", "sigterm_raises"]
+__all__ = ["Terminated", "sigterm_raises", "stop_pool_workers", "TERMINATED_STATUS"]
+
+#: The shell's status of a process ended by SIGTERM (128 + 15), which a command stopped by it returns.
+TERMINATED_STATUS = 128 + 15
 
 
 class Terminated(KeyboardInterrupt):
@@ -47,3 +50,15 @@ def sigterm_raises() -> Iterator[None]:
         raise
     finally:
         signal.signal(signal.SIGTERM, previous)
+
+
+def stop_pool_workers(pool: Any) -> None:
+    """End a ProcessPoolExecutor's worker processes now (SIGTERM), rather than waiting for their
+    jobs, after Ctrl-C or SIGTERM: leaving the pool's `with` block would otherwise wait for every
+    running job (a scene, a training run) to finish. Each worker's own SIGTERM rule applies: a
+    generation worker stops, a training worker finishes its step and writes last.pt."""
+    for process in list((getattr(pool, "_processes", None) or {}).values()):
+        try:
+            process.terminate()
+        except (OSError, ValueError, AttributeError):
+            pass

@@ -244,6 +244,20 @@ def run_campaign(options: Options, progress: Callable[[str], None] | None = None
     check_work_owner(options.work)
     from spikesim.dataset import check_outside_datasets
     check_outside_datasets(out, flag="-o")
+    from spikesim.generation.lock import output_lock
+    # one call per --work at a time: two at once both finished, and one's stage record was lost
+    # (round fourteen); the folder is made for the lock, and removed again if the call fails empty
+    with outputs.output_folder(options.work), output_lock(options.work, _call_line(options), what="gpu-campaign call"):
+        return _run_locked(options, say)
+
+
+def _call_line(options: Options) -> str:
+    """The call as the --work lock records it for a second call's refusal."""
+    return f"gpu-campaign --part {options.part} -o {options.out} --work {options.work}"
+
+
+def _run_locked(options: Options, say: Callable[[str], None]) -> dict[str, Any]:
+    out = options.out
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out}: exists and is not a folder")
     if out.is_dir():

@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Any, Callable, Optional
 from spikesim.generation.job import run_job
 from spikesim.errors import UnavailableError
 from spikesim.progress import progress_bar
+from spikesim.signals import stop_pool_workers
 
 if TYPE_CHECKING:
     from spikesim.generation.plan import SceneJob
@@ -112,7 +113,7 @@ def generate_local(todo: list[SceneJob], root: Path, workers: int, show_progress
             for fut in pending:  # jobs not started yet are not started after a failure
                 fut.cancel()
             if isinstance(exc, KeyboardInterrupt):  # Ctrl-C or SIGTERM: the scenes in progress stop too
-                _stop_workers(pool)
+                stop_pool_workers(pool)
             if isinstance(exc, BrokenProcessPool):  # a worker killed from outside: most often for memory
                 running = [job.name for job in pending.values()][:4]
                 raise MemoryError(f"a worker process was killed while on {', '.join(running) or 'a scene'} (out of "
@@ -122,16 +123,6 @@ def generate_local(todo: list[SceneJob], root: Path, workers: int, show_progress
     overall.close()
     queue.close()
     return results
-
-
-def _stop_workers(pool: ProcessPoolExecutor) -> None:
-    """End the pool's worker processes now (SIGTERM), rather than waiting for their scenes: after
-    an interruption the caller removes what they leave."""
-    for process in list((getattr(pool, "_processes", None) or {}).values()):
-        try:
-            process.terminate()
-        except (OSError, ValueError, AttributeError):
-            pass
 
 
 def _generate_in_process(todo: list[SceneJob], root: Path, show_progress: bool, device: str,
