@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import errno
 import hashlib
 import io
 import json
@@ -462,6 +463,8 @@ def _restore_config_record(out: Path, experiment: ExperimentConfig) -> None:
     edited since was kept as it was, so the folder's record and its checkpoints disagreed (round
     fourteen). Rewritten, with a warning naming it; an equal one is left untouched."""
     path = out / "config.json"
+    if path.is_dir():  # refused before any word of rewriting it (round fifteen)
+        raise IsADirectoryError(errno.EISDIR, "is a directory, expected a file name", str(path))
     want = json.loads(json.dumps(experiment.to_dict()))  # as JSON reads it back (lists, not tuples)
     try:
         have = json.loads(path.read_text()) if path.is_file() else None

@@ -451,8 +451,19 @@ def _record_lock(out: Path) -> Iterator[None]:
             _HELD_RECORD_LOCKS[key] -= 1
         return
     path = writable(out, RESULTS_LOCK)
+    gone = 0
     while True:
-        fd = in_place_fd(path, os.O_RDWR | os.O_CREAT | getattr(os, "O_NONBLOCK", 0))
+        try:
+            fd = in_place_fd(path, os.O_RDWR | os.O_CREAT | getattr(os, "O_NONBLOCK", 0))
+        except FileNotFoundError:
+            # the folder itself went: the writer this one waited for failed and removed the folder it
+            # had made, now empty; make it again and lock there (round fifteen: the waiting writer
+            # went on without the lock). Bounded, should something keep removing it.
+            gone += 1
+            if gone > 20:
+                raise
+            Path(out).mkdir(parents=True, exist_ok=True)
+            continue
         try:
             if not stat.S_ISREG(os.fstat(fd).st_mode):
                 raise FileExistsError(f"{path}: is not a regular file, where spikesim locks the folder's results "
@@ -725,9 +736,13 @@ def results_writing(out: str | Path, names: Sequence[str], command: str, flag: s
         except OSError:
             pass  # a folder no file can be made in: the first result's write fails, naming that result
         ours = check_results_owned(out, names, command, flag)
-        for temporary in _stale_temporaries(out, [*names, *stale]):  # a killed run's (round fourteen)
-            with contextlib.suppress(OSError, ValueError):
-                remove(out, temporary.relative_to(out))
+        # a killed run's temporaries (round fourteen), where a record shows that spikesim wrote results
+        # here: a user's file of that form in a folder spikesim never wrote is kept (round fifteen)
+        if (out / RESULTS_RECORD).is_file():
+            for temporary in _stale_temporaries(out, [*names, *stale]):
+                with contextlib.suppress(OSError, ValueError):
+                    remove(out, temporary.relative_to(out))
+                    _log.info("%s: removed %s, a temporary file an interrupted %s left", out, temporary.name, command)
         files = _results_record(out)
         if _drop_own(out, files, [*names, *stale], command):
             _write_record(out, files)

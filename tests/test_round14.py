@@ -104,6 +104,8 @@ def test_the_holder_records_its_pid_in_the_lock(tmp_path):
 
 
 def test_a_killed_writers_temporaries_are_removed_by_the_next(tmp_path):
+    with results_writing(tmp_path, NAMES, "evaluate"):  # an earlier run: its record says spikesim writes here
+        atomic_write_text(tmp_path / "metrics.md", "earlier\n")
     left = [tmp_path / ".metrics.csv.0123abcd.part", tmp_path / f".{RESULTS_RECORD}.89abcdef.part"]
     kept = [tmp_path / ".notes.txt.0123abcd.part", tmp_path / ".metrics.csv.part", tmp_path / "metrics.csv.0123abcd.part"]
     for p in left + kept:
@@ -205,3 +207,106 @@ def test_verify_reports_a_job_digest_that_is_not_a_string(tmp_path):
     root = tmp_path / "ds"
     _one_scene_dataset(root, {"jobs": {"s_low": 123}})
     assert verify(root) == [f"{MANIFEST}: jobs.s_low: 123, expected the scene's job digest (a string)"]
+
+
+# ---- round fifteen ------------------------------------------------------------------------------
+
+def _fail_after_making(out: str, entered, release) -> None:
+    """A writer that makes the folder, holds the lock, then fails: its folder, now empty, is removed."""
+    try:
+        with results_writing(out, NAMES, "evaluate"):
+            entered.set()
+            release.wait(20)
+            raise RuntimeError("scoring failed")
+    except RuntimeError:
+        pass
+
+
+def test_a_writer_waiting_on_one_that_fails_and_removes_the_folder_still_takes_the_lock(tmp_path, monkeypatch):
+    out = tmp_path / "new"
+    ctx = mp.get_context("fork")
+    entered, release = ctx.Event(), ctx.Event()
+    a = ctx.Process(target=_fail_after_making, args=(str(out), entered, release))
+    a.start()
+    assert entered.wait(20)
+    opened = []
+    real = outputs.in_place_fd
+
+    def watch(path, flags):
+        try:
+            return real(path, flags)
+        except FileNotFoundError:
+            opened.append(path)
+            raise
+
+    monkeypatch.setattr(outputs, "in_place_fd", watch)
+    held = []
+
+    def write() -> None:
+        with results_writing(out, NAMES, "evaluate"):
+            held.append((out / RESULTS_LOCK).is_file())
+            for name in NAMES:
+                atomic_write_text(out / name, "B\n")
+
+    t = threading.Thread(target=write)
+    t.start()
+    time.sleep(1.0)  # B waits on A's lock
+    release.set()
+    a.join(20)
+    t.join(20)
+    assert held == [True]  # B wrote under the lock, in the folder made again
+    assert (out / "metrics.csv").read_text() == (out / "metrics.md").read_text() == "B\n"
+
+
+def test_a_temporary_looking_file_is_kept_where_spikesim_never_wrote_results(tmp_path):
+    user = tmp_path / ".metrics.csv.0123abcd.part"
+    user.write_text("my notes")
+    with results_writing(tmp_path, NAMES, "evaluate"):
+        atomic_write_text(tmp_path / "metrics.csv", "x\n")
+    assert user.read_text() == "my notes"
+
+
+def _make_cache_and_report() -> str:
+    from spikesim.render import mono
+    return str(mono._cache_dir())
+
+
+def test_a_generation_worker_stopped_by_sigterm_removes_its_temporary_folders():
+    import concurrent.futures
+
+    from spikesim.generation.pool import _worker_init
+    from spikesim.signals import stop_pool_workers
+
+    with concurrent.futures.ProcessPoolExecutor(1, mp_context=mp.get_context("spawn"), initializer=_worker_init,
+                                                initargs=(1, None, os.getpid())) as pool:
+        cache = Path(pool.submit(_make_cache_and_report).result(timeout=60))
+        assert cache.is_dir()
+        pool.submit(time.sleep, 60)
+        time.sleep(0.5)
+        stop_pool_workers(pool)
+        for _ in range(100):
+            if not cache.exists():
+                break
+            time.sleep(0.1)
+    assert not cache.exists()
+
+
+def test_resume_refuses_a_config_record_that_is_a_folder_before_saying_anything(tmp_path, capsys):
+    from model.training import _restore_config_record
+
+    (tmp_path / "config.json").mkdir()
+    with pytest.raises(IsADirectoryError, match="config.json"):
+        _restore_config_record(tmp_path, None)
+    assert "rewritten" not in capsys.readouterr().err
+
+
+def test_one_campaign_call_per_output_folder(tmp_path):
+    from pipelines.gpu_campaign import PROFILES, Options, runner
+    from spikesim.generation.lock import OutputLockedError, output_lock
+
+    out = tmp_path / "o"
+    out.mkdir()
+    o = Options(out=out, work=tmp_path / "W2", profile=PROFILES["dry-run"], part="all", stages=("bench_sensor",))
+    with output_lock(out, "gpu-campaign --part all -o o --work W1", what="gpu-campaign call"):
+        with pytest.raises(OutputLockedError, match="pid"):
+            runner.run_campaign(o)

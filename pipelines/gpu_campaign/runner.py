@@ -45,6 +45,7 @@ from pathlib import Path
 from typing import Any, Callable, Sequence
 
 from spikesim import outputs
+from spikesim.dataset import LOCK_FILE
 from pipelines.gpu_campaign.options import DATA_STAGES, ROOT, STAGE_NAMES, Options
 from pipelines.gpu_campaign.outputs import check_out, combined_logs, file_record, report_markdown
 from pipelines.gpu_campaign.records import SCHEMA_VERSION, STATUSES, StageRecord
@@ -221,7 +222,8 @@ def write_outputs(c: Campaign, summary: dict[str, Any]) -> dict[str, Any]:
             sections.append((f"{s['name']} ({s['status']}, {s['seconds']:.1f} s)", path.read_text(errors="replace")))
     outputs.atomic_write_text(out / "logs.txt", combined_logs(sections))
     outputs.atomic_write_text(out / "report.md", report_markdown(summary))
-    summary["files"] = [file_record(p) for p in sorted(out.iterdir()) if p.is_file() and p.name != "summary.json"]
+    summary["files"] = [file_record(p) for p in sorted(out.iterdir())
+                        if p.is_file() and p.name not in ("summary.json", LOCK_FILE)]  # the lock: this call's, removed at its end
     outputs.atomic_write_text(out / "summary.json", json.dumps(summary, indent=2, default=str) + "\n")
     outputs.atomic_write_text(outputs.writable(c.o.work, STATE_FILE), json.dumps(
         new_state(c.p.name, c.o.seed, c.run_token,
@@ -247,7 +249,11 @@ def run_campaign(options: Options, progress: Callable[[str], None] | None = None
     from spikesim.generation.lock import output_lock
     # one call per --work at a time: two at once both finished, and one's stage record was lost
     # (round fourteen); the folder is made for the lock, and removed again if the call fails empty
-    with outputs.output_folder(options.work), output_lock(options.work, _call_line(options), what="gpu-campaign call"):
+    # and one call per -o: two calls with their own --work wrote one -o's summary, report and logs
+    # (round fifteen)
+    call = _call_line(options)
+    with outputs.output_folder(options.work), output_lock(options.work, call, what="gpu-campaign call"), \
+            outputs.output_folder(out), output_lock(out, call, what="gpu-campaign call"):
         return _run_locked(options, say)
 
 
@@ -262,7 +268,7 @@ def _run_locked(options: Options, say: Callable[[str], None]) -> dict[str, Any]:
         raise ValueError(f"--out {out}: exists and is not a folder")
     if out.is_dir():
         ours = earlier_outputs(out)
-        others = sorted(p.name for p in out.iterdir() if p not in ours)
+        others = sorted(p.name for p in out.iterdir() if p not in ours and p.name != LOCK_FILE)  # LOCK_FILE: this call's
         if others:
             raise ValueError(f"--out {out} holds files this campaign did not write ({', '.join(others[:5])}"
                              f"{', ...' if len(others) > 5 else ''}): give an empty folder, or one an earlier "

@@ -6,6 +6,7 @@ lock, and race the next run there.
 """
 from __future__ import annotations
 
+import atexit
 import ctypes
 import logging
 import os
@@ -21,7 +22,7 @@ from typing import TYPE_CHECKING, Any, Callable, Optional
 from spikesim.generation.job import run_job
 from spikesim.errors import UnavailableError
 from spikesim.progress import progress_bar
-from spikesim.signals import stop_pool_workers
+from spikesim.signals import TERMINATED_STATUS, stop_pool_workers
 
 if TYPE_CHECKING:
     from spikesim.generation.plan import SceneJob
@@ -61,8 +62,19 @@ def die_with_parent(parent_pid: int, poll_s: float = PARENT_POLL_S) -> None:
     threading.Thread(target=_watch_parent, args=(parent_pid, poll_s), daemon=True, name="watch-parent").start()
 
 
+def _end_on_sigterm(signum: int, frame: Any) -> None:
+    """A worker stopped by SIGTERM (the parent's Ctrl-C or SIGTERM: stop_pool_workers) runs its exit
+    handlers, which remove its temporary folders, then ends: by default it ended at once and left
+    an empty /tmp/spikesim-mono-* per worker (round fifteen). The parent removes the scene it was on."""
+    run_exit_handlers = getattr(atexit, "_run_exitfuncs", None)
+    if run_exit_handlers is not None:
+        run_exit_handlers()
+    os._exit(TERMINATED_STATUS)
+
+
 def _worker_init(threads: int, progress: Any, parent_pid: int) -> None:
     die_with_parent(parent_pid)
+    signal.signal(signal.SIGTERM, _end_on_sigterm)
     os.environ.setdefault("OMP_NUM_THREADS", str(threads))
     global _progress
     _progress = progress
