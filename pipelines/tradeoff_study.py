@@ -607,9 +607,22 @@ def _gt_name(spp: int) -> str:
     return f"gt_spp={spp}"
 
 
+def scene_identity(scene: str) -> dict[str, str]:
+    """What the scene is made from, by content: its XML, motion and light files and every file the
+    XML references, each by sha256 (as `generate` keys its jobs). In every cache key, so a study of
+    a user's scene edited since its last run measures it again: the key held only the path as typed,
+    and a rerun reported the old scene's figures, rc 0 (round sixteen)."""
+    from spikesim.generation.inputs import identities, scene_file_inputs
+    return identities(scene_file_inputs(scene))
+
+
+def _scene_key(cfg: StudyConfig, scene: str, light: str) -> dict[str, Any]:
+    """The part of every cache key that names the scene and its lighting."""
+    return {**cfg.result_key(), "scene": scene, "scene_inputs": scene_identity(scene), "light": light}
+
+
 def _gt_key(cfg: StudyConfig, scene: str, light: str, spp: int) -> str:
-    return _digest({**cfg.result_key(), "scene": scene, "light": light, "gt_error_spp": spp,
-                    "render_seed": cfg.seed + 1})
+    return _digest({**_scene_key(cfg, scene, light), "gt_error_spp": spp, "render_seed": cfg.seed + 1})
 
 
 def gt_error(gt: np.ndarray, ref_gt: np.ndarray) -> dict[str, float]:
@@ -713,7 +726,7 @@ def run_study(cfg: StudyConfig, out: Path, progress: bool = True) -> list[dict[s
         folder = out / "runs" / f"{scene_label(scene)}_{light}"
         make_dirs(out, "runs", f"{scene_label(scene)}_{light}")  # inside -o, no link on the way
         path = folder / f"{_slug(spec.name)}.json"
-        key = _digest({**cfg.result_key(), "scene": scene, "light": light, **spec.to_dict()})
+        key = _digest({**_scene_key(cfg, scene, light), **spec.to_dict()})
         if _is_cached(path, folder / f"{_slug(spec.name)}.npz", key):
             log.debug("%s %s %s: cached", scene, light, spec.name)
             continue
@@ -756,7 +769,7 @@ def run_study(cfg: StudyConfig, out: Path, progress: bool = True) -> list[dict[s
 
 
 def _mc_key(cfg: StudyConfig, scene: str, light: str) -> str:
-    return _digest({**cfg.result_key(), "scene": scene, "light": light, "mc_probes": MC_PROBES})
+    return _digest({**_scene_key(cfg, scene, light), "mc_probes": MC_PROBES})
 
 
 def collect_rows(cfg: StudyConfig, out: Path, runs: Sequence[RunSpec] | None = None) -> list[dict[str, Any]]:

@@ -216,9 +216,15 @@ def check_output(out: str | Path, split: str) -> dict[str, Any] | None:
 
 
 def _light(scene: SceneRecord) -> dict[str, Any]:
-    """What the scene's meta.json records of its light: illuminance (lux) and power factor."""
+    """What the scene's meta.json records of its light (illuminance in lux, power factor) and of its
+    stream's timing (the camera's readout period, seconds per step)."""
     meta = scene.meta
-    return {k: meta.get(k) for k in ("subject_illuminance_lux", "light_power_factor") if meta.get(k) is not None}
+    found = {k: meta.get(k) for k in ("subject_illuminance_lux", "light_power_factor") if meta.get(k) is not None}
+    # the stream's timing: an export of a 20 kHz camera's dataset did not say so (round sixteen)
+    period = meta.get("camera", {}).get("readout_period_s") if isinstance(meta.get("camera"), dict) else None
+    if isinstance(period, (int, float)) and not isinstance(period, bool) and period > 0:
+        found["readout_period_s"] = float(period)
+    return found
 
 
 def _licences(node: Any) -> list[str]:
@@ -365,12 +371,14 @@ def readme_text(record: dict[str, Any]) -> str:
         rates = sorted({s["rate"] for s in entry["scenes"].values()})
         lines += [f"## {split} ({len(entry['pairs'])} pairs of {entry['steps']} steps, key index {entry['key_index']}; "
                   f"from `{entry['source']}`)", "",
-                  "| scene | pairs | rate | mean y | max y | illuminance (lux) | light power factor | skipped gt steps |",
-                  "|---|---|---|---|---|---|---|---|"]
+                  "| scene | pairs | rate | mean y | max y | illuminance (lux) | light power factor | readout (Hz) | skipped gt steps |",
+                  "|---|---|---|---|---|---|---|---|---|"]
         for name, s in sorted(entry["scenes"].items()):
             lux, power = s.get("subject_illuminance_lux"), s.get("light_power_factor")
+            period = s.get("readout_period_s")
             lines.append(f"| {name} | {s['pairs']} | {s['rate']:g} | {s['mean_y']:.4g} | {s['max_y']:.4g} | "
                          f"{'-' if lux is None else f'{lux:.4g}'} | {'-' if power is None else f'{power:.4g}'} | "
+                         f"{'-' if not period else f'{1 / period:,.0f}'} | "
                          f"{', '.join(map(str, s['skipped_gt_steps'])) or '-'} |")
         lines += ["", ("One rate for every pair: set `rate: " + f"{rates[0]:g}` in the dataset config." if len(rates) == 1
                        else "A rate per scene (so low light is not quantised to a few levels): Spike-Zoo's "

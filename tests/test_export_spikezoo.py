@@ -49,7 +49,8 @@ def texture_data(tmp_path_factory):
         y = _texture(16, 24, 420, mean_y, seed=i)
         spikes = _integrate_and_fire(y, seed=10 + i)
         write_scene(root, name, SpikeStream.from_bool(spikes), {n: y[n] for n in range(20, 420, WINDOW)},
-                    meta={"subject_illuminance_lux": lux})
+                    meta={"subject_illuminance_lux": lux,
+                          **({"camera": {"readout_period_s": 5e-5}} if name == "tex_normal" else {})})
     write_manifest(root, {"kind": "test"})
     return root
 
@@ -171,6 +172,9 @@ def test_a_rate_per_scene_keeps_low_light_off_black(texture_data, capsys, tmp_pa
         assert png.max() >= 250 and len(np.unique(png)) > 50  # the low-light scene spans the 8 bits too
     readme = (out / "README.md").read_text()
     assert f"| tex_low | 3 | {scenes['tex_low']['rate']:g} |" in readme and "MIT" in readme and "| 10 |" in readme
+    # the stream's timing where the scene records its camera (a 20 kHz one here; round sixteen)
+    assert scenes["tex_normal"]["readout_period_s"] == 5e-5 and "readout_period_s" not in scenes["tex_low"]
+    assert "| 20,000 |" in readme and "readout (Hz)" in readme
 
 
 # ---- an independent reader ---------------------------------------------------------------------

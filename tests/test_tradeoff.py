@@ -297,3 +297,28 @@ def test_the_study_runs_on_a_users_scene_xml(tmp_path, capsys):
     assert all(r.startswith("myscene,low,") for r in rows[1:]) and "**myscene, low light**" in (out / "tradeoff.md").read_text()
     assert main(["tradeoff", "--xml", str(scene / "scene.xml"), "--scenes", "ball", "-o", str(out)]) == 2
     assert "--scenes (bundled scenes) or --xml" in capsys.readouterr().err
+
+
+def test_a_users_scene_edited_since_the_last_run_is_measured_again(tmp_path):
+    """Round sixteen: the cache key held the scene's path only, so a rerun after the scene's lamp
+    was changed reported the old scene's figures, rc 0. Its files' content is now in every key."""
+    import shutil
+
+    from pipelines.cli import main
+    scene = tmp_path / "myscene"
+    shutil.copytree(Path(__file__).resolve().parents[1] / "scenes" / "ball", scene,
+                    ignore=shutil.ignore_patterns("__pycache__"))
+    out = tmp_path / "study"
+    argv = ["tradeoff", "--xml", str(scene / "scene.xml"), "--light", "low", "--height", "25", "--width", "40",
+            "--windows", "1", "--ref-spp", "2", "--gt-spp", "4", "--knobs", "precision", "--repeats", "1",
+            "--quiet", "-o", str(out)]
+    assert main(argv) == 0
+    run = out / "runs" / "myscene_low" / "float32.json"
+    first = json.loads(run.read_text())
+    assert main(argv) == 0
+    assert json.loads(run.read_text()) == first  # unchanged scene: cached, not measured again
+    lights = scene / "lights.json"
+    lights.write_text(lights.read_text() + "\n")  # any change to what the scene is made from
+    assert main(argv) == 0
+    again = json.loads(run.read_text())
+    assert again["key"] != first["key"]  # rewritten under the new key: measured again
