@@ -96,7 +96,7 @@ def test_sigterm_leaves_no_partial_stream(tmp_path):
         if proc.poll() is None:
             proc.kill()
             proc.communicate()
-    assert proc.returncode == 130 and "interrupted" in err, (proc.returncode, err)
+    assert proc.returncode == 143 and "spikesim simulate: terminated (SIGTERM)" in err, (proc.returncode, err)
     assert not list(tmp_path.glob("*.part")) and not list(tmp_path.glob(".*.part")), sorted(os.listdir(tmp_path))
     assert not (tmp_path / "s.dat").exists()
 
