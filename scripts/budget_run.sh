@@ -1,0 +1,58 @@
+#!/usr/bin/env bash
+# The budget run of issue 39 (docs/model.md, "The budget run"): the sixth stage's eight datasets and a
+# network trained from a random draw, data and training within 6 CPU-hours on a 2-core machine.
+#   1. the data: the eight sets, with the commands and seeds the GPU campaign's recipe uses (one list,
+#      pipelines/gpu_campaign/options.py), made here on the CPU;
+#   2. stage A: config lrrep_span from a random draw, lr 1e-3 cosine over 9,000 steps of batch 4 of
+#      32 x 32 (two one-thread processes);
+#   (a stage B, batch 8 of 48 x 48 from stage A, was measured and did not pay: docs/model.md).
+# Usage: bash scripts/budget_run.sh; DATA=DIR and RUNS=DIR choose the folders (data/ and runs/budget/);
+# DRY_RUN=1 prints the commands instead of running them.
+# Interrupt it at any point and run it again: `generate` resumes each dataset, `train --resume`
+# each stage bit for bit, and a finished stage says "nothing to do". It prints the CPU time its
+# commands took (bash's `times`), to compare with the budget.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+PY=.venv/bin/python
+S=.venv/bin/spikesim
+RUN=()
+[ -n "${DRY_RUN:-}" ] && RUN=(echo)
+DATA="${DATA:-data}"
+RUNS="${RUNS:-runs/budget}"
+WORKERS="${WORKERS:-2}"
+export OMP_NUM_THREADS=1
+[ -z "${DRY_RUN:-}" ] && mkdir -p "$DATA" "$RUNS"
+
+# name, role and generate arguments of each set, without the campaign's --workers; the natural sets
+# first, the order of the measured run's --data and --val-data (a sample's order depends on it)
+mapfile -t SETS < <($PY - <<'EOF'
+from pipelines.gpu_campaign.options import PROFILES
+sets = PROFILES["gpu"].recipe_sets
+for name, role, args in sorted(sets, key=lambda s: ("_nat" not in s[0], sets.index(s))):
+    a = list(args)
+    if "--workers" in a:
+        i = a.index("--workers")
+        del a[i:i + 2]
+    print(name, role, " ".join(a))
+EOF
+)
+TRAIN=() VAL=()
+for line in "${SETS[@]}"; do
+  read -r name role args <<< "$line"
+  # shellcheck disable=SC2086  # the arguments are plain words
+  "${RUN[@]}" $S generate rllr $args --workers "$WORKERS" --quiet -o "$DATA/$name"
+  if [ "$role" = train ]; then TRAIN+=("$DATA/$name"); else VAL+=("$DATA/$name"); fi
+  echo "[budget] data: $DATA/$name ($role)"
+done
+
+train_stage() {  # OUT, then the stage's own flags; resumes a stage that has a last.pt
+  local out=$1; shift
+  local how=("$@")
+  if [ -f "$out/last.pt" ]; then how=(--resume); fi
+  "${RUN[@]}" .venv/bin/torchrun --standalone --nproc_per_node 2 "$S" train --config lrrep_span --threads 1 --quiet \
+    --data "${TRAIN[@]}" --val-data "${VAL[@]}" "${how[@]}" -o "$out"
+}
+train_stage "$RUNS/a" --lr 1e-3 --max-steps 9000 --seed 11
+echo "[budget] the network is $RUNS/a/best.pt (score it with --methods budget=$RUNS/a/best.pt)"
+echo "[budget] CPU time of this call's commands (user, system):"
+times | tail -1

@@ -1,0 +1,78 @@
+"""scripts/budget_run.sh (docs/model.md, "The budget run"): its commands, read from a dry run."""
+from __future__ import annotations
+
+import os
+import shlex
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from pipelines.gpu_campaign.options import PROFILES
+
+ROOT = Path(__file__).resolve().parents[1]
+SCRIPT = ROOT / "scripts" / "budget_run.sh"
+
+
+def _dry_run(tmp_path: Path) -> list[list[str]]:
+    env = {**os.environ, "DRY_RUN": "1", "DATA": str(tmp_path / "d"), "RUNS": str(tmp_path / "r")}
+    out = subprocess.run(["bash", str(SCRIPT)], env=env, capture_output=True, text=True, check=True, timeout=120)
+    return [shlex.split(line) for line in out.stdout.splitlines() if not line.startswith("[budget]")
+            and ("generate" in line or "torchrun" in line)]
+
+
+def _values(argv: list[str], flag: str) -> list[str]:
+    i = argv.index(flag) + 1
+    out = []
+    while i < len(argv) and not argv[i].startswith("-"):
+        out.append(argv[i])
+        i += 1
+    return out
+
+
+@pytest.fixture
+def commands(tmp_path):
+    if not (ROOT / ".venv" / "bin" / "python").exists():
+        pytest.skip("the script runs the project's .venv")
+    return _dry_run(tmp_path)
+
+
+def test_the_data_are_the_campaigns_eight_sets_with_their_seeds(commands, tmp_path):
+    generate = [c for c in commands if "generate" in c]
+    made = {c[c.index("-o") + 1]: c[c.index("rllr") + 1:c.index("--workers")] for c in generate}
+    want = {str(tmp_path / "d" / name): [a for a in _without_workers(args)]
+            for name, _, args in PROFILES["gpu"].recipe_sets}
+    assert made == want
+
+
+def _without_workers(args: tuple[str, ...]) -> list[str]:
+    a = list(args)
+    i = a.index("--workers")
+    return a[:i] + a[i + 2:]
+
+
+def test_the_training_is_the_measured_run_from_a_random_draw(commands, tmp_path):
+    (train,) = [c for c in commands if c[0].endswith("torchrun")]
+    d = tmp_path / "d"
+    # the order of the measured run (runs/scratch6h): the natural sets first
+    assert _values(train, "--data") == [str(d / n) for n in (
+        "rllr_nat8tr", "rllr_photo48", "rllr_photo_bright48", "rllr_photo_still48", "rllr_photo_bright_still48",
+        "rllr_photo_vbright_still48")]
+    assert _values(train, "--val-data") == [str(d / "val_nat8"), str(d / "val_photo8")]
+    flags = {f: _values(train, f) for f in ("--config", "--lr", "--max-steps", "--seed", "-o")}
+    assert flags == {"--config": ["lrrep_span"], "--lr": ["1e-3"], "--max-steps": ["9000"], "--seed": ["11"],
+                     "-o": [str(tmp_path / "r" / "a")]}
+    assert "--init" not in train and "--resume" not in train
+    assert _values(train, "--nproc_per_node")[0] == "2" and _values(train, "--threads") == ["1"]
+
+
+def test_a_stage_with_a_checkpoint_is_resumed_with_its_own_plan(tmp_path):
+    if not (ROOT / ".venv" / "bin" / "python").exists():
+        pytest.skip("the script runs the project's .venv")
+    (tmp_path / "r" / "a").mkdir(parents=True)
+    (tmp_path / "r" / "a" / "last.pt").write_bytes(b"")
+    (train,) = [c for c in _dry_run(tmp_path) if c[0].endswith("torchrun")]
+    assert "--resume" in train
+    # the plan (lr, length, seed) comes from last.pt; the data flags must name the same data
+    assert not {"--lr", "--max-steps", "--seed", "--init"} & set(train)
+    assert len(_values(train, "--data")) == 6
