@@ -465,6 +465,9 @@ def _restore_config_record(out: Path, experiment: ExperimentConfig) -> None:
     path = out / "config.json"
     if path.is_dir():  # refused before any word of rewriting it (round fifteen)
         raise IsADirectoryError(errno.EISDIR, "is a directory, expected a file name", str(path))
+    if path.exists() and not path.is_file():  # a FIFO, socket or device was called "missing" and replaced (round seventeen)
+        raise FileExistsError(errno.EEXIST, f"{file_problem(path)}, where a run keeps its config record; remove it",
+                              str(path))
     want = json.loads(json.dumps(experiment.to_dict()))  # as JSON reads it back (lists, not tuples)
     try:
         have = json.loads(path.read_text()) if path.is_file() else None

@@ -178,6 +178,8 @@ IMAGE_MAGIC = {b"\x76\x2f\x31\x01": "an OpenEXR image", b"\x89PNG": "a PNG image
 def refuse_images(path: Path) -> None:
     """A ValueError when `path` is an image or an array rather than a spike stream (a .dat has no
     header: its size alone would be checked, and blamed), suggesting what reads it."""
+    if not path.is_file():  # open_stream reports it, naming the file: a FIFO's open waited forever (round seventeen)
+        return
     try:
         with open(path, "rb") as f:
             head = f.read(6)

@@ -3,6 +3,7 @@ spike stream on disk, with its JSON sidecar, streamed chunk by chunk."""
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import os
 import time
@@ -348,7 +349,7 @@ def _run(args: argparse.Namespace) -> int:
              source.get("scene") or source.get("source"))
     t0 = time.perf_counter()
     try:
-        with outputs.output_file(args.out):  # a failed run leaves no new empty folder
+        with outputs.output_file(args.out), writing_outputs(args):  # a failed run leaves no new empty folder
             if args.twin:
                 from spikesim.simulate import TwinSimulator
                 out, twin_out = TwinSimulator(sim, None).run_to_dat(
@@ -382,6 +383,24 @@ def _run(args: argparse.Namespace) -> int:
           f"mean rate {s['mean_rate_per_step']:.4f} spikes/step ({s['mean_rate_hz']:.0f} Hz), "
           f"dark pixels {s['dark_pixel_fraction']:.1%}")
     return 0
+
+
+@contextlib.contextmanager
+def writing_outputs(args: argparse.Namespace) -> Iterator[None]:
+    """Hold the lock of each stream this run writes (-o, and its twin; spikesim.outputs.output_file_lock)
+    while it writes them, and remove the partial streams and records (`.NAME.XXXXXXXX.part`) that a
+    killed run writing the same file left: a stream of GBs stayed beside -o for good (round seventeen).
+    Under the locks no other simulate writes them, so no temporary found is a live run's."""
+    from spikesim.stream import sidecar_path
+    outs = [Path(args.out)] + ([twin_path(Path(args.out))] if args.twin else [])
+    with contextlib.ExitStack() as held:
+        for out in outs:
+            held.enter_context(outputs.output_file_lock(out))
+        for out in outs:
+            folder = out.parent
+            outputs.remove_temporaries(folder, outputs.stale_temporaries(folder, [out.name, sidecar_path(out).name]),
+                                       "simulate", log.info)
+        yield
 
 
 def check_folder_size(args: argparse.Namespace, cam: SpikeCamera) -> None:

@@ -646,6 +646,20 @@ def _reference_folders(cfg: StudyConfig, out: Path) -> Iterator[tuple[str, str, 
                 yield scene, light, folder, _read_json(folder / "reference.json")
 
 
+def _run_key(scene_key: dict[str, Any], spec: RunSpec) -> str:
+    """The cache key of run `spec` of the scene and light whose `_scene_key` is `scene_key`."""
+    return _digest({**scene_key, **spec.to_dict()})
+
+
+def _check_current(path: Path, row: dict[str, Any], key: str) -> None:
+    """A cached run read for the report must be the one these options and scene files make: a
+    `--report-only` after the scene, the seed or the size changed reported the old study's figures,
+    rc 0, or failed on the old size's streams (round seventeen)."""
+    if row.get("key") != key:
+        raise ValueError(f"{path}: cached for another scene, seed or size (not what these options and the scene's "
+                         "files make now); run the study without --report-only to measure it again")
+
+
 def collect_gt_rows(cfg: StudyConfig, out: Path) -> list[dict[str, Any]]:
     """The ground-truth error axis, per scene and light: the reference's ground truth (gt_spp, error
     0 by definition) and each cached lower-sample one (cfg.gt_error_values()) against it, with
@@ -653,8 +667,10 @@ def collect_gt_rows(cfg: StudyConfig, out: Path) -> list[dict[str, Any]]:
     estimates the reference ground truth's own relative error from it: the two are independent
     Monte Carlo estimates whose variances go as 1/spp, so err_ref = err * sqrt(s / (s + gt_spp))."""
     rows = []
+    reference = plan_runs(cfg)[0]
     for scene, light, folder, ref in _reference_folders(cfg, out):
         ref_gt = _load_npz(folder / "reference.npz", "gt")["gt"]
+        _check_current(folder / "reference.json", ref, _run_key(_scene_key(cfg, scene, light), reference))
         ref_frame_s = float(ref.get("gt_render_s", math.nan)) / cfg.windows  # NaN: measured before it was kept
         timed = ref_frame_s * cfg.windows >= MIN_TIMED_S
         block = [{"scene": scene_label(scene), "light": light, "run": f"gt spp={cfg.gt_spp}", "knob": "gt",
@@ -726,7 +742,7 @@ def run_study(cfg: StudyConfig, out: Path, progress: bool = True) -> list[dict[s
         folder = out / "runs" / f"{scene_label(scene)}_{light}"
         make_dirs(out, "runs", f"{scene_label(scene)}_{light}")  # inside -o, no link on the way
         path = folder / f"{_slug(spec.name)}.json"
-        key = _digest({**_scene_key(cfg, scene, light), **spec.to_dict()})
+        key = _run_key(_scene_key(cfg, scene, light), spec)
         if _is_cached(path, folder / f"{_slug(spec.name)}.npz", key):
             log.debug("%s %s %s: cached", scene, light, spec.name)
             continue
@@ -778,6 +794,8 @@ def collect_rows(cfg: StudyConfig, out: Path, runs: Sequence[RunSpec] | None = N
     rows = []
     for scene, light, folder, ref in _reference_folders(cfg, out):
         ref_npz = _load_npz(folder / "reference.npz", "packed", "gt")
+        scene_key = _scene_key(cfg, scene, light)  # the scene's files hashed once per scene-light
+        _check_current(folder / "reference.json", ref, _run_key(scene_key, plan_runs(cfg)[0]))
         gt = ref_npz["gt"]
         ref_recon = cached_recon_scores(folder, "reference", ref["key"], ref["key"], ref_npz["packed"], gt, cfg)
         # the scene-light's light level (docs: the study's light classes)
@@ -792,6 +810,7 @@ def collect_rows(cfg: StudyConfig, out: Path, runs: Sequence[RunSpec] | None = N
             if not p.exists():
                 continue
             row = _read_json(p)
+            _check_current(p, row, _run_key(scene_key, spec))  # a missing run is left out; another study's refused
             data = _load_npz(folder / f"{_slug(spec.name)}.npz", "packed", "y_centres")
             same = row["session"] == ref["session"]
             # a run resumed in another process: the reference re-timed there (probe frames)

@@ -465,8 +465,9 @@ def drop_from_manifest(root: str | Path, names: Iterable[str]) -> None:
         return
     for n in gone:
         del data["scenes"][n]
-        if isinstance(data.get("gt_saturated_fraction"), dict):
-            data["gt_saturated_fraction"].pop(n, None)
+        for record in ("gt_saturated_fraction", "jobs"):  # a job left behind is one for a scene not listed
+            if isinstance(data.get(record), dict):
+                data[record].pop(n, None)
     data["total_bytes"] = sum(f["bytes"] for files in data["scenes"].values() for f in files.values())
     _write_json(inside_root(root, MANIFEST, follow=False), data)
 
@@ -606,12 +607,21 @@ def check_dataset(root: str | Path, checksums: bool = True) -> DatasetCheck:
     return DatasetCheck(scenes=len(manifest["scenes"]), problems=problems, extras=extras)
 
 
+#: The kinds `generate` records (`spikesim generate llr|rllr|scene`, and `spikesim demo`'s).
+GENERATED_KINDS = ("llr", "rllr", "scene", "demo")
+
+
 def _manifest_field_problems(manifest: dict[str, Any]) -> list[str]:
     """The manifest's own fields beside its file lists, as `write_manifest` and `generate` write
     them: edited (total_bytes -1, seed NaN, kind 7, a scene's job digest 123), `verify` said
-    "intact" (round fourteen). Fields a manifest does not hold (older ones) are not asked for."""
+    "intact" (round fourteen; round seventeen: layout_version 0, preset {} or height "x",
+    gt_saturated_fraction NaN, a job for a scene not listed, kind "zzz"). Fields a manifest does not
+    hold (older ones) are not asked for."""
     problems = []
     scenes = manifest["scenes"]
+    version = manifest.get("layout_version")  # read_manifest refuses a non-integer or one above LAYOUT_VERSION
+    if version is not None and version < 1:
+        problems.append(f"{MANIFEST}: layout_version {version!r} is not a layout version (1 to {LAYOUT_VERSION})")
     if "total_bytes" in manifest:
         total = manifest["total_bytes"]
         want = sum(entry["bytes"] for files in scenes.values() for entry in files.values())
@@ -620,10 +630,29 @@ def _manifest_field_problems(manifest: dict[str, Any]) -> list[str]:
     if "seed" in manifest and (isinstance(manifest["seed"], bool) or not isinstance(manifest["seed"], int)
                                or manifest["seed"] < 0):
         problems.append(f"{MANIFEST}: seed {manifest['seed']!r} is not a seed (an integer, 0 or more)")
-    if "kind" in manifest and not (isinstance(manifest["kind"], str) and manifest["kind"].isidentifier()):
-        problems.append(f"{MANIFEST}: kind {manifest['kind']!r} is not a dataset kind (llr, rllr, scene, ...)")
-    if "preset" in manifest and not isinstance(manifest["preset"], dict):
-        problems.append(f"{MANIFEST}: preset {manifest['preset']!r} is not a preset's record (an object)")
+    if "kind" in manifest:
+        kind = manifest["kind"]
+        if not (isinstance(kind, str) and kind.isidentifier()):
+            problems.append(f"{MANIFEST}: kind {kind!r} is not a dataset kind (llr, rllr, scene, ...)")
+        elif "jobs" in manifest and kind not in GENERATED_KINDS:  # generate's record: one of its kinds (write_manifest alone takes any name)
+            problems.append(f"{MANIFEST}: kind {kind!r} is not a kind generate writes ({', '.join(GENERATED_KINDS)})")
+    if "preset" in manifest:
+        preset = manifest["preset"]
+        if not isinstance(preset, dict) or not preset:
+            problems.append(f"{MANIFEST}: preset {preset!r} is not a preset's record (an object of its settings)")
+        else:
+            problems += [f"{MANIFEST}: preset.{side} {preset[side]!r} is not a number of pixels (an integer, 1 or more)"
+                         for side in ("height", "width") if side in preset
+                         and (isinstance(preset[side], bool) or not isinstance(preset[side], int) or preset[side] < 1)]
+    if "gt_saturated_fraction" in manifest:
+        saturated = manifest["gt_saturated_fraction"]
+        if not isinstance(saturated, dict):
+            problems.append(f"{MANIFEST}: gt_saturated_fraction {saturated!r} is not an object of each scene's "
+                            "saturated share")
+        else:  # None: a scene written before its saturation was recorded (scene_saturation)
+            problems += [f"{MANIFEST}: gt_saturated_fraction.{name}: {v!r}, expected a share from 0 to 1"
+                         for name, v in saturated.items() if v is not None and (
+                             isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v <= 1)]
     if "jobs" in manifest:
         jobs = manifest["jobs"]
         if not isinstance(jobs, dict):
@@ -632,6 +661,8 @@ def _manifest_field_problems(manifest: dict[str, Any]) -> list[str]:
             # a listed scene may have none (one kept from an earlier run that recorded none): only the type
             problems += [f"{MANIFEST}: jobs.{name}: {digest!r}, expected the scene's job digest (a string)"
                          for name, digest in jobs.items() if not isinstance(digest, str)]
+            problems += [f"{MANIFEST}: jobs.{name}: a job for a scene the manifest does not list"
+                         for name in jobs if name not in scenes]
     return problems
 
 

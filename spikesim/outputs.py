@@ -377,7 +377,8 @@ def discard_empty(folders: list[Path]) -> None:
 
 __all__ = ["parent_fd", "move_into", "in_place_fd", "open_in_place", "HARD_LINK_REFUSED", "LINK_REFUSED", "inside", "writable", "check_not_link", "naming", "writing", "new_temp_beside",
            "atomic_write_with", "atomic_write_file", "atomic_write_bytes", "atomic_write_text", "atomic_write_json", "append_text",
-           "make_dirs", "remove", "missing_folders", "output_folder", "output_file", "discard_empty"]
+           "make_dirs", "remove", "missing_folders", "output_folder", "output_file", "discard_empty",
+           "output_file_lock", "stale_temporaries", "remove_temporaries"]
 
 
 #: The record a command keeps in a results folder it shares with the user (evaluate's and sweep's
@@ -442,7 +443,32 @@ def _record_lock(out: Path) -> Iterator[None]:
     reentrant in one thread. The lock file is never opened through a link or a second name
     (in_place_fd) and must be a regular file; it is removed while held, and a command that locked
     it just as it was removed locks the new one (as generation.lock does)."""
-    key = (os.path.realpath(out), threading.get_ident())
+    with _flock(Path(out), RESULTS_LOCK, "finish writing its results there", "the lock of the folder's results record"):
+        yield
+
+
+#: The suffix of an output file's lock (`output_file_lock`): `.<name>.spikesim-lock` beside it.
+FILE_LOCK_SUFFIX = ".spikesim-lock"
+
+
+@contextlib.contextmanager
+def output_file_lock(path: str | Path) -> Iterator[None]:
+    """Hold the lock of the one output file `path` (`.<name>.spikesim-lock` beside it, an exclusive
+    flock, waiting for another command that holds it, as the results record's lock does) while a
+    command writes it: a command that holds it knows that no other writer of `path` is at work, so
+    the temporary files of `path` it finds (`stale_temporaries`) are a killed run's (round
+    seventeen: `simulate` left a partial stream of GBs beside -o for good). The folder must exist."""
+    path = Path(path)
+    with _flock(path.parent, f".{_temp_stem(path, FILE_LOCK_SUFFIX)}{FILE_LOCK_SUFFIX}", "finish writing it",
+                f"the lock of {path.name}", shown=path):
+        yield
+
+
+@contextlib.contextmanager
+def _flock(out: Path, name: str, waits: str, what: str, shown: Path | None = None) -> Iterator[None]:
+    """Hold an exclusive flock on the file `name` in the folder `out` (see `_record_lock`); `waits`
+    and `what` word the warning of a wait and the refusal of a file that is not regular."""
+    key = (os.path.realpath(out / name), threading.get_ident())
     if _HELD_RECORD_LOCKS.get(key):
         _HELD_RECORD_LOCKS[key] += 1
         try:
@@ -450,7 +476,7 @@ def _record_lock(out: Path) -> Iterator[None]:
         finally:
             _HELD_RECORD_LOCKS[key] -= 1
         return
-    path = writable(out, RESULTS_LOCK)
+    path = writable(out, name)
     gone = 0
     while True:
         try:
@@ -466,13 +492,11 @@ def _record_lock(out: Path) -> Iterator[None]:
             continue
         try:
             if not stat.S_ISREG(os.fstat(fd).st_mode):
-                raise FileExistsError(f"{path}: is not a regular file, where spikesim locks the folder's results "
-                                      "record; remove it")
+                raise FileExistsError(f"{path}: is not a regular file, where spikesim keeps {what}; remove it")
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except BlockingIOError:  # say whom it waits for: it hung silently behind a suspended sweep
-                _log.warning("%s: waiting for %s to finish writing its results there", out,  # (round fourteen)
-                             _record_holder(fd))
+                _log.warning("%s: waiting for %s to %s", shown or out, _record_holder(fd), waits)  # (round fourteen)
                 fcntl.flock(fd, fcntl.LOCK_EX)
             try:
                 now = os.stat(path, follow_symlinks=False)
@@ -516,11 +540,19 @@ def _record_holder(fd: int) -> str:
 
 
 def _stale_temporaries(out: Path, names: Sequence[str]) -> list[Path]:
-    """The temporary files (`new_temp_beside`'s `.<name>.<8 hex>.part`) of `names` in `out`, and of
-    its results record, that a killed command left: regular files only, no link. Called under the
-    folder's record lock, when no other results block of this folder is writing."""
+    """The temporary files of `names` in `out`, and of its results record, that a killed command
+    left (`stale_temporaries`). Called under the folder's record lock, when no other results block
+    of this folder is writing."""
+    return stale_temporaries(out, [*names, RESULTS_RECORD])
+
+
+def stale_temporaries(out: str | Path, names: Sequence[str | Path]) -> list[Path]:
+    """The temporary files (`new_temp_beside`'s `.<name>.<8 hex>.part`) of `names` (paths inside
+    `out`) that a killed command left: regular files only, no link. Only where no live writer of
+    those names can be at work: under the lock every writer of them holds."""
+    out = Path(out)
     wanted: dict[Path, set[str]] = {}
-    for name in (*names, RESULTS_RECORD):
+    for name in names:
         target = out / name
         wanted.setdefault(target.parent, set()).add(_temp_stem(target, ".part"))
     pattern = re.compile(r"\.(.+)\.[0-9a-f]{8}\.part")
@@ -535,6 +567,17 @@ def _stale_temporaries(out: Path, names: Sequence[str]) -> list[Path]:
             if match and match.group(1) in stems and entry.is_file(follow_symlinks=False):
                 found.append(Path(entry.path))
     return found
+
+
+def remove_temporaries(out: str | Path, temporaries: Sequence[Path], command: str,
+                       say: Callable[[str], None] | None = None) -> None:
+    """Remove each of `temporaries` (`stale_temporaries`' answer for `out`), saying so in a line
+    each (`say`, by default this module's log); one that cannot be removed is left."""
+    out = Path(out)
+    for temporary in temporaries:
+        with contextlib.suppress(OSError, ValueError):
+            remove(out, temporary.relative_to(out))
+            (say or _log.info)(f"{out}: removed {temporary.name}, a temporary file an interrupted {command} left")
 
 
 def _check_record_path(out: Path, names: Sequence[str], command: str, flag: str) -> None:
@@ -739,10 +782,7 @@ def results_writing(out: str | Path, names: Sequence[str], command: str, flag: s
         # a killed run's temporaries (round fourteen), where a record shows that spikesim wrote results
         # here: a user's file of that form in a folder spikesim never wrote is kept (round fifteen)
         if (out / RESULTS_RECORD).is_file():
-            for temporary in _stale_temporaries(out, [*names, *stale]):
-                with contextlib.suppress(OSError, ValueError):
-                    remove(out, temporary.relative_to(out))
-                    _log.info("%s: removed %s, a temporary file an interrupted %s left", out, temporary.name, command)
+            remove_temporaries(out, _stale_temporaries(out, [*names, *stale]), command)
         files = _results_record(out)
         if _drop_own(out, files, [*names, *stale], command):
             _write_record(out, files)

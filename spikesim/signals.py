@@ -23,11 +23,19 @@ class Terminated(KeyboardInterrupt):
     clean-up runs (work folders removed, workers stopped) and no `except Exception` swallows it."""
 
 
+#: The `sigterm_raises` blocks open in the main thread, and whether a SIGTERM has been turned into
+#: `Terminated` in them: from then on every SIGTERM is ignored until the outermost block exits. An
+#: inner block (the CLI's around `results_writing`) restored the outer one's handler as it exited,
+#: so a second SIGTERM raised again in the outer block's clean-up (round seventeen).
+_blocks = {"depth": 0, "terminating": False}
+
+
 @contextmanager
 def sigterm_raises() -> Iterator[None]:
     """Turn SIGTERM into `Terminated` in this (main) thread while the block runs; by default it
     would end the process at once, leaving the scenes in progress as `.work` debris and saying
-    nothing. A second SIGTERM during the clean-up is ignored (SIGKILL still ends it)."""
+    nothing. A second SIGTERM during the clean-up is ignored (SIGKILL still ends it), in this block
+    and in every block around it, until the outermost one exits."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -36,10 +44,14 @@ def sigterm_raises() -> Iterator[None]:
 
     def handler(signum: int, frame: Any) -> None:
         signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        if _blocks["terminating"]:
+            return  # a later SIGTERM, during the clean-up of the first
+        _blocks["terminating"] = True
         stopped.append(f"terminated ({signal.Signals(signum).name})")
         raise Terminated(stopped[-1])
 
-    previous = signal.signal(signal.SIGTERM, handler)
+    previous = signal.signal(signal.SIGTERM, signal.SIG_IGN if _blocks["terminating"] else handler)
+    _blocks["depth"] += 1
     try:
         yield
     except Terminated:
@@ -49,7 +61,10 @@ def sigterm_raises() -> Iterator[None]:
             raise Terminated(stopped[-1]) from exc  # functions re-raise it as a RuntimeError): still a SIGTERM
         raise
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        _blocks["depth"] -= 1
+        if not _blocks["depth"]:
+            _blocks["terminating"] = False
+        signal.signal(signal.SIGTERM, signal.SIG_IGN if _blocks["terminating"] else previous)
 
 
 def stop_pool_workers(pool: Any) -> None:

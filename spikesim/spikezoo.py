@@ -189,10 +189,13 @@ def _listed_files(record: dict[str, Any] | None, split: str) -> set[str]:
     return {f"{split}/{sub}/{name}.{ext}" for name in pairs for sub, ext in ((SPIKE_DIR, "dat"), (GT_DIR, "png"))}
 
 
-def check_output(out: str | Path, split: str) -> dict[str, Any] | None:
+def check_output(out: str | Path, split: str, clean: Callable[[str], None] | None = None) -> dict[str, Any] | None:
     """The record of the export already in `out` (None: `out` is new or empty). Any other
     non-empty folder is refused, and so is a file in `out/split/{spike,gt}` that no earlier export
-    wrote: Spike-Zoo would read it as one more sample."""
+    wrote: Spike-Zoo would read it as one more sample. The temporary files of the files an export
+    wrote or was writing (`.NAME.XXXXXXXX.part`, left by a killed export) are not refused: `clean`
+    (given under the export's lock, when no other export writes there) removes them, saying each
+    with it; a rerun was refused its own killed run's temporary file (round seventeen)."""
     out = Path(out)
     if not out.exists() and not out.is_symlink():
         return None
@@ -205,11 +208,16 @@ def check_output(out: str | Path, split: str) -> dict[str, Any] | None:
                          "empty folder, or the folder of an earlier export to add or replace a split")
     record = read_record(out)
     ours = _listed_files(record, split)
+    # only where the record shows that an export wrote, as spikesim.outputs.results_writing does
+    written = sorted(set().union(*(_listed_files(record, name) for name in record["splits"])))
+    temporaries = set(outputs.stale_temporaries(out, [*written, RECORD, README]))
+    if clean is not None:
+        outputs.remove_temporaries(out, sorted(temporaries), "export", clean)
     for sub in (SPIKE_DIR, GT_DIR):
         folder = out / split / sub
         for path in sorted(folder.rglob("*")) if folder.is_dir() else ():
             rel = path.relative_to(out).as_posix()
-            if (path.is_file() or path.is_symlink()) and rel not in ours:
+            if (path.is_file() or path.is_symlink()) and rel not in ours and path not in temporaries:
                 raise ValueError(f"{path}: not written by an earlier export into {out}, and Spike-Zoo would read it as "
                                  f"part of the {split} split; remove it or choose another folder")
     return record
@@ -307,7 +315,8 @@ def export_spikezoo(dataset: str | Path, out: str | Path, split: str = "test", s
         raise _no_window_error(dataset, plans, steps)
     check_output(out, split)  # refused before any folder is made
     with outputs.output_folder(out), output_lock(out, f"export {dataset}", what="export run"):
-        old = check_output(out, split)  # again, now that no other export writes here
+        # again, now that no other export writes here: a killed export's temporary files removed
+        old = check_output(out, split, clean=lambda text: log(f"[export] {text}"))
         record = _start_record(out, split, old, dataset, steps, gt_stride, height, width, plans)
         split_entry = record["splits"][split]
         for plan in plans:
@@ -327,6 +336,24 @@ def export_spikezoo(dataset: str | Path, out: str | Path, split: str = "test", s
     return record
 
 
+def _check_unchanged(out: Path, record: dict[str, Any] | None, split: str) -> None:
+    """Every file of `split` the record lists with its sha256 still has that content: one the user
+    changed since is theirs, and a rerun would delete or replace it, rc 0 (round seventeen), as a
+    results folder keeps a changed result (spikesim.outputs). A ValueError names it."""
+    pairs = ((record or {}).get("splits", {}).get(split) or {}).get("pairs", {})
+    for name, info in sorted(pairs.items()):
+        recorded = info.get("sha256") if isinstance(info, dict) else None  # none while a run is not finished
+        if not isinstance(recorded, dict):
+            continue
+        for sub, ext, key in ((SPIKE_DIR, "dat", "spike"), (GT_DIR, "png", "gt")):
+            path = out / split / sub / f"{name}.{ext}"
+            if recorded.get(key) is None or not path.is_file() or path.is_symlink():
+                continue
+            if sha256_file(path) != recorded[key]:
+                raise ValueError(f"{path}: changed since the export wrote it (its sha256 differs from {RECORD}'s); "
+                                 "move it away or choose another folder")
+
+
 def _start_record(out: Path, split: str, old: dict[str, Any] | None, dataset: Path, steps: int, gt_stride: int,
                   height: int, width: int, plans: Sequence[ScenePlan]) -> dict[str, Any]:
     """Remove the files of `split` an earlier export wrote that this one will not, make the
@@ -341,6 +368,7 @@ def _start_record(out: Path, split: str, old: dict[str, Any] | None, dataset: Pa
                    "png": "round(255 * clip(y / rate, 0, 1)), 8-bit grey; y = rate * PNG / 255"})
     keep = {f"{split}/{sub}/{p.pair_name(g)}.{ext}" for p in plans for g in p.steps
             for sub, ext in ((SPIKE_DIR, "dat"), (GT_DIR, "png"))}
+    _check_unchanged(out, old, split)  # before any file is removed or replaced
     for rel in sorted(_listed_files(old, split) - keep):
         outputs.remove(out, rel)
     outputs.make_dirs(out, split, SPIKE_DIR)
@@ -442,11 +470,31 @@ def _frames(path: Path, height: int, width: int) -> int:
     return size // per
 
 
+def _recorded_count(path: Path, node: dict[str, Any], name: str, where: str = "") -> int:
+    """`node[name]`, a positive integer of the record at `path` (an int, not 64.0 nor "64"); a
+    ValueError naming the file and the field otherwise: height 0 ended in a ZeroDivisionError, a
+    missing one in "error: height" (round seventeen)."""
+    value = node.get(name)
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ValueError(f"{path}: {where}\"{name}\" is {'missing' if name not in node else repr(value)}; it must be a "
+                         "positive integer (the export wrote it): export again")
+    return value
+
+
+def _recorded_rate(path: Path, info: dict[str, Any], pair: str) -> float:
+    """A pair's recorded rate: a positive finite number (a ValueError naming the file, the pair and the field)."""
+    value = info.get("rate")
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
+        raise ValueError(f"{path}: pair {pair}: \"rate\" is {'missing' if 'rate' not in info else repr(value)}; it must "
+                         "be a positive finite number (the y the PNG's white stands for): export again")
+    return float(value)
+
+
 def _geometry(root: Path, record: dict[str, Any] | None, height: int | None, width: int | None) -> tuple[int, int]:
     if record is None:
         h, w = height or HEIGHT, width or WIDTH
     else:
-        h, w = int(record["height"]), int(record["width"])
+        h, w = (_recorded_count(root / RECORD, record, name) for name in ("height", "width"))
         if (height and height != h) or (width and width != w):
             raise ValueError(f"{root / RECORD} records {h} x {w}; the height and width given ({height} x {width}) differ")
     if (h * w) % 8:
@@ -480,7 +528,7 @@ def read_layout(root: str | Path, split: str = "test", height: int | None = None
     if not files:
         raise FileNotFoundError(f"{spike_dir}: no .dat streams; a Spike-Zoo dataset holds {split}/{SPIKE_DIR}/NAME.dat "
                                 f"with {split}/{GT_DIR}/NAME.png")
-    pairs = [_pair(f, spike_dir, gt_dir, h, w, entry, RATE if rate is None else rate) for f in files]
+    pairs = [_pair(f, spike_dir, gt_dir, h, w, entry, RATE if rate is None else rate, root / RECORD) for f in files]
     if entry is not None:
         # round ten: pairs the record lists but the folder lacks were left out of the scores (rc 0, 5 of 10 frames)
         found = {p.name for p in pairs}
@@ -496,7 +544,7 @@ def read_layout(root: str | Path, split: str = "test", height: int | None = None
 
 
 def _pair(dat: Path, spike_dir: Path, gt_dir: Path, height: int, width: int, entry: dict[str, Any] | None,
-          rate: float) -> SpikeZooPair:
+          rate: float, record: Path) -> SpikeZooPair:
     rel = dat.relative_to(spike_dir).with_suffix("")
     png = gt_dir / rel.with_suffix(".png")
     if not png.is_file():
@@ -507,7 +555,10 @@ def _pair(dat: Path, spike_dir: Path, gt_dir: Path, height: int, width: int, ent
     info = entry["pairs"].get(rel.as_posix())
     if info is None:
         raise ValueError(f"{dat}: not listed in the export's {RECORD}; Spike-Zoo would read it as one more sample")
-    if int(info["steps"]) != steps:
+    if not isinstance(info, dict):
+        raise ValueError(f"{record}: pair {rel.as_posix()} is {info!r}, not the object the export wrote: export again")
+    pair_rate = _recorded_rate(record, info, rel.as_posix())
+    if _recorded_count(record, info, "steps", f"pair {rel.as_posix()}: ") != steps:
         raise ValueError(f"{dat}: {steps} frames of {height} x {width}; {RECORD} records {info['steps']}")
     recorded = info.get("sha256")  # exports before round eight recorded none
     if isinstance(recorded, dict):
@@ -515,7 +566,7 @@ def _pair(dat: Path, spike_dir: Path, gt_dir: Path, height: int, width: int, ent
             if recorded.get(key) is not None and sha256_file(path) != recorded[key]:
                 raise ValueError(f"{path}: not the file the export wrote for {rel.as_posix()} (its sha256 differs from "
                                  f"{RECORD}'s): swapped or altered; export again")
-    return SpikeZooPair(rel.as_posix(), dat, png, float(info["rate"]), key_index(steps), steps,
+    return SpikeZooPair(rel.as_posix(), dat, png, pair_rate, key_index(steps), steps,
                         info.get("scene"), info.get("gt_step"))
 
 

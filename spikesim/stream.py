@@ -23,7 +23,7 @@ from typing import Any, Iterable, Iterator
 import numpy as np
 
 from . import outputs
-from .config_io import SMALL_FILE_LIMIT, read_json_object
+from .config_io import SMALL_FILE_LIMIT, file_problem, read_json_object
 
 
 def frame_bytes(height: int, width: int) -> int:
@@ -152,6 +152,8 @@ def unpack_frames(packed: np.ndarray, height: int, width: int) -> np.ndarray:
 
 def _flip_packed(packed: np.ndarray, height: int, width: int) -> np.ndarray:
     """Reverse the row order of packed frames (its own inverse)."""
+    if packed.shape[0] == 0:  # no frames: reshape(0, -1) raised NumPy's error, as pack_frames did (round seventeen)
+        return packed
     if width % 8 == 0:
         return np.ascontiguousarray(packed.reshape(-1, height, width // 8)[:, ::-1, :]).reshape(packed.shape[0], -1)
     return pack_frames(unpack_frames(packed, height, width)[:, ::-1, :])
@@ -295,6 +297,9 @@ class DatReader:
 
     def read(self, start: int = 0, stop: int | None = None) -> SpikeStream:
         stop = self.num_steps if stop is None else stop
+        for name, v in (("start", start), ("stop", stop)):  # 2.5 and "0" raised Python's own TypeErrors (round seventeen)
+            if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)):
+                raise ValueError(f"DatReader.read: {name} must be an integer, got {v!r}")
         if not (0 <= start <= stop <= self.num_steps):
             raise IndexError(f"{self.path}: range [{start}, {stop}) is outside the stream's {self.num_steps} frames")
         raw = np.asarray(self._mm[start:stop])
@@ -315,13 +320,17 @@ class DatReader:
 
 
 def _stream_size(path: Path) -> int:
-    """The size of a `.dat` file; a missing file or a directory is an error naming it."""
+    """The size of a `.dat` file; a missing file, a directory or anything else that is not a regular
+    file is an error naming it, before it is opened (round seventeen: a FIFO hung `inspect`, and
+    `reconstruct` took it for a stream of 0 steps)."""
     try:
         st = path.stat()
     except FileNotFoundError:
         raise FileNotFoundError(errno.ENOENT, "spike stream does not exist", str(path)) from None
     if stat.S_ISDIR(st.st_mode):
         raise IsADirectoryError(errno.EISDIR, "is a directory, expected a .dat spike stream", str(path))
+    if not stat.S_ISREG(st.st_mode):
+        raise ValueError(f"{path}: {file_problem(path)}; expected a .dat spike stream")
     return st.st_size
 
 
@@ -329,6 +338,8 @@ def _drop_trailing_columns(packed: np.ndarray, height: int, stored_width: int, w
     """Keep the first `width` of `stored_width` columns of every row (a byte slice when both are
     whole bytes, as 400 and 416 are)."""
     n = packed.shape[0]
+    if n == 0:  # no frames: reshape(0, -1) of nothing raised NumPy's error (round seventeen)
+        return np.zeros((0, frame_bytes(height, width)), np.uint8)
     if stored_width % 8 == 0 and width % 8 == 0:
         rows = packed.reshape(n, height, stored_width // 8)[:, :, : width // 8]
         return np.ascontiguousarray(rows).reshape(n, -1)
@@ -336,8 +347,12 @@ def _drop_trailing_columns(packed: np.ndarray, height: int, stored_width: int, w
 
 
 def read_dat(path: str | Path, height: int = 250, width: int = 400, start: int = 0, stop: int | None = None,
-             flip: bool = True, header_columns: int = 0, drop_partial: bool = False) -> SpikeStream:
-    """Read frames [start, stop) of a `.dat` file (memory-mapped: only that range is read)."""
+             flip: bool | None = None, header_columns: int = 0, drop_partial: bool = False) -> SpikeStream:
+    """Read frames [start, stop) of a `.dat` file (memory-mapped: only that range is read).
+
+    flip None: the row order recorded beside the stream (its sidecar or a dataset's meta.json, as
+    `DatReader` takes it), else rows bottom-up; True or False wins over the record (round
+    seventeen: the default True read a `--no-flip` stream upside down)."""
     return DatReader(path, height, width, flip=flip, header_columns=header_columns,
                      drop_partial=drop_partial).read(start, stop)
 
@@ -561,6 +576,10 @@ def open_stream(path: str | Path, height: int | None = None, width: int | None =
     A record whose size does not fit the file is named in the error: a stale sidecar or meta.json,
     not a truncated stream, is then the likely cause, and --height/--width override it."""
     path = Path(path)
+    if not (header_columns is None or (isinstance(header_columns, str) and header_columns == "auto")
+            or (isinstance(header_columns, (int, np.integer)) and not isinstance(header_columns, (bool, np.bool_))
+                and header_columns >= 0)):  # 2.7 was taken as 2, True as 1, "2" as 2 (round seventeen)
+        raise ValueError(f"open_stream: header_columns must be \"auto\", None or an integer >= 0, got {header_columns!r}")
     h, w, flip = stream_geometry(path, height, width, flip)
     if header_columns in ("auto", None):
         header = detect_header_columns(path, h, w, drop_partial)
