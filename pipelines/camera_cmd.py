@@ -36,6 +36,7 @@ def run(args: argparse.Namespace) -> int:
         out: Path = args.write
         if out.suffix != ".toml":
             raise ValueError(f"--write {out}: a camera file written with comments is TOML; name it *.toml")
+        outputs.check_replaceable(out)  # a FIFO or device is never replaced, --overwrite or not
         if out.exists() and not args.overwrite:
             raise FileExistsError(f"--write {out}: the file exists (--overwrite to replace it)")
         from spikesim.dataset import check_outside_datasets

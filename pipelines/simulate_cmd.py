@@ -266,12 +266,12 @@ def check_outputs(args: argparse.Namespace) -> None:
 
 
 def _check_output(args: argparse.Namespace, out: Path) -> None:
-    from spikesim.outputs import check_not_link
+    from spikesim.outputs import check_replaceable
     from spikesim.stream import sidecar_path
 
     side = sidecar_path(out)
-    check_not_link(out)
-    check_not_link(side)
+    check_replaceable(out)  # a device or FIFO: refused even with --overwrite, which it once suggested
+    check_replaceable(side)
     if side.is_dir():
         raise ValueError(f"--out {out}: its sidecar {side} is a directory")
     camera_file = args.camera if isinstance(args.camera, Path) else None
@@ -347,9 +347,9 @@ def _run(args: argparse.Namespace) -> int:
     check_free_space(args, cam, steps)
     log.info("simulating on backend %s, %dx%d, from %s", sim.backend_name, cam.width, cam.height,
              source.get("scene") or source.get("source"))
-    t0 = time.perf_counter()
     try:
         with outputs.output_file(args.out), writing_outputs(args):  # a failed run leaves no new empty folder
+            t0 = time.perf_counter()  # after the wait for another writer of -o (round eighteen)
             if args.twin:
                 from spikesim.simulate import TwinSimulator
                 out, twin_out = TwinSimulator(sim, None).run_to_dat(
@@ -390,13 +390,15 @@ def writing_outputs(args: argparse.Namespace) -> Iterator[None]:
     """Hold the lock of each stream this run writes (-o, and its twin; spikesim.outputs.output_file_lock)
     while it writes them, and remove the partial streams and records (`.NAME.XXXXXXXX.part`) that a
     killed run writing the same file left: a stream of GBs stayed beside -o for good (round seventeen).
-    Under the locks no other simulate writes them, so no temporary found is a live run's."""
+    Under the locks no other simulate writes them, so no temporary found is a live run's; and only
+    where the killed run's lock is found, so a user's file of that form elsewhere is kept."""
     from spikesim.stream import sidecar_path
     outs = [Path(args.out)] + ([twin_path(Path(args.out))] if args.twin else [])
     with contextlib.ExitStack() as held:
-        for out in outs:
-            held.enter_context(outputs.output_file_lock(out))
-        for out in outs:
+        left = [held.enter_context(outputs.output_file_lock(out)) for out in outs]
+        for out, killed in zip(outs, left):
+            if not killed:  # no killed simulate of this output: a file of that form is a user's (round eighteen)
+                continue
             folder = out.parent
             outputs.remove_temporaries(folder, outputs.stale_temporaries(folder, [out.name, sidecar_path(out).name]),
                                        "simulate", log.info)

@@ -320,6 +320,8 @@ class SceneStudy:
         self._renderers: dict[tuple[str, int, str], Any] = {}
         self._ref_frames: dict[int, np.ndarray] | None = None
         self._probe: float | None = None
+        self._scene_key: dict[str, Any] | None = None
+        self._warned_frames = False
 
     # renderers are loaded once per (variant, seed, step seeds) and warmed (the first render compiles)
     def renderer(self, variant: str, seed: int, step_seeds: str = "fresh") -> Any:
@@ -359,16 +361,42 @@ class SceneStudy:
         h, w = self.cfg.resolution
         return SpikeCamera.realistic(height=h, width=w)
 
+    def scene_key(self) -> dict[str, Any]:
+        """`_scene_key` of this scene and light, its files hashed once per study."""
+        if self._scene_key is None:
+            self._scene_key = _scene_key(self.cfg, self.scene, self.light)
+        return self._scene_key
+
+    def reference_key(self) -> str:
+        """The cache key of this scene and light's reference run (`_run_key`), for its frames."""
+        return _run_key(self.scene_key(), plan_runs(self.cfg)[0])
+
     def reference_frames(self) -> dict[int, np.ndarray]:
         if self._ref_frames is None:
             data = _load_npz(self.folder / "reference_frames.npz", "steps", "frames")
             self._ref_frames = {int(s): f for s, f in zip(data["steps"], data["frames"])}
         return self._ref_frames
 
+    def _frames_current(self) -> bool:
+        """Whether the cached reference frames are this study's: a study with other inputs stopped
+        while its reference's ground truth rendered left its own frames under this reference's
+        record, and the runs that reuse them simulated the other study's light, rc 0 (round
+        eighteen). Frames without this key (or damaged) are not reused: the run renders them."""
+        if self._ref_frames is not None:
+            return True
+        path = self.folder / "reference_frames.npz"
+        current = _npz_key(path) == self.reference_key()
+        if not current and not self._warned_frames:
+            self._warned_frames = True
+            log.warning("%s: cached for another study (or damaged); the runs that would reuse the reference's "
+                        "frames render them again", path)
+        return current
+
     def _reuses_reference(self, spec: RunSpec) -> bool:
         s = spec.settings
         return (spec.knob != "reference" and s.keyframe_policy == "every" and s.spp == self.cfg.ref_spp
-                and s.variant == "spectral" and spec.render_seed == self.cfg.seed and spec.step_seeds == "fresh")
+                and s.variant == "spectral" and spec.render_seed == self.cfg.seed and spec.step_seeds == "fresh"
+                and self._frames_current())
 
     def run(self, spec: RunSpec) -> dict[str, Any]:
         """Render (or reuse), simulate, time; returns the row's timing fields and saves the stream."""
@@ -376,6 +404,7 @@ class SceneStudy:
         from spikesim.stream import SpikeStream
 
         cfg, s = self.cfg, spec.settings
+        run_key = _run_key(self.scene_key(), spec)  # in each of its files (_save_npz)
         if self._reuses_reference(spec):
             ref_row = _read_json(self.folder / "reference.json")
             source: Any = _Replay(self.reference_frames())
@@ -419,7 +448,7 @@ class SceneStudy:
         timing: dict[str, float] = {}  # the reference's: its ground truth's render seconds too
         if spec.knob == "reference":
             steps = sorted(keyframes)
-            _save_npz(self.folder / "reference_frames.npz", steps=np.array(steps),
+            _save_npz(self.folder / "reference_frames.npz", run_key, steps=np.array(steps),  # _frames_current
                       frames=np.stack([keyframes[k] for k in steps]))
             self._ref_frames = keyframes
             r = self.renderer("spectral", cfg.seed)
@@ -430,7 +459,7 @@ class SceneStudy:
                      len(cfg.centres()), cfg.gt_spp, timing["gt_render_s"])
         if spec.knob == "reference":
             self._probe = render_s / cfg.num_steps
-        _save_npz(self.folder / f"{_slug(spec.name)}.npz", packed=stream.packed, y_centres=y_centres, **extra)
+        _save_npz(self.folder / f"{_slug(spec.name)}.npz", run_key, packed=stream.packed, y_centres=y_centres, **extra)
         return {**timing, "render_s": float(render_s), "render_reused": reused, "simulate_s": float(sim_s),
                 "ref_frame_s": self.reference_frame_s(),
                 "first_pass_s": float(wall), "renders": len(source.frames) if not reused else cfg.num_steps,
@@ -669,8 +698,10 @@ def collect_gt_rows(cfg: StudyConfig, out: Path) -> list[dict[str, Any]]:
     rows = []
     reference = plan_runs(cfg)[0]
     for scene, light, folder, ref in _reference_folders(cfg, out):
-        ref_gt = _load_npz(folder / "reference.npz", "gt")["gt"]
-        _check_current(folder / "reference.json", ref, _run_key(_scene_key(cfg, scene, light), reference))
+        ref_key = _run_key(_scene_key(cfg, scene, light), reference)
+        ref_gt = _load_npz(folder / "reference.npz", "gt")["gt"]  # damaged: named first
+        _check_current(folder / "reference.json", ref, ref_key)
+        ref_gt = _load_current_npz(folder / "reference.npz", ref_key, "gt")["gt"]
         ref_frame_s = float(ref.get("gt_render_s", math.nan)) / cfg.windows  # NaN: measured before it was kept
         timed = ref_frame_s * cfg.windows >= MIN_TIMED_S
         block = [{"scene": scene_label(scene), "light": light, "run": f"gt spp={cfg.gt_spp}", "knob": "gt",
@@ -683,7 +714,7 @@ def collect_gt_rows(cfg: StudyConfig, out: Path) -> list[dict[str, Any]]:
                             "those)", folder, spp)
                 continue
             row = _read_json(path)
-            gt = _load_npz(folder / f"{_gt_name(spp)}.npz", "gt")["gt"]
+            gt = _load_current_npz(folder / f"{_gt_name(spp)}.npz", _gt_key(cfg, scene, light, spp), "gt")["gt"]
             err = gt_error(gt, ref_gt)
             frame_s = float(row["gt_render_s"]) / cfg.windows
             block.append({"scene": scene_label(scene), "light": light, "run": f"gt spp={spp}", "knob": "gt", "gt_spp": spp,
@@ -768,7 +799,7 @@ def run_study(cfg: StudyConfig, out: Path, progress: bool = True) -> list[dict[s
                     continue
                 study = studies.setdefault((scene, light), SceneStudy(cfg, scene, light, folder))
                 gt, seconds = study.render_ground_truth(spp)
-                _save_npz(npz, gt=gt)
+                _save_npz(npz, key, gt=gt)
                 _write_json(path, {"key": key, "session": session, "gt_spp": spp, "gt_render_s": seconds,
                                    "render_seed": cfg.seed + 1, "centres": cfg.centres()})
                 log.info("%s %s: ground truth at %d spp in %.1f s", scene, light, spp, seconds)
@@ -793,9 +824,11 @@ def collect_rows(cfg: StudyConfig, out: Path, runs: Sequence[RunSpec] | None = N
     runs = runs or plan_runs(cfg)
     rows = []
     for scene, light, folder, ref in _reference_folders(cfg, out):
-        ref_npz = _load_npz(folder / "reference.npz", "packed", "gt")
         scene_key = _scene_key(cfg, scene, light)  # the scene's files hashed once per scene-light
-        _check_current(folder / "reference.json", ref, _run_key(scene_key, plan_runs(cfg)[0]))
+        ref_key = _run_key(scene_key, plan_runs(cfg)[0])
+        _load_npz(folder / "reference.npz", "packed", "gt")  # damaged: named first
+        _check_current(folder / "reference.json", ref, ref_key)
+        ref_npz = _load_current_npz(folder / "reference.npz", ref_key, "packed", "gt")
         gt = ref_npz["gt"]
         ref_recon = cached_recon_scores(folder, "reference", ref["key"], ref["key"], ref_npz["packed"], gt, cfg)
         # the scene-light's light level (docs: the study's light classes)
@@ -810,8 +843,9 @@ def collect_rows(cfg: StudyConfig, out: Path, runs: Sequence[RunSpec] | None = N
             if not p.exists():
                 continue
             row = _read_json(p)
-            _check_current(p, row, _run_key(scene_key, spec))  # a missing run is left out; another study's refused
-            data = _load_npz(folder / f"{_slug(spec.name)}.npz", "packed", "y_centres")
+            key = _run_key(scene_key, spec)
+            _check_current(p, row, key)  # a missing run is left out; another study's refused
+            data = _load_current_npz(folder / f"{_slug(spec.name)}.npz", key, "packed", "y_centres")
             same = row["session"] == ref["session"]
             # a run resumed in another process: the reference re-timed there (probe frames)
             ref_render = ref["render_s"] if same or "ref_frame_s" not in row else row["ref_frame_s"] * cfg.num_steps
@@ -1089,8 +1123,35 @@ def _write_json(path: Path, obj: Any) -> None:
     atomic_write_file(path, lambda f: f.write((json.dumps(_jsonable(obj), indent=2) + "\n").encode()))
 
 
-def _save_npz(path: Path, **arrays: np.ndarray) -> None:
-    atomic_write_file(path, lambda f: np.savez_compressed(f, **arrays))
+#: The array in every cached .npz that holds its run's cache key: a study with other inputs stopped
+#: between a run's .npz and its .json left its arrays under the other study's record (round
+#: eighteen), so each file answers for itself.
+NPZ_KEY = "cache_key"
+
+
+def _save_npz(path: Path, key: str, **arrays: np.ndarray) -> None:
+    atomic_write_file(path, lambda f: np.savez_compressed(f, **arrays, **{NPZ_KEY: np.array(key)}))
+
+
+def _npz_key(path: Path) -> str | None:
+    """The cache key a cached .npz was written under; None for one without (an older spikesim's),
+    a damaged or a missing one."""
+    try:
+        with np.load(path) as z:
+            return str(z[NPZ_KEY]) if NPZ_KEY in z.files else None
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
+        return None
+
+
+def _load_current_npz(path: Path, key: str, *names: str) -> dict[str, np.ndarray]:
+    """`_load_npz` (a damaged file named as such), of a file written under `key`: another study's
+    arrays, or arrays cached without a key, are refused as `_check_current` refuses a record."""
+    data = _load_npz(path, *names)
+    if _npz_key(path) != key:
+        raise ValueError(f"{path}: cached for another scene, seed or size, or by an older spikesim (not what these "
+                         "options and the scene's files make now); run the study without --report-only to measure "
+                         "it again")
+    return data
 
 
 def _read_json(path: Path) -> dict[str, Any]:
@@ -1115,7 +1176,7 @@ def _is_cached(row_path: Path, npz_path: Path, key: str) -> bool:
     if not (row_path.exists() and npz_path.exists()):
         return False
     try:
-        return _read_json(row_path).get("key") == key
+        return _read_json(row_path).get("key") == key and _npz_key(npz_path) == key
     except ValueError as exc:
         log.warning("%s", exc)
         return False

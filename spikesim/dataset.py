@@ -653,6 +653,8 @@ def _manifest_field_problems(manifest: dict[str, Any]) -> list[str]:
             problems += [f"{MANIFEST}: gt_saturated_fraction.{name}: {v!r}, expected a share from 0 to 1"
                          for name, v in saturated.items() if v is not None and (
                              isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v <= 1)]
+            problems += [f"{MANIFEST}: gt_saturated_fraction.{name}: a share for a scene the manifest does not list"
+                         for name in saturated if name not in scenes]  # as for jobs (round eighteen)
     if "jobs" in manifest:
         jobs = manifest["jobs"]
         if not isinstance(jobs, dict):

@@ -89,6 +89,27 @@ def check_not_link(path: str | Path) -> Path:
     return path
 
 
+#: What stands at an output path and is never replaced, not even with --overwrite: a rename over a
+#: device node or FIFO replaced it (round eighteen: `simulate -o /dev/null --overwrite` as root).
+_NOT_REPLACED = ((stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+                 (stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISSOCK, "a socket"))
+
+
+def check_replaceable(path: str | Path) -> Path:
+    """`path`, if nothing stands there that a command must never replace (a link, a device, a FIFO,
+    a socket); a ValueError naming it otherwise. Folders are each writer's own question."""
+    path = check_not_link(path)
+    try:
+        mode = os.lstat(path).st_mode
+    except OSError:
+        return path
+    kind = next((name for test, name in _NOT_REPLACED if test(mode)), None)
+    if kind:
+        raise ValueError(f"{path}: is {kind}, not a regular file; spikesim writes only regular files and replaces "
+                         "nothing else: choose another output")
+    return path
+
+
 def naming(exc: OSError, path: str | Path) -> OSError:
     """`exc` as an OSError of the same errno that names `path` (the file the user asked for),
     whatever file, temporary or none, the failing call named. The CLI prints it in one line."""
@@ -359,7 +380,7 @@ def output_file(path: str | Path) -> Iterator[Path]:
     """For a command whose output is one file (`simulate -o`, `panel -o`, `golden --write -o`):
     its folder made as `output_folder` does, and `path` itself refused if it is a symlink or a
     folder. Write it with `atomic_write_*` inside the block."""
-    path = check_not_link(path)
+    path = check_replaceable(path)
     if path.is_dir():
         raise IsADirectoryError(errno.EISDIR, "is a directory, expected a file name", str(path))
     with output_folder(path.parent):
@@ -375,7 +396,7 @@ def discard_empty(folders: list[Path]) -> None:
             break  # not empty (or gone): nor are the folders above it
 
 
-__all__ = ["parent_fd", "move_into", "in_place_fd", "open_in_place", "HARD_LINK_REFUSED", "LINK_REFUSED", "inside", "writable", "check_not_link", "naming", "writing", "new_temp_beside",
+__all__ = ["parent_fd", "move_into", "in_place_fd", "open_in_place", "HARD_LINK_REFUSED", "LINK_REFUSED", "inside", "writable", "check_not_link", "check_replaceable", "naming", "writing", "new_temp_beside",
            "atomic_write_with", "atomic_write_file", "atomic_write_bytes", "atomic_write_text", "atomic_write_json", "append_text",
            "make_dirs", "remove", "missing_folders", "output_folder", "output_file", "discard_empty",
            "output_file_lock", "stale_temporaries", "remove_temporaries"]
@@ -452,27 +473,31 @@ FILE_LOCK_SUFFIX = ".spikesim-lock"
 
 
 @contextlib.contextmanager
-def output_file_lock(path: str | Path) -> Iterator[None]:
+def output_file_lock(path: str | Path) -> Iterator[bool]:
     """Hold the lock of the one output file `path` (`.<name>.spikesim-lock` beside it, an exclusive
     flock, waiting for another command that holds it, as the results record's lock does) while a
     command writes it: a command that holds it knows that no other writer of `path` is at work, so
     the temporary files of `path` it finds (`stale_temporaries`) are a killed run's (round
-    seventeen: `simulate` left a partial stream of GBs beside -o for good). The folder must exist."""
+    seventeen: `simulate` left a partial stream of GBs beside -o for good). The folder must exist.
+    Yields whether a killed writer of `path` left the lock (its pid and command were still in it):
+    only then are temporaries of `path`'s form a writer's and not a user's (round eighteen)."""
     path = Path(path)
     with _flock(path.parent, f".{_temp_stem(path, FILE_LOCK_SUFFIX)}{FILE_LOCK_SUFFIX}", "finish writing it",
-                f"the lock of {path.name}", shown=path):
-        yield
+                f"the lock of {path.name}", shown=path) as left:
+        yield left
 
 
 @contextlib.contextmanager
-def _flock(out: Path, name: str, waits: str, what: str, shown: Path | None = None) -> Iterator[None]:
+def _flock(out: Path, name: str, waits: str, what: str, shown: Path | None = None) -> Iterator[bool]:
     """Hold an exclusive flock on the file `name` in the folder `out` (see `_record_lock`); `waits`
-    and `what` word the warning of a wait and the refusal of a file that is not regular."""
+    and `what` word the warning of a wait and the refusal of a file that is not regular. Yields
+    whether the lock held a holder's record when taken: a holder that ends removes it while it
+    holds it, so one found with a record was left by a killed holder."""
     key = (os.path.realpath(out / name), threading.get_ident())
     if _HELD_RECORD_LOCKS.get(key):
         _HELD_RECORD_LOCKS[key] += 1
         try:
-            yield
+            yield False
         finally:
             _HELD_RECORD_LOCKS[key] -= 1
         return
@@ -481,6 +506,9 @@ def _flock(out: Path, name: str, waits: str, what: str, shown: Path | None = Non
     while True:
         try:
             fd = in_place_fd(path, os.O_RDWR | os.O_CREAT | getattr(os, "O_NONBLOCK", 0))
+        except IsADirectoryError:  # a bare "Is a directory" (round eighteen)
+            raise FileExistsError(f"{path}: is a folder, not a regular file, where spikesim keeps {what}; "
+                                  "remove it") from None
         except FileNotFoundError:
             # the folder itself went: the writer this one waited for failed and removed the folder it
             # had made, now empty; make it again and lock there (round fifteen: the waiting writer
@@ -511,11 +539,15 @@ def _flock(out: Path, name: str, waits: str, what: str, shown: Path | None = Non
             break
         os.close(fd)  # its holder removed it as we locked it: lock the file there now
     _HELD_RECORD_LOCKS[key] = 1
+    try:
+        left = bool(os.pread(fd, 64, 0).strip())
+    except OSError:
+        left = False
     with contextlib.suppress(OSError):  # who holds it, for a command that waits (a full disk: unnamed)
         os.ftruncate(fd, 0)
         os.pwrite(fd, f"pid {os.getpid()}: {_command_line()}\n".encode(), 0)
     try:
-        yield
+        yield left
     finally:
         _HELD_RECORD_LOCKS.pop(key, None)
         with contextlib.suppress(OSError):
@@ -577,7 +609,8 @@ def remove_temporaries(out: str | Path, temporaries: Sequence[Path], command: st
     for temporary in temporaries:
         with contextlib.suppress(OSError, ValueError):
             remove(out, temporary.relative_to(out))
-            (say or _log.info)(f"{out}: removed {temporary.name}, a temporary file an interrupted {command} left")
+            (say or _log.info)(f"{out}: removed {temporary.relative_to(out)}, a temporary file an interrupted "
+                               f"{command} left")
 
 
 def _check_record_path(out: Path, names: Sequence[str], command: str, flag: str) -> None:

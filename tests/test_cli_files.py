@@ -29,7 +29,7 @@ def test_damaged_tradeoff_cache_is_one_line(damage, tmp_path, capsys):
 
 def test_damaged_cached_run_is_measured_again(tmp_path, caplog):
     row, npz = tmp_path / "spp=1.json", tmp_path / "spp=1.npz"
-    tradeoff._save_npz(npz, packed=np.zeros((2, 3), np.uint8))
+    tradeoff._save_npz(npz, "abc", packed=np.zeros((2, 3), np.uint8))
     tradeoff._write_json(row, {"key": "abc"})
     assert tradeoff._is_cached(row, npz, "abc") and not tradeoff._is_cached(row, npz, "other")
     row.write_text('{"key": "ab')  # cut short by a kill

@@ -128,7 +128,8 @@ def test_a_killed_exports_temporary_files_are_removed_by_its_rerun(small_data, t
     err = _export(capsys, small_data, out, "--split", "train")
     assert not any(p.exists() for p in killed)
     for path in killed:
-        assert f"removed {path.name}, a temporary file an interrupted export left" in err
+        # named by its place in the export (round eighteen: the bare name, beside the export's root)
+        assert f"{out}: removed {path.relative_to(out)}, a temporary file an interrupted export left" in err
     assert json.loads((out / "spikezoo.json").read_text())["splits"]["train"]["complete"]
     # a file of that form whose name no export wrote is not the export's: refused, kept
     theirs = spike / ".mine.dat.c0569a34.part"
@@ -218,6 +219,9 @@ def test_a_killed_simulates_partial_stream_is_removed_by_its_rerun(tmp_path, cap
     for path in kept:
         path.write_bytes(b"x")
     (folder / ".long.dat.deadbeef.part").symlink_to(kept[0])  # a link is never removed through
+    # what the killed run left beside them: its lock, holding its pid and command (round eighteen:
+    # only then are they a killed simulate's)
+    (folder / ".long.dat.spikesim-lock").write_text("pid 4242: spikesim simulate -o long.dat\n")
     rc, err = run_cli([*SIMULATE, "-o", folder / "long.dat"], capsys)
     assert rc == 0, err
     assert not any(p.exists() for p in stale)
