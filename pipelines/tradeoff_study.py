@@ -39,6 +39,7 @@ import logging
 import math
 import time
 import zipfile
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterator, Sequence
@@ -46,9 +47,9 @@ from typing import Any, Iterator, Sequence
 import numpy as np
 
 from spikesim._optional import require
-from spikesim.config_io import read_json_object
-from spikesim.outputs import (atomic_write_file, check_results_owned, make_dirs, output_folder, results_writing,
-                              writable)
+from spikesim.config_io import file_problem, read_json_object
+from spikesim.outputs import (atomic_write_file, check_replaceable, check_results_owned, make_dirs, output_folder,
+                              results_writing, writable)
 from spikesim.preset_rule import RECON_AXES  # the axes the quality presets are chosen on
 from spikesim.render_settings import RenderSettings, render_knob
 
@@ -386,6 +387,11 @@ class SceneStudy:
             return True
         path = self.folder / "reference_frames.npz"
         current = _npz_key(path) == self.reference_key()
+        if current:
+            try:  # the key intact, its frames damaged: rendered again too (round nineteen)
+                self.reference_frames()
+            except ValueError:
+                current = False
         if not current and not self._warned_frames:
             self._warned_frames = True
             log.warning("%s: cached for another study (or damaged); the runs that would reuse the reference's "
@@ -1120,6 +1126,7 @@ def write_report(rows: Sequence[dict[str, Any]], out: Path, images: Path | None 
 # ---- cache files: written whole (spikesim.outputs: temporary file, then rename; an interrupted study
 # leaves the old file or the new one), read with errors naming the file ----
 def _write_json(path: Path, obj: Any) -> None:
+    check_replaceable(path)
     atomic_write_file(path, lambda f: f.write((json.dumps(_jsonable(obj), indent=2) + "\n").encode()))
 
 
@@ -1130,16 +1137,24 @@ NPZ_KEY = "cache_key"
 
 
 def _save_npz(path: Path, key: str, **arrays: np.ndarray) -> None:
+    check_replaceable(path)  # a FIFO at a cache file was replaced (round nineteen)
     atomic_write_file(path, lambda f: np.savez_compressed(f, **arrays, **{NPZ_KEY: np.array(key)}))
+
+
+#: What np.load raises on a damaged archive: a cut or edited zip, a deflate stream that does not
+#: inflate (zlib.error: a traceback in round nineteen), a header claiming TiBs (MemoryError).
+_DAMAGED_NPZ = (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zlib.error, MemoryError)
 
 
 def _npz_key(path: Path) -> str | None:
     """The cache key a cached .npz was written under; None for one without (an older spikesim's),
-    a damaged or a missing one."""
+    a damaged, a missing one, or anything that is not a regular file (a FIFO hung np.load)."""
+    if file_problem(path):
+        return None
     try:
         with np.load(path) as z:
             return str(z[NPZ_KEY]) if NPZ_KEY in z.files else None
-    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
+    except _DAMAGED_NPZ:
         return None
 
 
@@ -1164,11 +1179,15 @@ def _read_json(path: Path) -> dict[str, Any]:
 
 def _load_npz(path: Path, *keys: str) -> dict[str, np.ndarray]:
     """The named arrays of a cached .npz, read now (a damaged archive fails here, naming it)."""
+    problem = file_problem(path)
+    if problem:  # a FIFO there hung np.load (round nineteen)
+        raise ValueError(f"{path}: {problem}, where a cache file belongs; delete it to measure that run again")
     try:
         with np.load(path) as z:
             return {k: z[k] for k in keys}
-    except (ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
-        raise ValueError(f"{path}: damaged cache file ({exc}); delete it to measure that run again") from exc
+    except _DAMAGED_NPZ as exc:
+        raise ValueError(f"{path}: damaged cache file ({type(exc).__name__}: {exc}); delete it to measure that run "
+                         "again") from exc
 
 
 def _is_cached(row_path: Path, npz_path: Path, key: str) -> bool:
@@ -1176,9 +1195,23 @@ def _is_cached(row_path: Path, npz_path: Path, key: str) -> bool:
     if not (row_path.exists() and npz_path.exists()):
         return False
     try:
-        return _read_json(row_path).get("key") == key and _npz_key(npz_path) == key
+        if _read_json(row_path).get("key") != key or _npz_key(npz_path) != key:
+            return False
     except ValueError as exc:
         log.warning("%s", exc)
+        return False
+    if not _npz_intact(npz_path):  # its key intact, an array damaged: a traceback later (round nineteen)
+        log.warning("%s: damaged cache file; that run is measured again", npz_path)
+        return False
+    return True
+
+
+def _npz_intact(path: Path) -> bool:
+    """Whether every array of a cached .npz inflates to what its checksum says (zip's CRC-32)."""
+    try:
+        with zipfile.ZipFile(path) as z:
+            return z.testzip() is None
+    except _DAMAGED_NPZ:
         return False
 
 

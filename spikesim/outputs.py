@@ -518,6 +518,11 @@ def _flock(out: Path, name: str, waits: str, what: str, shown: Path | None = Non
                 raise
             Path(out).mkdir(parents=True, exist_ok=True)
             continue
+        except OSError as exc:  # a socket there: a bare "No such device or address" (round nineteen)
+            if exc.errno != errno.ENXIO:
+                raise
+            raise FileExistsError(f"{path}: is a socket, not a regular file, where spikesim keeps {what}; "
+                                  "remove it") from None
         try:
             if not stat.S_ISREG(os.fstat(fd).st_mode):
                 raise FileExistsError(f"{path}: is not a regular file, where spikesim keeps {what}; remove it")
@@ -539,8 +544,8 @@ def _flock(out: Path, name: str, waits: str, what: str, shown: Path | None = Non
             break
         os.close(fd)  # its holder removed it as we locked it: lock the file there now
     _HELD_RECORD_LOCKS[key] = 1
-    try:
-        left = bool(os.pread(fd, 64, 0).strip())
+    try:  # only a holder's own record counts: "hello" or NULs a user left there are no killed writer's (round nineteen)
+        left = re.match(rb"pid [0-9]+: ", os.pread(fd, 64, 0)) is not None
     except OSError:
         left = False
     with contextlib.suppress(OSError):  # who holds it, for a command that waits (a full disk: unnamed)
