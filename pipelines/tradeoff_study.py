@@ -707,7 +707,7 @@ def collect_gt_rows(cfg: StudyConfig, out: Path) -> list[dict[str, Any]]:
         ref_key = _run_key(_scene_key(cfg, scene, light), reference)
         ref_gt = _load_npz(folder / "reference.npz", "gt")["gt"]  # damaged: named first
         _check_current(folder / "reference.json", ref, ref_key)
-        ref_gt = _load_current_npz(folder / "reference.npz", ref_key, "gt")["gt"]
+        _check_npz_key(folder / "reference.npz", ref_key)
         ref_frame_s = float(ref.get("gt_render_s", math.nan)) / cfg.windows  # NaN: measured before it was kept
         timed = ref_frame_s * cfg.windows >= MIN_TIMED_S
         block = [{"scene": scene_label(scene), "light": light, "run": f"gt spp={cfg.gt_spp}", "knob": "gt",
@@ -720,7 +720,7 @@ def collect_gt_rows(cfg: StudyConfig, out: Path) -> list[dict[str, Any]]:
                             "those)", folder, spp)
                 continue
             row = _read_json(path)
-            gt = _load_current_npz(folder / f"{_gt_name(spp)}.npz", _gt_key(cfg, scene, light, spp), "gt")["gt"]
+            gt = _load_npz(folder / f"{_gt_name(spp)}.npz", "gt")["gt"]  # its key: _is_cached above
             err = gt_error(gt, ref_gt)
             frame_s = float(row["gt_render_s"]) / cfg.windows
             block.append({"scene": scene_label(scene), "light": light, "run": f"gt spp={spp}", "knob": "gt", "gt_spp": spp,
@@ -832,9 +832,9 @@ def collect_rows(cfg: StudyConfig, out: Path, runs: Sequence[RunSpec] | None = N
     for scene, light, folder, ref in _reference_folders(cfg, out):
         scene_key = _scene_key(cfg, scene, light)  # the scene's files hashed once per scene-light
         ref_key = _run_key(scene_key, plan_runs(cfg)[0])
-        _load_npz(folder / "reference.npz", "packed", "gt")  # damaged: named first
+        ref_npz = _load_npz(folder / "reference.npz", "packed", "gt")  # damaged: named first
         _check_current(folder / "reference.json", ref, ref_key)
-        ref_npz = _load_current_npz(folder / "reference.npz", ref_key, "packed", "gt")
+        _check_npz_key(folder / "reference.npz", ref_key)
         gt = ref_npz["gt"]
         ref_recon = cached_recon_scores(folder, "reference", ref["key"], ref["key"], ref_npz["packed"], gt, cfg)
         # the scene-light's light level (docs: the study's light classes)
@@ -851,7 +851,8 @@ def collect_rows(cfg: StudyConfig, out: Path, runs: Sequence[RunSpec] | None = N
             row = _read_json(p)
             key = _run_key(scene_key, spec)
             _check_current(p, row, key)  # a missing run is left out; another study's refused
-            data = _load_current_npz(folder / f"{_slug(spec.name)}.npz", key, "packed", "y_centres")
+            data = _load_npz(folder / f"{_slug(spec.name)}.npz", "packed", "y_centres")
+            _check_npz_key(folder / f"{_slug(spec.name)}.npz", key)
             same = row["session"] == ref["session"]
             # a run resumed in another process: the reference re-timed there (probe frames)
             ref_render = ref["render_s"] if same or "ref_frame_s" not in row else row["ref_frame_s"] * cfg.num_steps
@@ -1158,15 +1159,13 @@ def _npz_key(path: Path) -> str | None:
         return None
 
 
-def _load_current_npz(path: Path, key: str, *names: str) -> dict[str, np.ndarray]:
-    """`_load_npz` (a damaged file named as such), of a file written under `key`: another study's
+def _check_npz_key(path: Path, key: str) -> None:
+    """A cached .npz read for the report must have been written under `key`: another study's
     arrays, or arrays cached without a key, are refused as `_check_current` refuses a record."""
-    data = _load_npz(path, *names)
     if _npz_key(path) != key:
         raise ValueError(f"{path}: cached for another scene, seed or size, or by an older spikesim (not what these "
                          "options and the scene's files make now); run the study without --report-only to measure "
                          "it again")
-    return data
 
 
 def _read_json(path: Path) -> dict[str, Any]:
