@@ -63,6 +63,20 @@ def open_scenes(root: str | Path | Sequence[str | Path]) -> list[Scene]:
     return scenes
 
 
+def stream_sha256(sc: Any) -> str | None:
+    """The sha256 of a scene's spike stream as its dataset's checksum record (checksums.json) gives
+    it, or None (a scene made in memory, or a record that is missing or unreadable). Names do not
+    identify scenes across datasets (every RLLR set names its scenes rllr_0000, ...); this does."""
+    path = getattr(getattr(sc, "scene", sc), "path", None)  # a TimeSlice's scene's
+    if not isinstance(path, (str, Path)):
+        return None
+    try:
+        digest = json.loads((Path(path) / "checksums.json").read_text()).get("files", {})["spikes.dat"]["sha256"]
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return None
+    return digest if isinstance(digest, str) else None
+
+
 def shared_scenes(a: Sequence[Scene], b: Sequence[Scene]) -> list[str]:
     """Names of the scenes of `a` that are also in `b`: the same folder on disk, or a copy of one
     (the same spike stream, by the sha256 its checksum record gives: a copied dataset passed as
@@ -73,11 +87,8 @@ def shared_scenes(a: Sequence[Scene], b: Sequence[Scene]) -> list[str]:
         if not isinstance(path, (str, Path)):
             return set()
         out: set[Any] = {("path", Path(path).resolve())}
-        try:
-            files = json.loads((Path(path) / "checksums.json").read_text()).get("files", {})
-            out.add(("stream", files["spikes.dat"]["sha256"]))
-        except (OSError, ValueError, KeyError, TypeError, AttributeError):
-            pass
+        if (digest := stream_sha256(sc)) is not None:
+            out.add(("stream", digest))
         return out
 
     def steps(sc: Scene) -> tuple[float, float]:

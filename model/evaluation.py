@@ -23,7 +23,7 @@ import math
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 import torch
@@ -109,18 +109,25 @@ def unscored_note(scene: Scene, window: int) -> str | None:
             f"so their centres must be {window} steps apart{apart}")
 
 
-def training_scene_notes(methods: Sequence[Method], scene_names: Sequence[str]) -> list[str]:
-    """A note per checkpoint that trained (or validated) on scenes scored here, as its record
-    (`extra.data_order`, scene names) says: those scores are training fit, not held-out ones.
-    `compare` and `train` refuse such an overlap (model.data.shared_scenes); an evaluation may
-    measure training fit on purpose, so it is said, not refused (round ten: no word at all).
-    Matched by name (a scene of that name in another dataset is named too); shipped weights have
-    no such record."""
+def training_scene_notes(methods: Sequence[Method], scenes: Sequence[Any]) -> list[str]:
+    """A note per checkpoint that trained (or validated) on scenes scored here, as its record says:
+    those scores are training fit, not held-out ones. `compare` and `train` refuse such an overlap
+    (model.data.shared_scenes); an evaluation may measure training fit on purpose, so it is said,
+    not refused (round ten: no word at all). `scenes` are the scored scenes (or their names).
+
+    A scene is matched by its stream's sha256 where both the record (`extra.data_streams`) and the
+    scene's checksum record give one: names repeat across datasets (every RLLR set names its scenes
+    rllr_0000, ...), so a match by name alone said a network had trained on held-out scenes. Where
+    either lacks it (checkpoints written before the record, external pairs) the name decides, and the
+    note says so. Shipped weights have no such record."""
     from model.checkpoint import load_checkpoint
+    from model.data import stream_sha256
     from model.methods import ModelMethod
 
     def base(name: object) -> str:  # several roots' scenes are "folder:name"
         return str(name).rsplit(":", 1)[-1]
+    scored = [(sc if isinstance(sc, str) else sc.name, None if isinstance(sc, str) else stream_sha256(sc))
+              for sc in scenes]
     notes = []
     for m in methods:
         if not isinstance(m, ModelMethod) or m.checkpoint is None:
@@ -132,14 +139,28 @@ def training_scene_notes(methods: Sequence[Method], scene_names: Sequence[str]) 
         order = extra.get("data_order") if isinstance(extra, dict) else None
         if not (isinstance(order, list) and len(order) == 2 and all(isinstance(part, list) for part in order)):
             continue  # checkpoints written before the record have none
-        for part, verb in ((order[0], "trained"), (order[1], "validated (its best.pt chosen by their scores)")):
-            theirs = {base(n) for n in part}
-            shared = [n for n in scene_names if base(n) in theirs]
-            if shared:
-                notes.append(f"{m.name} ({m.checkpoint}) {verb} on {len(shared)} of the scenes scored here "
-                             f"({', '.join(shared[:6])}{' ...' if len(shared) > 6 else ''}), as its record "
-                             "(extra.data_order) names them: its scores there measure training fit, not held-out "
-                             "scenes")
+        streams = extra.get("data_streams")
+        if not (isinstance(streams, list) and len(streams) == 2
+                and all(isinstance(p, list) and len(p) == len(o) for p, o in zip(streams, order))):
+            streams = [[None] * len(part) for part in order]
+        for names, digests, verb in ((order[0], streams[0], "trained"),
+                                     (order[1], streams[1], "validated (its best.pt chosen by their scores)")):
+            their_digests = {d for d in digests if isinstance(d, str)}
+            all_names = {base(n) for n in names}
+            unrecorded = {base(n) for n, d in zip(names, digests) if not isinstance(d, str)}
+            by_stream = [n for n, d in scored if d is not None and d in their_digests]
+            # a scored scene without a stream record can only be matched by name; one with a record only
+            # against the run's scenes that have none
+            by_name = [n for n, d in scored if (d is None and base(n) in all_names)
+                       or (d is not None and d not in their_digests and base(n) in unrecorded)]
+            for shared, how in ((by_stream, "the same spike streams (by sha256)"),
+                                (by_name, "scenes of the same names (their streams not recorded: another "
+                                          "dataset's scenes of those names would be named too)")):
+                if shared:
+                    notes.append(f"{m.name} ({m.checkpoint}) {verb} on {len(shared)} of the scenes scored here "
+                                 f"({', '.join(shared[:6])}{' ...' if len(shared) > 6 else ''}): {how}, as its "
+                                 "record (extra.data_order) names them; its scores there measure training fit, "
+                                 "not held-out scenes")
     return notes
 
 

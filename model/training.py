@@ -31,7 +31,7 @@ from torch.utils.data import DataLoader
 from .arch import build_model, count_parameters
 from .checkpoint import load_checkpoint, save_checkpoint, state_fingerprint
 from .config import ExperimentConfig
-from .data import Scene, SequenceDataset, TimeSlice, shared_scenes
+from .data import Scene, SequenceDataset, TimeSlice, shared_scenes, stream_sha256
 from .losses import SELF_SUPERVISED, SelfSupervisedObjective, build_loss
 from .metrics import psnr, psnr_aligned, ssim
 from .precision import autocast, grad_scaler, resolve_precision
@@ -698,6 +698,10 @@ def _train(experiment: ExperimentConfig, train_scenes: Sequence[Scene], val_scen
                   f"validating on {', '.join(s.name for s in val_scenes)} (no step is in both; the objects and "
                   "motion are, so this checks less than held-out scenes would)", file=sys.stderr)
 
+    # each scene's stream sha256 (or None), beside its name: `evaluate` says which scored scenes the run
+    # trained on by these, since names repeat across datasets (model.evaluation.training_scene_notes)
+    streams = [[stream_sha256(s) for s in train_scenes], [stream_sha256(s) for s in val_scenes]]
+
     def checkpoint(path: Path) -> None:
         if dist.is_main:
             record = {} if budget is None else {**budget.record(),
@@ -707,6 +711,7 @@ def _train(experiment: ExperimentConfig, train_scenes: Sequence[Scene], val_scen
                                    "data_identity": identity, "data_content": content,
                                    "data_scenes": f"{len(train_scenes)} training + {len(val_scenes)} validation",
                                    "data_order": [[s.name for s in train_scenes], [s.name for s in val_scenes]],
+                                   "data_streams": streams,
                                    **({"init_weights": init_record} if init_record else {})})
 
     def last_step() -> int:

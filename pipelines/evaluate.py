@@ -67,7 +67,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
                              f"{', '.join(s.name for s in scenes)})")
         scenes = [s for s in scenes if s.name in wanted]
     rows = evaluate(scenes, methods, args.window, progress=not (args.quiet or args.json))
-    return _report(args, rows, names, {"data": str(args.data)}, training_scene_notes(methods, [s.name for s in scenes]))
+    return _report(args, rows, names, {"data": str(args.data)}, training_scene_notes(methods, scenes))
 
 
 def _report(args: argparse.Namespace, rows: Sequence[Score], names: Sequence[str], source: dict,

@@ -110,3 +110,39 @@ def test_a_checkpoint_scored_on_scenes_it_trained_on_is_noted(tmp_path, capsys):
     assert main(["evaluate", "--data", str(data), "--methods", f"mine={ckpt}", "--window", "7", "--json",
                  "--threads", "1", "--quiet"]) == 0
     assert json.loads(capsys.readouterr().out)["notes"] == []
+
+
+def test_scenes_of_the_same_names_in_another_dataset_are_not_taken_for_training_scenes(tmp_path, capsys):
+    """Every RLLR set names its scenes rllr_0000, ...: matched by name, `evaluate` said a network had
+    trained on held-out sets' scenes. `train` records each scene's stream sha256 (extra.data_streams),
+    and the note matches by it: a same-named scene of another dataset is not noted, a copy of the
+    training set elsewhere is."""
+    import shutil
+
+    from model.checkpoint import load_checkpoint
+    from model.config import ExperimentConfig, ModelConfig, TrainConfig
+    from model.data import open_scenes, stream_sha256
+    from model.training import run_training
+    trained = _dataset(tmp_path / "a", 60, 7, 3)
+    other = _dataset(tmp_path / "b", 62, 7, 3)  # the same names, other streams
+    model = ModelConfig(window=7, num_features=8, num_blocks=1, deform_groups=2)
+    exp = ExperimentConfig("tiny10", model=model, train=TrainConfig(num_windows=2, crop=8, batch_size=1, epochs=1,
+                                                                    lr_milestones=(5,), samples_per_epoch=1,
+                                                                    max_steps=1, val_every=1))
+    scenes = open_scenes(trained)
+    run_training(exp, scenes[:1], scenes[1:], tmp_path / "run", device="cpu", progress=False)
+    ckpt = tmp_path / "run" / "last.pt"
+    assert load_checkpoint(ckpt)["extra"]["data_streams"] == [[stream_sha256(scenes[0])], [stream_sha256(scenes[1])]]
+    assert stream_sha256(open_scenes(other)[0]) != stream_sha256(scenes[0])
+
+    def notes(root):
+        capsys.readouterr()
+        assert main(["evaluate", "--data", str(root), "--methods", f"mine={ckpt}", "--window", "7", "--json",
+                     "--threads", "1", "--quiet"]) == 0
+        return json.loads(capsys.readouterr().out)["notes"]
+    assert notes(other) == []
+    got = notes(trained)
+    assert len(got) == 2 and "trained on 1 of the scenes scored here (tex_low): the same spike streams" in got[0]
+    assert "validated" in got[1] and "(tex_normal)" in got[1]
+    shutil.copytree(trained, tmp_path / "copy")  # the training set copied elsewhere: still its streams
+    assert [n.split(": ")[1][:24] for n in notes(tmp_path / "copy")] == ["the same spike streams ("] * 2
