@@ -77,7 +77,12 @@ class ReconNet(nn.Module):
 
     # ---- per-window pieces ----------------------------------------------------------------
     def encode(self, spikes: torch.Tensor, maps: torch.Tensor | None) -> torch.Tensor:
-        """F = f(Rep) for a batch of padded windows: spikes (N, T, H, W), maps (N, H, W) or None."""
+        """F = f(Rep) for a batch of padded windows: spikes (N, T, H, W), maps (N, H, W) or None.
+        With input_norm, both are divided by the window's rate first (window_rate_scale)."""
+        if self.cfg.input_norm != "none":
+            scale = window_rate_scale(spikes, self.cfg.input_norm_floor_rate)
+            spikes = spikes / scale[:, None, None, None]
+            maps = None if maps is None else maps / scale[:, None, None]
         rep = self.representation(spikes, None if maps is None else maps.unsqueeze(1))
         return self.extract(rep)
 
@@ -94,12 +99,17 @@ class ReconNet(nn.Module):
                span: torch.Tensor | None = None) -> torch.Tensor:
         """Y = c([Ff, Fb]) -> (N, H, W); with output "refine", the head's gates blend its frame with
         the classic estimates of `window` (N, T, H, W), the window's own (padded) spikes, and with
-        refine_span > 1 the mean rate `span` (N, H, W) of the span centred on it (span_rates)."""
+        refine_span > 1 the mean rate `span` (N, H, W) of the span centred on it (span_rates). With
+        input_norm the frame is scaled back by the window's rate (window_rate_scale)."""
         out = self.head(torch.cat([fwd, bwd], 1))
+        if window is None and self.cfg.decode_needs_window:
+            raise ValueError(f"model.output {self.cfg.output!r} with input_norm {self.cfg.input_norm!r} decodes a "
+                             "window with its spikes: pass window=")
+        if self.cfg.input_norm != "none":
+            scale = window_rate_scale(window, self.cfg.input_norm_floor_rate)
+            out = torch.cat([out[:, :1] * scale[:, None, None, None].to(out.dtype), out[:, 1:]], 1)
         if self.cfg.output == "direct":
             return out.squeeze(1)
-        if window is None:
-            raise ValueError("model.output 'refine' decodes a window with its spikes: pass window=")
         if (span is None) != (self.cfg.refine_span == 1):
             raise ValueError(f"model.refine_span={self.cfg.refine_span}: decode takes span= exactly when it is > 1")
         return refine(out, window, span)
@@ -135,9 +145,19 @@ class ReconNet(nn.Module):
         state = None
         for i in range(k - 1, -1, -1):
             state = self.step(feats[:, i], state, backward=True)
-            out[i] = self.decode(fwd[i], state, x[:, i] if self.cfg.output == "refine" else None,
+            out[i] = self.decode(fwd[i], state, x[:, i] if self.cfg.decode_needs_window else None,
                                  None if spans is None else spans[:, i])
         return torch.stack(out, 1)[..., :h, :w]
+
+
+# ---- input normalisation by the window's firing rate ----------------------------------------------
+def window_rate_scale(window: torch.Tensor, floor_rate: float) -> torch.Tensor:
+    """Each window's mean firing rate (spikes per step over its steps and pixels), at least
+    `floor_rate`: window (N, T, H, W) 0/1 -> (N,). Why: the y a network must give is proportional to
+    the rate (a noise-free integrate-and-fire pixel fires at a rate proportional to its light), so
+    inputs divided by it, and the frame multiplied by it, make the features the same at every light
+    level (model.input_norm, issue 39's lever "input normalisation by the window's firing rate")."""
+    return window.float().mean(dim=(1, 2, 3)).clamp_min(floor_rate)
 
 
 # ---- the refining output ------------------------------------------------------------------------

@@ -24,6 +24,7 @@ LR_SCHEDULES = ("multistep", "cosine")
 OUTPUTS = ("direct", "refine")
 #: The widest span the refining head averages over (windows): beyond it a still scene is rare.
 MAX_REFINE_SPAN = 21
+INPUT_NORMS = ("none", "window_rate")
 DEFORM_BACKENDS = ("auto", "torch", "torchvision")
 
 
@@ -80,6 +81,14 @@ class ModelConfig:
       estimate for "refine" (a third gate picks between it and the window's own TFP); 1 = off.
       Why: where the scene is still, the average over several windows (TFP-205 at 5 x 41 steps)
       beats any one window's estimate (docs/model.md, "The fifth stage").
+    input_norm: "none", or "window_rate": each window's inputs (its spikes and, with the "inverse"
+      interval transform, its 1/GISI map) are divided by the window's mean firing rate (spikes per
+      step over its pixels), and the network's frame is multiplied by it again, so the features see
+      one brightness whatever the light and brightness is not something the weights must learn
+      (model/arch.py, window_rate_scale). The classic estimates of "refine" are not scaled.
+    input_norm_floor_rate: the least rate (spikes per step) the window's mean is taken as, so a
+      window with almost no spikes is not amplified without bound: 1e-3, one spike per pixel in
+      1,000 steps, bounds the gain at 1,000.
     """
 
     arch: str = "lrrep_bidirectional"
@@ -96,8 +105,19 @@ class ModelConfig:
     pad_multiple: int = 4
     output: str = "direct"
     refine_span: int = 1
+    input_norm: str = "none"
+    input_norm_floor_rate: float = 1e-3
 
     def __post_init__(self) -> None:
+        _require(self.input_norm in INPUT_NORMS, f"model.input_norm must be one of {INPUT_NORMS}, got {self.input_norm!r}")
+        _require(isinstance(self.input_norm_floor_rate, (int, float)) and not isinstance(self.input_norm_floor_rate, bool)
+                 and 0 < self.input_norm_floor_rate <= 1,
+                 f"model.input_norm_floor_rate must be a rate in (0, 1] spikes per step, got {self.input_norm_floor_rate!r}")
+        _require(self.input_norm == "none" or self.representation in ("lr_rep", "spike")
+                 and (self.representation == "spike" or self.interval_transform == "inverse"),
+                 f"model.input_norm={self.input_norm!r} scales rate-like inputs: it needs representation 'lr_rep' "
+                 f"with interval_transform 'inverse' (1/interval is a rate) or 'spike', got representation="
+                 f"{self.representation!r}, interval_transform={self.interval_transform!r}")
         _require(self.output in OUTPUTS, f"model.output must be one of {OUTPUTS}, got {self.output!r}")
         _require(_int_in(self.refine_span, 1, MAX_REFINE_SPAN) and self.refine_span % 2 == 1,
                  f"model.refine_span must be an odd integer in 1..{MAX_REFINE_SPAN} (windows), got {self.refine_span!r}")
@@ -123,6 +143,12 @@ class ModelConfig:
                  f"model.deform_backend must be one of {DEFORM_BACKENDS}, got {self.deform_backend!r}")
         _require(_int_in(self.pad_multiple, 4, MAX_PAD_MULTIPLE) and self.pad_multiple % 4 == 0,
                  f"model.pad_multiple must be a multiple of 4 (two stride-2 pyramid levels), got {self.pad_multiple!r}")
+
+    @property
+    def decode_needs_window(self) -> bool:
+        """Whether decoding a window needs its spikes: the refining head's classic estimates, or the
+        firing rate the frame is scaled back by (input_norm)."""
+        return self.output == "refine" or self.input_norm != "none"
 
     @property
     def carries_spike_times(self) -> bool:

@@ -200,7 +200,7 @@ def stream_reconstruct(model: ReconNet | PublishedNet, source: WindowSource, chu
                 bwd[i] = sb
             for i in range(n):
                 state_f = model.step(feats[i], state_f, backward=False)
-                window = model.pad(spk[:, i].to(torch.float32)) if model.cfg.output == "refine" else None
+                window = model.pad(spk[:, i].to(torch.float32)) if model.cfg.decode_needs_window else None
                 span_rate = None
                 if span > 1:
                     j = starts[c] + i
