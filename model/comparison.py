@@ -11,6 +11,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import io
+import hashlib
 import itertools
 import json
 import math
@@ -141,10 +142,11 @@ def _comparable(experiment: dict[str, Any]) -> dict[str, Any]:
     return json.loads(json.dumps({k: v for k, v in experiment.items() if k not in ("name", "description")}))
 
 
-def run_mismatch(last: Path, run: Any, identity: str, init: str | None) -> str | None:
+def run_mismatch(last: Path, run: Any, identity: str, init: str | None, content: str | None = None) -> str | None:
     """How a kept run differs from the run asked for (its network and recipe, its training data, the
     weights it started from), or None: compare keeps a run only for the very run it would train
-    (the checks `train --resume` makes)."""
+    (the checks `train --resume` makes). `identity` and `content` are the training data's
+    (model.training.data_identity, data_content): names and sizes, and what the files hold."""
     from model.checkpoint import load_checkpoint
     state = load_checkpoint(last)
     stored = state.get("experiment")
@@ -157,13 +159,17 @@ def run_mismatch(last: Path, run: Any, identity: str, init: str | None) -> str |
     extra = state.get("extra") if isinstance(state.get("extra"), dict) else {}
     if extra.get("data_identity") not in (None, identity):
         return "other training data"
+    if content is not None and extra.get("data_content") not in (None, content):
+        # the same names and sizes with other files: a dataset rewritten in place (round twenty: the runs
+        # trained on the old content were kept, rc 0)
+        return "other training data (the same scenes with other content: rewritten in place?)"
     started = (extra.get("init_weights") or {}).get("spec") if isinstance(extra.get("init_weights"), dict) else None
     if started != init:
         return f"other starting weights ({started or 'a random draw'}, not {init or 'a random draw'})"
     return None
 
 
-def _same_run(out: Path, run: Any, seed: int, steps: int | None, identity: str) -> Path | None:
+def _same_run(out: Path, run: Any, seed: int, steps: int | None, identity: str, content: str) -> Path | None:
     """A finished run in `out` of the very same network, recipe, seed and training data under another
     label (the ablation's E is the representations' LR-Rep), or None. Only step-budgeted runs trained
     from a random draw are shared."""
@@ -177,7 +183,7 @@ def _same_run(out: Path, run: Any, seed: int, steps: int | None, identity: str) 
             continue
         if isinstance(have, dict) and _comparable(have) == want:
             last = cfg.parent / "last.pt"
-            if _steps_done(last)[0] == steps and run_mismatch(last, run, identity, None) is None:
+            if _steps_done(last)[0] == steps and run_mismatch(last, run, identity, None, content) is None:
                 return last
     return None
 
@@ -279,8 +285,8 @@ def train_seeds(configs: Sequence[tuple[str, Any]], seeds: Sequence[int], steps:
         raise ValueError("train_seeds: jobs > 1 needs data_roots (each worker process opens the data)")
     done: dict[tuple[str, int], Path] = {}
     tasks: list[RunTask] = []
-    from model.training import data_identity
-    identities: dict[int, str] = {}
+    from model.training import data_content, data_identity
+    identities: dict[int, tuple[str, str]] = {}
     per_label = steps if isinstance(steps, dict) else {label: steps for label, _ in configs}
     for (label, exp), seed in itertools.product(configs, seeds):
         steps = per_label[label]
@@ -291,9 +297,11 @@ def train_seeds(configs: Sequence[tuple[str, Any]], seeds: Sequence[int], steps:
         folder = run_dir(out, label, seed)
         last = folder / "last.pt"
         scenes = train_scenes[label] if isinstance(train_scenes, dict) else train_scenes
-        identity = identities.setdefault(id(scenes), data_identity(scenes, []))
+        if id(scenes) not in identities:
+            identities[id(scenes)] = (data_identity(scenes, []), data_content(scenes, []))
+        identity, content = identities[id(scenes)]
         if last.exists():
-            differs = run_mismatch(last, run, identity, init)
+            differs = run_mismatch(last, run, identity, init, content)
             if differs == "another network or recipe (train.max_steps)":  # the schedule was planned for its steps
                 raise ValueError(f"{folder} holds a run trained for {_steps_done(last)[0]} steps; --max-steps {steps} "
                                  "plans another learning-rate schedule, so it is a new run: choose another --out")
@@ -302,7 +310,7 @@ def train_seeds(configs: Sequence[tuple[str, Any]], seeds: Sequence[int], steps:
                                  "only for the very config, data, seed and --init it would train: remove that folder "
                                  "or choose another --out")
         if not last.exists() and init is None:
-            same = _same_run(out, run, seed, steps, identity)
+            same = _same_run(out, run, seed, steps, identity, content)
             if same is not None:  # this config and seed trained under another label: one run serves both
                 print(f"[compare] {label} seed {seed}: the same config and seed already trained as {same.parent}",
                       file=sys.stderr)
@@ -455,12 +463,14 @@ def evaluate_runs(checkpoints: dict[tuple[str, int], Path], test_scenes: Sequenc
     keyed by the test set's identity and the checkpoint's size and time: a comparison rerun with
     more configs scores only what is new. jobs > 1 scores that many methods at once, each process
     opening `test_root`."""
-    from model.training import data_identity
+    from model.training import data_content, data_identity
     if chunk is None:  # a test sequence in one pass: streaming in chunks would redo the backward half (1.6x)
         chunk = EVAL_CHUNK_WINDOWS
     if jobs > 1 and test_root is None:
         raise ValueError("evaluate_runs: jobs > 1 needs test_root (each worker process opens the test data)")
-    test_id = data_identity(test_scenes, [])
+    # the test set's names and sizes and what its files hold: scores kept for a test set rewritten in
+    # place were reported for the new content (round twenty)
+    test_id = hashlib.sha256(f"{data_identity(test_scenes, [])}-{data_content(test_scenes, [])}".encode()).hexdigest()[:16]
     scene_names = [s.name for s in test_scenes]
     data: Any = test_root if jobs > 1 else test_scenes
     cached: dict[str, list[Any]] = {}

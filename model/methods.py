@@ -185,7 +185,9 @@ def method_from_spec(spec: str, window: int = 41, chunk: int = 8, device: str = 
     name of model.pretrained.PRETRAINED, e.g. the earlier lrrep_v1) or
     a checkpoint path; "label=..." names the method in tables."""
     # a checkpoint path may hold "=" (runs/lr=3e-4/best.pt): an existing file is a path, not label=spec
-    label, _, body = spec.partition("=") if "=" in spec and not Path(spec).is_file() else ("", "", spec)
+    label, eq, body = spec.partition("=") if "=" in spec and not Path(spec).is_file() else ("", "", spec)
+    if eq and not label.strip():  # a blank label named the method "" in every table (round twenty)
+        raise ValueError(f"method {spec!r}: the label before '=' is blank; give one (mine={body}) or none ({body})")
     if body in MAP_METHODS:
         return MapMethod(label or (body.upper() if body in ("tfp", "tfi") else body), body, window, chunk)
     if body in CLASSIC_METHODS:

@@ -437,10 +437,9 @@ def _start_or_resume(out: Path, resume: bool, experiment: ExperimentConfig, run:
     for name in RUN_FILES:  # a link where the run writes is refused, naming it, before anything is written
         writable(out, name)
     if resume:
-        start = _resume(last_path, dev, experiment.model, experiment.train, run.model, run.opt, run.sched, run.scaler)
-        if dist.is_main:
-            _restore_config_record(out, experiment)
-        return start
+        # config.json is put right by the caller, once the run's data are checked too (round twenty: a resume
+        # refused for its data had already rewritten the record of a run that never went on)
+        return _resume(last_path, dev, experiment.model, experiment.train, run.model, run.opt, run.sched, run.scaler)
     existing = _run_files_present(out)
     if existing and not overwrite:
         raise FileExistsError(f"{out} holds a run ({', '.join(existing)}): pass --resume (resume=True) to continue "
@@ -666,6 +665,8 @@ def _train(experiment: ExperimentConfig, train_scenes: Sequence[Scene], val_scen
         raise ValueError(f"--resume: {out / 'last.pt'} trained on other data: {what}; resume "
                          "with the same --data and --val-data, or start a new run from its weights (--init "
                          f"{out / 'last.pt'})")
+    if resume and dist.is_main:
+        _restore_config_record(out, experiment)
     init_record = init_record or saved.get("init_weights")  # a resumed fine-tuning run keeps saying where it began
     if init_record and dist.is_main and not resume:
         print(f"[train] starting from the weights of {init_record['spec']} ({init_record['weights_sha256'][:16]}...)",

@@ -810,15 +810,36 @@ def run_study(cfg: StudyConfig, out: Path, progress: bool = True) -> list[dict[s
                                    "render_seed": cfg.seed + 1, "centres": cfg.centres()})
                 log.info("%s %s: ground truth at %d spp in %.1f s", scene, light, spp, seconds)
     for scene, light, folder, _ in list(_reference_folders(cfg, out)):  # each scene-light's Monte Carlo ratio
-        path = folder / "mc_probe.json"
+        path = _cache_slot(folder / "mc_probe.json")
         key = _mc_key(cfg, scene, light)
-        if path.exists() and _read_json(path).get("key") == key:
+        if _probe_of(path, key) is not None:
             continue
         study = studies.setdefault((scene, light), SceneStudy(cfg, scene, light, folder))
         _write_json(path, {"key": key, "session": session, **study.monte_carlo_probe()})
     for st in studies.values():  # release Mitsuba scenes before the report
         st._renderers.clear()
     return collect_rows(cfg, out, runs)
+
+
+def _probe_of(path: Path, key: str) -> dict[str, Any] | None:
+    """The scene-light's cached Monte Carlo probe if it was measured under `key`, else None: a
+    missing, damaged or other study's probe is measured again by a full run and NaN in a report
+    (round twenty: a damaged one stopped the study, --report-only too, after every run)."""
+    if not path.exists() and not path.is_symlink():
+        return None
+    try:
+        probe = _read_json(path)
+    except ValueError as exc:
+        log.warning("%s", exc)
+        return None
+    if probe.get("key") != key:
+        return None
+    try:
+        float(probe["mc_ratio"])
+    except (KeyError, TypeError, ValueError):
+        log.warning("%s: damaged cache file (no number at mc_ratio); the probe is measured again", path)
+        return None
+    return probe
 
 
 def _mc_key(cfg: StudyConfig, scene: str, light: str) -> str:
@@ -839,9 +860,9 @@ def collect_rows(cfg: StudyConfig, out: Path, runs: Sequence[RunSpec] | None = N
         ref_recon = cached_recon_scores(folder, "reference", ref["key"], ref["key"], ref_npz["packed"], gt, cfg)
         # the scene-light's light level (docs: the study's light classes)
         y_median = float(np.median(gt))
-        probe = _read_json(folder / "mc_probe.json") if (folder / "mc_probe.json").exists() else {}
+        probe = _probe_of(folder / "mc_probe.json", _mc_key(cfg, scene, light))
         # the sample rule's ratio (NaN until the study is run again: it renders only the probes)
-        mc_ratio = float(probe["mc_ratio"]) if probe.get("key") == _mc_key(cfg, scene, light) else math.nan
+        mc_ratio = float(probe["mc_ratio"]) if probe is not None else math.nan
         block = []
         untimed_said = False
         for spec in runs:
@@ -1126,8 +1147,25 @@ def write_report(rows: Sequence[dict[str, Any]], out: Path, images: Path | None 
 
 # ---- cache files: written whole (spikesim.outputs: temporary file, then rename; an interrupted study
 # leaves the old file or the new one), read with errors naming the file ----
+def _cache_slot(path: Path) -> Path:
+    """`path`, where the study keeps a cache file, if a cache file may be written there; else a
+    ValueError in the study's words: a FIFO, device, socket, link or folder there is refused before
+    its run is measured again, not after, and the advice is to remove it (round twenty: "choose
+    another output", after the run had been simulated again)."""
+    try:
+        check_replaceable(path)
+    except ValueError:
+        problem = "is a symlink" if path.is_symlink() else (file_problem(path) or "is not a regular file")
+    else:
+        if not path.is_dir():
+            return path
+        problem = "is a folder"
+    raise ValueError(f"{path}: {problem}, where this study keeps a cache file; remove it and run the study again "
+                     "(that run is then measured again)")
+
+
 def _write_json(path: Path, obj: Any) -> None:
-    check_replaceable(path)
+    _cache_slot(path)
     atomic_write_file(path, lambda f: f.write((json.dumps(_jsonable(obj), indent=2) + "\n").encode()))
 
 
@@ -1138,7 +1176,7 @@ NPZ_KEY = "cache_key"
 
 
 def _save_npz(path: Path, key: str, **arrays: np.ndarray) -> None:
-    check_replaceable(path)  # a FIFO at a cache file was replaced (round nineteen)
+    _cache_slot(path)  # a FIFO at a cache file was replaced (round nineteen)
     atomic_write_file(path, lambda f: np.savez_compressed(f, **arrays, **{NPZ_KEY: np.array(key)}))
 
 
@@ -1190,7 +1228,9 @@ def _load_npz(path: Path, *keys: str) -> dict[str, np.ndarray]:
 
 
 def _is_cached(row_path: Path, npz_path: Path, key: str) -> bool:
-    """Whether a run's results are cached for this configuration; a damaged cache is measured again."""
+    """Whether a run's results are cached for this configuration; a damaged cache is measured again,
+    and something that is not a regular file at either path refused first (_cache_slot)."""
+    _cache_slot(row_path), _cache_slot(npz_path)
     if not (row_path.exists() and npz_path.exists()):
         return False
     try:

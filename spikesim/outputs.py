@@ -159,9 +159,10 @@ def new_temp_beside(path: str | Path, suffix: str = ".part") -> Path:
 
 def atomic_write_with(path: str | Path, write: Callable[[Path], Any], suffix: str = ".part") -> Path:
     """Call `write(tmp)`, which fills the temporary file `tmp` beside `path`, then rename it to
-    `path`. A symlink or a folder at `path` is refused; on any failure the temporary file is
-    removed and `path` is as it was; an OSError names `path`."""
-    path = check_not_link(path)
+    `path`. A symlink, a device, a FIFO, a socket (check_replaceable) or a folder at `path` is
+    refused; on any failure the temporary file is removed and `path` is as it was; an OSError names
+    `path`."""
+    path = check_replaceable(path)
     if path.is_dir():
         raise IsADirectoryError(errno.EISDIR, "is a directory, expected a file name", str(path))
     tmp = new_temp_beside(path, suffix)
@@ -772,7 +773,7 @@ def _put(tmp: Path, path: Path) -> None:
             block.put(tmp, path, name)
             return
     try:
-        os.replace(tmp, path)
+        os.replace(tmp, check_replaceable(path))  # again: a FIFO or device put there while it was written
     except OSError as exc:
         raise naming(exc, path) from exc
 

@@ -216,9 +216,10 @@ class BatchSimulator:
                                                                      and frames.ndim == 0):
             raise TypeError(f"frames must be an (N, H, W) array or an iterable of (H, W) frames of luminance y, "
                             f"got {type(frames).__name__} {frames!r:.40}")
-        k = int(keyframe_every)
-        if isinstance(keyframe_every, bool) or k != keyframe_every or k < 1:
+        # an integer, not a float that equals one (2.0 ran: round twenty) nor a bool
+        if isinstance(keyframe_every, bool) or not isinstance(keyframe_every, (int, np.integer)) or keyframe_every < 1:
             raise ValueError(f"keyframe_every must be a positive integer, got {keyframe_every!r}")
+        k = int(keyframe_every)
         if max_frames is not None and (isinstance(max_frames, bool) or not isinstance(max_frames, (int, np.integer))
                                        or max_frames < 0):
             raise ValueError(f"max_frames must be an integer >= 0 or None, got {max_frames!r}")

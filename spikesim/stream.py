@@ -13,6 +13,7 @@ packed LSB first, top-down. With W a multiple of 8 (400 and 416 are) a flip is a
 from __future__ import annotations
 
 import errno
+import json
 import math
 import os
 import stat
@@ -166,7 +167,9 @@ def open_temp_beside(path: str | Path, suffix: str = ".part") -> tuple[Any, Path
     Created with mode 0666 masked by the user's umask, like any file the user writes (mkstemp's
     0600 would make shared datasets unreadable to others); O_EXCL so it never reuses a file.
     """
-    path = outputs.check_not_link(path)  # it is replaced by a rename: a link there is refused
+    # it is replaced by a rename: a link, device, FIFO or socket there is refused (round twenty: the Python
+    # writers replaced a character device with a regular file, where the CLI refused it)
+    path = outputs.check_replaceable(path)
     if path.is_dir():
         raise IsADirectoryError(errno.EISDIR, "is a directory; give a file name to write", str(path))
     with outputs.writing(path.parent):
@@ -223,9 +226,9 @@ class DatWriter:
                 # a sidecar beside the file it replaces describes the old stream: readers took the new one
                 # with the old geometry (round seven); a writer that records one writes it after this
                 side = sidecar_path(self.path)
-                if side.is_file() and not side.is_symlink():
+                if is_stream_sidecar(side):  # a file of that name that is not one is the user's (round twenty)
                     side.unlink()
-                os.replace(self._tmp, outputs.check_not_link(self.path))
+                os.replace(self._tmp, outputs.check_replaceable(self.path))
         except BaseException:
             self.abort()
             raise
@@ -361,6 +364,21 @@ def read_dat(path: str | Path, height: int = 250, width: int = 400, start: int =
 def sidecar_path(dat_path: str | Path) -> Path:
     p = Path(dat_path)
     return p.with_suffix(p.suffix + ".json")
+
+
+def is_stream_sidecar(path: str | Path) -> bool:
+    """Whether `path` is a stream's sidecar as write_sidecar writes them: a small regular JSON file
+    (not a link) holding an object with an integer height and width, the geometry a reader takes
+    from it. A writer removes only such a file beside the stream it replaces: a path without a
+    suffix (`cam`) has `cam.json` as its sidecar's name, which may be the user's own file."""
+    p = Path(path)
+    try:
+        if p.is_symlink() or not p.is_file() or p.stat().st_size > 1 << 20:
+            return False
+        info = json.loads(p.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    return isinstance(info, dict) and all(_is_int(info.get(k)) for k in ("height", "width"))
 
 
 def write_sidecar(dat_path: str | Path, info: dict[str, Any]) -> Path:
