@@ -446,10 +446,16 @@ def _eval_task(task: EvalTask) -> list[Any]:
     method = (ModelMethod(task.name, Path(task.spec), task.chunk, task.device) if task.is_run
               else method_from_spec(str(task.spec), task.window))
     rows = evaluate(scenes, [method], task.window, progress=False)
-    stamp = _checkpoint_stamp(Path(task.spec)) if task.is_run else ["baseline", str(task.spec)]
+    stamp = _checkpoint_stamp(Path(task.spec)) if task.is_run else _baseline_stamp(str(task.spec), task.window)
     if task.cache is not None:
         _write_scores(task.cache, stamp, rows)
     return rows
+
+
+def _baseline_stamp(spec: str, window: int) -> list[Any]:
+    """What a baseline's kept scores answer for: its spec and the window it was scored at ("TFP" is
+    TFP at every window: scores of window 41 were reported beside window-21 networks, round twenty-one)."""
+    return ["baseline", spec, int(window)]
 
 
 def evaluate_runs(checkpoints: dict[tuple[str, int], Path], test_scenes: Sequence[Any], window: int,
@@ -479,8 +485,8 @@ def evaluate_runs(checkpoints: dict[tuple[str, int], Path], test_scenes: Sequenc
     for b in baselines:
         name = baseline_label(b, window)
         names.append(name)
-        cache = writable(out, _scores_file(f"{test_id}-{name}")) if out is not None else None
-        rows = _read_scores(cache, ["baseline", b], scene_names) if cache is not None else None
+        cache = writable(out, _scores_file(f"{test_id}-w{window}-{name}")) if out is not None else None
+        rows = _read_scores(cache, _baseline_stamp(b, window), scene_names) if cache is not None else None
         if rows is not None:
             cached[name] = rows
         else:

@@ -25,6 +25,9 @@ OUTPUTS = ("direct", "refine")
 #: The widest span the refining head averages over (windows): beyond it a still scene is rare.
 MAX_REFINE_SPAN = 21
 INPUT_NORMS = ("none", "window_rate")
+#: The least floor of input_norm: a gain of at most 10^6. Below about 1e-38 a float32 floor is 0 and
+#: an all-dark window divides 0 by 0 (NaN frames, round twenty-one).
+MIN_INPUT_NORM_FLOOR_RATE = 1e-6
 DEFORM_BACKENDS = ("auto", "torch", "torchvision")
 
 
@@ -111,8 +114,9 @@ class ModelConfig:
     def __post_init__(self) -> None:
         _require(self.input_norm in INPUT_NORMS, f"model.input_norm must be one of {INPUT_NORMS}, got {self.input_norm!r}")
         _require(isinstance(self.input_norm_floor_rate, (int, float)) and not isinstance(self.input_norm_floor_rate, bool)
-                 and 0 < self.input_norm_floor_rate <= 1,
-                 f"model.input_norm_floor_rate must be a rate in (0, 1] spikes per step, got {self.input_norm_floor_rate!r}")
+                 and MIN_INPUT_NORM_FLOOR_RATE <= self.input_norm_floor_rate <= 1,
+                 f"model.input_norm_floor_rate must be a rate in [{MIN_INPUT_NORM_FLOOR_RATE:g}, 1] spikes per step, "
+                 f"got {self.input_norm_floor_rate!r}")
         _require(self.input_norm == "none" or self.representation in ("lr_rep", "spike")
                  and (self.representation == "spike" or self.interval_transform == "inverse"),
                  f"model.input_norm={self.input_norm!r} scales rate-like inputs: it needs representation 'lr_rep' "

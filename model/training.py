@@ -437,8 +437,8 @@ def _start_or_resume(out: Path, resume: bool, experiment: ExperimentConfig, run:
     for name in RUN_FILES:  # a link where the run writes is refused, naming it, before anything is written
         writable(out, name)
     if resume:
-        # config.json is put right by the caller, once the run's data are checked too (round twenty: a resume
-        # refused for its data had already rewritten the record of a run that never went on)
+        # config.json is put right by the caller once the run goes on (round twenty: a resume refused for its
+        # data had already rewritten the record of a run that never went on)
         return _resume(last_path, dev, experiment.model, experiment.train, run.model, run.opt, run.sched, run.scaler)
     existing = _run_files_present(out)
     if existing and not overwrite:
@@ -665,8 +665,6 @@ def _train(experiment: ExperimentConfig, train_scenes: Sequence[Scene], val_scen
         raise ValueError(f"--resume: {out / 'last.pt'} trained on other data: {what}; resume "
                          "with the same --data and --val-data, or start a new run from its weights (--init "
                          f"{out / 'last.pt'})")
-    if resume and dist.is_main:
-        _restore_config_record(out, experiment)
     init_record = init_record or saved.get("init_weights")  # a resumed fine-tuning run keeps saying where it began
     if init_record and dist.is_main and not resume:
         print(f"[train] starting from the weights of {init_record['spec']} ({init_record['weights_sha256'][:16]}...)",
@@ -742,6 +740,9 @@ def _train(experiment: ExperimentConfig, train_scenes: Sequence[Scene], val_scen
                 "out": str(out), "nothing_to_do": True}
 
     if resume and dist.is_main:
+        # config.json put right only now that the run goes on: a resume refused for its data, or with nothing
+        # to do, left a record of a run that never went on (rounds twenty and twenty-one)
+        _restore_config_record(out, experiment)
         print(f"[train] resuming {out / 'last.pt'} at step {step} of {last_step()}", file=sys.stderr)
     bar = progress_bar(total=_total_steps(tc, batches_per_epoch), initial=step, desc=f"train {experiment.name}",
                        unit="step", quiet=not (progress and dist.is_main))

@@ -265,6 +265,18 @@ def check_outputs(args: argparse.Namespace) -> None:
         _check_output(args, out)
 
 
+def _drop_user_records(args: argparse.Namespace) -> None:
+    """With --overwrite, a regular file at a stream's record name that is not a stream's record (the
+    user's X.dat.json) is removed, as --overwrite says it is replaced: the library's writer refuses
+    it (spikesim.stream.check_sidecar_slot)."""
+    from spikesim.stream import is_stream_sidecar, sidecar_path
+
+    for out in (Path(args.out),) + ((twin_path(Path(args.out)),) if getattr(args, "twin", False) else ()):
+        side = sidecar_path(out)
+        if side.is_file() and not side.is_symlink() and not is_stream_sidecar(side):
+            side.unlink()
+
+
 def _check_output(args: argparse.Namespace, out: Path) -> None:
     from spikesim.outputs import check_replaceable
     from spikesim.stream import sidecar_path
@@ -349,6 +361,8 @@ def _run(args: argparse.Namespace) -> int:
              source.get("scene") or source.get("source"))
     try:
         with outputs.output_file(args.out), writing_outputs(args):  # a failed run leaves no new empty folder
+            if getattr(args, "overwrite", False):
+                _drop_user_records(args)
             t0 = time.perf_counter()  # after the wait for another writer of -o (round eighteen)
             if args.twin:
                 from spikesim.simulate import TwinSimulator

@@ -606,6 +606,16 @@ def recon_scores(packed: np.ndarray, gt: np.ndarray, cfg: StudyConfig, net: str 
 _RECON_FLOATS = ("tfp_gt_psnr", "net_gt_psnr")
 
 
+def _score_number(value: Any) -> float:
+    """A cached PSNR: a JSON number, or "nan", "inf", "-inf" (the cache's writer, _jsonable, writes a
+    non-finite value so); any other string, a bool or null is damage."""
+    if value in ("nan", "inf", "-inf"):
+        return float(value)
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise TypeError(f"{value!r:.40} is not a number")
+    return float(value)
+
+
 def cached_recon_scores(folder: Path, name: str, run_key: str, ref_key: str, packed: np.ndarray, gt: np.ndarray,
                         cfg: StudyConfig) -> dict[str, Any]:
     """recon_scores of run `name`, cached beside its stream as `<run>.recon.json`, keyed by the run's
@@ -624,11 +634,17 @@ def cached_recon_scores(folder: Path, name: str, run_key: str, ref_key: str, pac
             log.warning("%s", exc)
         else:
             if cached.get("key") == key:
-                for k in _RECON_FLOATS:
-                    cached[k] = float(cached[k])
-                for k in ("tfp_gt_psnr_frames", "net_gt_psnr_frames"):
-                    cached[k] = [float(v) for v in cached[k]]
-                return cached
+                try:  # an edited value ("abc", 5 for a list, a missing field) is damage, scored again (round 21)
+                    for k in _RECON_FLOATS:
+                        cached[k] = _score_number(cached[k])
+                    for k in ("tfp_gt_psnr_frames", "net_gt_psnr_frames"):
+                        if not isinstance(cached[k], list):
+                            raise TypeError(f"{k} is not a list")
+                        cached[k] = [_score_number(v) for v in cached[k]]
+                except (KeyError, TypeError, ValueError) as exc:
+                    log.warning("%s: damaged cache file (%s); the reconstructions are scored again", path, exc)
+                else:
+                    return cached
     scores = recon_scores(packed, gt, cfg)
     try:
         _write_json(path, {"key": key, **scores})
@@ -834,10 +850,12 @@ def _probe_of(path: Path, key: str) -> dict[str, Any] | None:
         return None
     if probe.get("key") != key:
         return None
-    try:
-        float(probe["mc_ratio"])
-    except (KeyError, TypeError, ValueError):
-        log.warning("%s: damaged cache file (no number at mc_ratio); the probe is measured again", path)
+    ratio = probe.get("mc_ratio")
+    # a variance ratio: a finite number >= 0 (spikesim.quality.monte_carlo_ratio); true, "12", -5 or 1e400 were
+    # reported as measured (round twenty-one)
+    if isinstance(ratio, bool) or not isinstance(ratio, (int, float)) or not (math.isfinite(ratio) and ratio >= 0):
+        log.warning("%s: damaged cache file (mc_ratio %.40r is not a finite number >= 0); the probe is measured "
+                    "again", path, ratio)
         return None
     return probe
 

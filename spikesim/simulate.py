@@ -322,10 +322,9 @@ class BatchSimulator:
             standard_json(extra)
         except (TypeError, ValueError) as exc:
             raise ValueError(f"extra: not plain JSON ({exc})") from None
-        from spikesim.stream import sidecar_path
-        for p in paths:
-            if sidecar_path(p).is_dir():
-                raise IsADirectoryError(f"{sidecar_path(p)}: is a directory, where the stream's record goes")
+        from spikesim.stream import check_sidecar_slot, sidecar_path
+        for p in paths:  # a link, FIFO, folder or user's file at a record's name: refused before simulating
+            check_sidecar_slot(p)
         cam = self.camera
         writers = [DatWriter(p, cam.height, cam.width, flip=flip) for p in paths]
         try:
@@ -617,6 +616,9 @@ class TwinSimulator:
                    max_steps: int | None = None) -> tuple[Path, Path]:
         """Both streams straight to `.dat` files with their sidecars (each sidecar names its camera,
         the twin's also the stream it is the twin of); memory stays one chunk."""
+        from spikesim.stream import check_sidecar_slot
+        for p in (path, twin_path):  # as BatchSimulator.run_to_dat: refused before simulating
+            check_sidecar_slot(p)
         cam = self.sim.camera
         ours, theirs = (DatWriter(p, cam.height, cam.width, flip=flip) for p in (path, twin_path))
 

@@ -172,6 +172,11 @@ def open_temp_beside(path: str | Path, suffix: str = ".part") -> tuple[Any, Path
     path = outputs.check_replaceable(path)
     if path.is_dir():
         raise IsADirectoryError(errno.EISDIR, "is a directory; give a file name to write", str(path))
+    parent = next((p for p in (path.parent, *path.parent.parents) if p.exists() or p.is_symlink()), None)
+    if parent is not None and not parent.is_dir():  # "File exists" named no culprit (round twenty-one)
+        what = (file_problem(parent) or "is a file").replace(", not a regular file", "")
+        raise NotADirectoryError(errno.ENOTDIR, f"{what}, not a folder, where the folder of {path.name} would be",
+                                 str(parent))
     with outputs.writing(path.parent):
         path.parent.mkdir(parents=True, exist_ok=True)
     tmp = outputs.new_temp_beside(path, suffix)
@@ -367,10 +372,11 @@ def sidecar_path(dat_path: str | Path) -> Path:
 
 
 def is_stream_sidecar(path: str | Path) -> bool:
-    """Whether `path` is a stream's sidecar as write_sidecar writes them: a small regular JSON file
-    (not a link) holding an object with an integer height and width, the geometry a reader takes
-    from it. A writer removes only such a file beside the stream it replaces: a path without a
-    suffix (`cam`) has `cam.json` as its sidecar's name, which may be the user's own file."""
+    """Whether `path` is a stream's sidecar as spikesim writes them: a small regular JSON file (not a
+    link) holding an object with an integer height, width and num_steps, the geometry and length a
+    reader takes from it. A writer removes only such a file beside the stream it replaces: a path
+    without a suffix (`cam`) has `cam.json` as its sidecar's name, which may be the user's own file
+    (one with a height and width alone, a region of interest, was removed: round twenty-one)."""
     p = Path(path)
     try:
         if p.is_symlink() or not p.is_file() or p.stat().st_size > 1 << 20:
@@ -378,7 +384,23 @@ def is_stream_sidecar(path: str | Path) -> bool:
         info = json.loads(p.read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return False
-    return isinstance(info, dict) and all(_is_int(info.get(k)) for k in ("height", "width"))
+    return isinstance(info, dict) and all(_is_int(info.get(k)) for k in ("height", "width", "num_steps"))
+
+
+def check_sidecar_slot(dat_path: str | Path) -> Path:
+    """The sidecar path of a stream about to be written with its record, if the record may go there:
+    nothing, or an earlier stream's own record (is_stream_sidecar). A link, FIFO, device, socket or
+    folder there, or a file of the user's, is refused naming it, before anything is simulated
+    (round twenty-one: Simulator.run_to_dat replaced each of them; the CLI refused them)."""
+    side = sidecar_path(dat_path)
+    outputs.check_replaceable(side)
+    if side.is_dir():
+        raise IsADirectoryError(errno.EISDIR, "is a directory, where the stream's record goes", str(side))
+    if side.exists() and not is_stream_sidecar(side):
+        raise ValueError(f"{side}: exists and is not a stream's record (a JSON object with an integer height, width "
+                         f"and num_steps); the record of {Path(dat_path).name} is written there: move that file, or "
+                         "write the stream elsewhere")
+    return side
 
 
 def write_sidecar(dat_path: str | Path, info: dict[str, Any]) -> Path:
