@@ -452,6 +452,18 @@ def _eval_task(task: EvalTask) -> list[Any]:
     return rows
 
 
+def check_baselines(baselines: Sequence[str], window: int) -> list[str]:
+    """Each baseline's column label at this window; a ValueError for a spec the window cannot take
+    (baseline_label) or two specs of one column: `--baselines tfp tfp` scored TFP twice and pooled it
+    as a two-seed mean with a spread of 0.000 (round twenty-two), where `evaluate` refuses repeats."""
+    labels = [baseline_label(b, window) for b in baselines]
+    repeated = sorted({label for label in labels if labels.count(label) > 1})
+    if repeated:
+        raise ValueError(f"--baselines: {', '.join(repeated)} given more than once ({' '.join(baselines)}); a seedless "
+                         "method is scored once")
+    return labels
+
+
 def _baseline_stamp(spec: str, window: int) -> list[Any]:
     """What a baseline's kept scores answer for: its spec and the window it was scored at ("TFP" is
     TFP at every window: scores of window 41 were reported beside window-21 networks, round twenty-one)."""
@@ -482,8 +494,7 @@ def evaluate_runs(checkpoints: dict[tuple[str, int], Path], test_scenes: Sequenc
     cached: dict[str, list[Any]] = {}
     tasks: list[EvalTask] = []
     names: list[str] = []
-    for b in baselines:
-        name = baseline_label(b, window)
+    for b, name in zip(baselines, check_baselines(baselines, window)):
         names.append(name)
         cache = writable(out, _scores_file(f"{test_id}-w{window}-{name}")) if out is not None else None
         rows = _read_scores(cache, _baseline_stamp(b, window), scene_names) if cache is not None else None

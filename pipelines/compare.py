@@ -31,8 +31,8 @@ from typing import Any
 
 # the library (model/comparison.py); re-exported here for callers of pipelines.compare
 from model.comparison import (BASELINES, COMPARE_FILES, MIN_SEEDS, SeedStat, aggregate, baseline_label,  # noqa: F401
-                              check_samples, difference_holds, evaluate_runs, markdown, run_costs, run_dir, run_name,
-                              seed_stat, steps_per_run, train_seeds, write_comparison)
+                              check_baselines, check_samples, difference_holds, evaluate_runs, markdown, run_costs,
+                              run_dir, run_name, seed_stat, steps_per_run, train_seeds, write_comparison)
 from model.threads import set_cpu_threads
 from pipelines.argtypes import add_threads_argument, output_dir, positive_float, positive_int, seed_int
 
@@ -148,8 +148,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     if len(windows) != 1:
         raise ValueError(f"--configs: all configs must use one window length to be compared, got {sorted(windows)}")
     window = windows.pop()
-    for b in args.baselines:  # before any run trains: a baseline the window cannot take is refused now
-        baseline_label(b, window)
+    check_baselines(args.baselines, window)  # before any run trains
     test_scenes = open_scenes(args.test_data)
     if by_data:
         train_scenes: Any = {label: open_scenes(root) for label, root in data.items()}

@@ -265,16 +265,34 @@ def check_outputs(args: argparse.Namespace) -> None:
         _check_output(args, out)
 
 
-def _drop_user_records(args: argparse.Namespace) -> None:
+@contextlib.contextmanager
+def _user_records_aside(args: argparse.Namespace) -> Iterator[None]:
     """With --overwrite, a regular file at a stream's record name that is not a stream's record (the
-    user's X.dat.json) is removed, as --overwrite says it is replaced: the library's writer refuses
-    it (spikesim.stream.check_sidecar_slot)."""
+    user's X.dat.json) is replaced, as --overwrite says; the library's writer refuses it
+    (spikesim.stream.check_sidecar_slot). It is moved aside for the run and removed when the run
+    succeeds; a run that fails (a bad frame, Ctrl-C) puts it back: it was deleted before simulating
+    (round twenty-two)."""
+    from spikesim.outputs import new_temp_beside
     from spikesim.stream import is_stream_sidecar, sidecar_path
 
-    for out in (Path(args.out),) + ((twin_path(Path(args.out)),) if getattr(args, "twin", False) else ()):
-        side = sidecar_path(out)
-        if side.is_file() and not side.is_symlink() and not is_stream_sidecar(side):
-            side.unlink()
+    aside: list[tuple[Path, Path]] = []
+    outs = (Path(args.out),) + ((twin_path(Path(args.out)),) if getattr(args, "twin", False) else ())
+    try:
+        for out in outs if getattr(args, "overwrite", False) else ():
+            side = sidecar_path(out)
+            if side.is_file() and not side.is_symlink() and not is_stream_sidecar(side):
+                keep = new_temp_beside(side, ".aside")
+                os.replace(side, keep)
+                aside.append((side, keep))
+        yield
+    except BaseException:
+        for side, keep in aside:
+            if not (side.exists() or side.is_symlink()):
+                os.replace(keep, side)
+        raise
+    finally:
+        for _, keep in aside:
+            keep.unlink(missing_ok=True)
 
 
 def _check_output(args: argparse.Namespace, out: Path) -> None:
@@ -360,9 +378,8 @@ def _run(args: argparse.Namespace) -> int:
     log.info("simulating on backend %s, %dx%d, from %s", sim.backend_name, cam.width, cam.height,
              source.get("scene") or source.get("source"))
     try:
-        with outputs.output_file(args.out), writing_outputs(args):  # a failed run leaves no new empty folder
-            if getattr(args, "overwrite", False):
-                _drop_user_records(args)
+        with outputs.output_file(args.out), writing_outputs(args), _user_records_aside(args):  # a failed run leaves
+            # no new empty folder, and the user's files as they were
             t0 = time.perf_counter()  # after the wait for another writer of -o (round eighteen)
             if args.twin:
                 from spikesim.simulate import TwinSimulator

@@ -13,6 +13,7 @@ batch is bit for bit the stream it would be alone.
 from __future__ import annotations
 
 import logging
+import os
 from pathlib import Path
 from typing import Any, Iterable, Iterator, Sequence
 
@@ -143,6 +144,37 @@ class _Frames:
 #: `extra` may not set them.
 SIDECAR_FIELDS = frozenset({"camera", "seed", "backend", "height", "width", "spikesim_version", "num_steps", "flip",
                             "keyframe_every"})
+
+
+def check_stream_outputs(paths: Sequence[str | Path], extra: dict[str, Any] | None,
+                         reserved: frozenset[str] = SIDECAR_FIELDS) -> tuple[list[Path], dict[str, Any]]:
+    """What a run_to_dat checks before it simulates, returning the paths and `extra`: `extra` sets none
+    of the record's own fields (`reserved`: they overwrote the geometry, or failed after the .dat was
+    replaced) and is plain JSON; each record's name holds nothing but an earlier stream's record
+    (check_sidecar_slot); and no two outputs are one file: two streams at one path, or a stream at
+    another's record name, lost a stream with no error (round twenty-two)."""
+    from spikesim.config_io import standard_json
+    from spikesim.stream import check_sidecar_slot, sidecar_path
+    paths = [Path(p) for p in paths]
+    extra = dict(extra or {})
+    taken = sorted(set(extra) & reserved)
+    if taken:
+        raise ValueError(f"extra: {', '.join(taken)} {'is' if len(taken) == 1 else 'are'} the stream's own record "
+                         f"({', '.join(sorted(reserved))}), not extra fields")
+    try:
+        standard_json(extra)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"extra: not plain JSON ({exc})") from None
+    seen: dict[str, str] = {}
+    for p in paths:
+        check_sidecar_slot(p)
+        for what, q in ((f"stream {p}", p), (f"record of {p}", sidecar_path(p))):
+            where = os.path.realpath(q)  # one file by two spellings ("a/../b.dat", a linked folder) is one file
+            if where in seen:
+                raise ValueError(f"output paths collide: {q} would be both the {seen[where]} and the {what}; give "
+                                 "each stream a path of its own")
+            seen[where] = what
+    return paths, extra
 
 
 class BatchSimulator:
@@ -309,22 +341,10 @@ class BatchSimulator:
                    max_steps: int | None = None) -> list[Path]:
         """Simulate straight to one `.dat` file (plus its JSON sidecar) per stream; memory stays
         one chunk. `max_steps` cuts the streams (keyframes may reach past the last wanted step)."""
-        paths = [Path(p) for p in paths]
         if len(paths) != self.num_streams:
             raise ValueError(f"{len(paths)} output paths for {self.num_streams} streams")
-        extra = dict(extra or {})
-        taken = sorted(set(extra) & SIDECAR_FIELDS)
-        if taken:  # they overwrote the geometry (transposed frames), or failed after the .dat was replaced
-            raise ValueError(f"extra: {', '.join(taken)} {'is' if len(taken) == 1 else 'are'} the stream's own record "
-                             f"({', '.join(sorted(SIDECAR_FIELDS))}), not extra fields")
-        from spikesim.config_io import standard_json
-        try:
-            standard_json(extra)
-        except (TypeError, ValueError) as exc:
-            raise ValueError(f"extra: not plain JSON ({exc})") from None
-        from spikesim.stream import check_sidecar_slot, sidecar_path
-        for p in paths:  # a link, FIFO, folder or user's file at a record's name: refused before simulating
-            check_sidecar_slot(p)
+        paths, extra = check_stream_outputs(paths, extra)
+        from spikesim.stream import sidecar_path
         cam = self.camera
         writers = [DatWriter(p, cam.height, cam.width, flip=flip) for p in paths]
         try:
@@ -616,9 +636,10 @@ class TwinSimulator:
                    max_steps: int | None = None) -> tuple[Path, Path]:
         """Both streams straight to `.dat` files with their sidecars (each sidecar names its camera,
         the twin's also the stream it is the twin of); memory stays one chunk."""
-        from spikesim.stream import check_sidecar_slot
-        for p in (path, twin_path):  # as BatchSimulator.run_to_dat: refused before simulating
-            check_sidecar_slot(p)
+        # as BatchSimulator.run_to_dat, before simulating; the twin's record has two fields of its own
+        # (the geometry from `extra`, and errors after both streams were replaced: round twenty-two)
+        (path, twin_path), extra = check_stream_outputs([path, twin_path], extra, SIDECAR_FIELDS | {"twin", "twin_of"})
+        from spikesim.stream import sidecar_path
         cam = self.sim.camera
         ours, theirs = (DatWriter(p, cam.height, cam.width, flip=flip) for p in (path, twin_path))
 
@@ -632,6 +653,8 @@ class TwinSimulator:
                 cut(ours, part)
                 if max_steps is not None and ours.num_steps >= max_steps and theirs.num_steps >= max_steps:
                     break
+            for p in (path, twin_path):  # an old record never stands beside a new stream
+                sidecar_path(p).unlink(missing_ok=True)
             written = ours.close(), theirs.close()
         except BaseException:
             ours.abort()
