@@ -19,6 +19,7 @@ from spikesim import outputs
 from spikesim.camera import SpikeCamera
 from spikesim.config_io import standard_json
 from spikesim.keyframes import keyframe_count, steps_covered
+from spikesim.stream import sidecar_path
 from spikesim.patterns import MovingPattern
 
 log = logging.getLogger("spikesim.simulate")
@@ -423,7 +424,6 @@ def writing_outputs(args: argparse.Namespace) -> Iterator[None]:
     killed run writing the same file left: a stream of GBs stayed beside -o for good (round seventeen).
     Under the locks no other simulate writes them, so no temporary found is a live run's; and only
     where the killed run's lock is found, so a user's file of that form elsewhere is kept."""
-    from spikesim.stream import sidecar_path
     outs = [Path(args.out)] + ([twin_path(Path(args.out))] if args.twin else [])
     with contextlib.ExitStack() as held:
         left = [held.enter_context(outputs.output_file_lock(out)) for out in outs]
@@ -433,7 +433,24 @@ def writing_outputs(args: argparse.Namespace) -> Iterator[None]:
             folder = out.parent
             outputs.remove_temporaries(folder, outputs.stale_temporaries(folder, [out.name, sidecar_path(out).name]),
                                        "simulate", log.info)
+            _put_back_aside(args, out)
         yield
+
+
+def _put_back_aside(args: argparse.Namespace, out: Path) -> None:
+    """A user's record file that a killed `simulate --overwrite` had moved aside (_user_records_aside)
+    goes back to its name, and the outputs are checked again with it there: it stayed hidden, and a
+    rerun without --overwrite went ahead where the file would have stopped it (round twenty-three).
+    Where something else now holds the name, the hidden copy is kept and named."""
+    side = sidecar_path(out)
+    for keep in outputs.stale_temporaries(out.parent, [side.name], ".aside"):
+        if side.exists() or side.is_symlink():
+            log.warning("%s: a copy of %s that a killed simulate --overwrite had moved aside; kept, since %s exists "
+                        "again", keep, side.name, side.name)
+            continue
+        os.replace(keep, side)
+        log.warning("%s: put back from %s, where a killed simulate --overwrite had moved it", side, keep.name)
+        _check_output(args, out)
 
 
 def check_folder_size(args: argparse.Namespace, cam: SpikeCamera) -> None:

@@ -584,16 +584,16 @@ def _stale_temporaries(out: Path, names: Sequence[str]) -> list[Path]:
     return stale_temporaries(out, [*names, RESULTS_RECORD])
 
 
-def stale_temporaries(out: str | Path, names: Sequence[str | Path]) -> list[Path]:
-    """The temporary files (`new_temp_beside`'s `.<name>.<8 hex>.part`) of `names` (paths inside
+def stale_temporaries(out: str | Path, names: Sequence[str | Path], suffix: str = ".part") -> list[Path]:
+    """The temporary files (`new_temp_beside`'s `.<name>.<8 hex><suffix>`) of `names` (paths inside
     `out`) that a killed command left: regular files only, no link. Only where no live writer of
     those names can be at work: under the lock every writer of them holds."""
     out = Path(out)
     wanted: dict[Path, set[str]] = {}
     for name in names:
         target = out / name
-        wanted.setdefault(target.parent, set()).add(_temp_stem(target, ".part"))
-    pattern = re.compile(r"\.(.+)\.[0-9a-f]{8}\.part")
+        wanted.setdefault(target.parent, set()).add(_temp_stem(target, suffix))
+    pattern = re.compile(r"\.(.+)\.[0-9a-f]{8}" + re.escape(suffix))
     found = []
     for folder, stems in wanted.items():
         try:
