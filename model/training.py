@@ -730,6 +730,10 @@ def _train(experiment: ExperimentConfig, train_scenes: Sequence[Scene], val_scen
     if resume and (step >= last_step() or epoch >= tc.epochs):
         # a finished run: one more step would change last.pt past its plan ("step 21 of 20")
         if dist.is_main:
+            # the record says last.pt's own config, not the one asked for now (the run did not go on with it:
+            # round twenty-one); a damaged or missing record is still put right (round fourteen)
+            stored = load_checkpoint(out / "last.pt").get("experiment")
+            _restore_config_record(out, ExperimentConfig.from_dict(stored, where=f"{out / 'last.pt'} experiment"))
             print(f"[train] nothing to do: {out / 'last.pt'} is at step {step} of {last_step()} (epoch {epoch} of "
                   f"{tc.epochs}); raise --max-steps, --epochs or --budget-minutes to train further", file=sys.stderr)
         logs.close()
