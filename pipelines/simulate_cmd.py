@@ -281,7 +281,7 @@ def _user_records_aside(args: argparse.Namespace) -> Iterator[None]:
     try:
         for out in outs if getattr(args, "overwrite", False) else ():
             side = sidecar_path(out)
-            if side.is_file() and not side.is_symlink() and not is_stream_sidecar(side):
+            if side.is_file() and not side.is_symlink() and not is_stream_sidecar(side, beside_stream=out.is_file()):
                 keep = new_temp_beside(side, ".aside")
                 os.replace(side, keep)
                 aside.append((side, keep))

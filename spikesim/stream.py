@@ -231,7 +231,8 @@ class DatWriter:
                 # a sidecar beside the file it replaces describes the old stream: readers took the new one
                 # with the old geometry (round seven); a writer that records one writes it after this
                 side = sidecar_path(self.path)
-                if is_stream_sidecar(side):  # a file of that name that is not one is the user's (round twenty)
+                # a file of that name that is not one is the user's (round twenty)
+                if is_stream_sidecar(side, beside_stream=self.path.is_file()):
                     side.unlink()
                 os.replace(self._tmp, outputs.check_replaceable(self.path))
         except BaseException:
@@ -371,12 +372,15 @@ def sidecar_path(dat_path: str | Path) -> Path:
     return p.with_suffix(p.suffix + ".json")
 
 
-def is_stream_sidecar(path: str | Path) -> bool:
-    """Whether `path` is a stream's sidecar as spikesim writes them: a small regular JSON file (not a
-    link) holding an object with an integer height, width and num_steps, the geometry and length a
-    reader takes from it. A writer removes only such a file beside the stream it replaces: a path
-    without a suffix (`cam`) has `cam.json` as its sidecar's name, which may be the user's own file
-    (one with a height and width alone, a region of interest, was removed: round twenty-one)."""
+def is_stream_sidecar(path: str | Path, beside_stream: bool = False) -> bool:
+    """Whether `path` is a stream's sidecar: a small regular JSON file (not a link) holding an object
+    with an integer height and width, the geometry a reader takes from it, and, unless it stands
+    `beside_stream` (a stream file of its name exists), an integer num_steps too, as every record
+    spikesim writes has. A writer removes only such a file: beside the stream it replaces, a height
+    and width are that stream's record (round seven: kept, they made the reader take the new stream
+    with the old geometry); with no stream there, a path without a suffix (`cam`) has `cam.json` as
+    its record's name, which may be the user's own file (a region of interest with a height and
+    width was removed: round twenty-one)."""
     p = Path(path)
     try:
         if p.is_symlink() or not p.is_file() or p.stat().st_size > 1 << 20:
@@ -384,7 +388,8 @@ def is_stream_sidecar(path: str | Path) -> bool:
         info = json.loads(p.read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return False
-    return isinstance(info, dict) and all(_is_int(info.get(k)) for k in ("height", "width", "num_steps"))
+    need = ("height", "width") if beside_stream else ("height", "width", "num_steps")
+    return isinstance(info, dict) and all(_is_int(info.get(k)) for k in need)
 
 
 def check_sidecar_slot(dat_path: str | Path) -> Path:
@@ -396,7 +401,7 @@ def check_sidecar_slot(dat_path: str | Path) -> Path:
     outputs.check_replaceable(side)
     if side.is_dir():
         raise IsADirectoryError(errno.EISDIR, "is a directory, where the stream's record goes", str(side))
-    if side.exists() and not is_stream_sidecar(side):
+    if side.exists() and not is_stream_sidecar(side, beside_stream=Path(dat_path).is_file()):
         raise ValueError(f"{side}: exists and is not a stream's record (a JSON object with an integer height, width "
                          f"and num_steps); the record of {Path(dat_path).name} is written there: move that file, or "
                          "write the stream elsewhere")
