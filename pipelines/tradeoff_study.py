@@ -1248,7 +1248,8 @@ def _load_npz(path: Path, *keys: str) -> dict[str, np.ndarray]:
 def _is_cached(row_path: Path, npz_path: Path, key: str) -> bool:
     """Whether a run's results are cached for this configuration; a damaged cache is measured again,
     and something that is not a regular file at either path refused first (_cache_slot)."""
-    _cache_slot(row_path), _cache_slot(npz_path)
+    for path in (row_path, npz_path):
+        _cache_slot(path)
     if not (row_path.exists() and npz_path.exists()):
         return False
     try:
