@@ -355,13 +355,15 @@ def _drop_trailing_columns(packed: np.ndarray, height: int, stored_width: int, w
     return pack_frames(unpack_frames(packed, height, stored_width)[:, :, :width])
 
 
-def read_dat(path: str | Path, height: int = 250, width: int = 400, start: int = 0, stop: int | None = None,
-             flip: bool | None = None, header_columns: int = 0, drop_partial: bool = False) -> SpikeStream:
+def read_dat(path: str | Path, height: int | None = None, width: int | None = None, start: int = 0,
+             stop: int | None = None, flip: bool | None = None, header_columns: int = 0,
+             drop_partial: bool = False) -> SpikeStream:
     """Read frames [start, stop) of a `.dat` file (memory-mapped: only that range is read).
 
-    flip None: the row order recorded beside the stream (its sidecar or a dataset's meta.json, as
-    `DatReader` takes it), else rows bottom-up; True or False wins over the record (round
-    seventeen: the default True read a `--no-flip` stream upside down)."""
+    height, width, flip None: as recorded beside the stream (its sidecar or a dataset's meta.json),
+    else the PKU camera's 250 x 400 with rows bottom-up, as `DatReader` takes them; what is given
+    wins over the record (round seventeen: the default flip True read a `--no-flip` stream upside
+    down; the defaults 250 x 400 refused or misread a recorded 64 x 100 stream that DatReader read)."""
     return DatReader(path, height, width, flip=flip, header_columns=header_columns,
                      drop_partial=drop_partial).read(start, stop)
 

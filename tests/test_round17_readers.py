@@ -56,6 +56,23 @@ def test_read_dat_follows_the_recorded_flip_unless_given(tmp_path):
     assert np.array_equal(read_dat(path, 16, 24, flip=True).unpack(), frames[:, ::-1, :])  # given: it wins
 
 
+def test_read_dat_takes_the_recorded_geometry_as_datreader_does(tmp_path):
+    """read_dat(path) defaulted to 250 x 400 where DatReader(path) read the sidecar's 16 x 24: the
+    same file refused by one reader and read by the other."""
+    path, frames = _stream(tmp_path, flip=False)
+    got = read_dat(path)
+    assert (got.height, got.width) == (16, 24) and np.array_equal(got.unpack(), frames)
+    assert read_dat(path, start=2, stop=4) == DatReader(path).read(2, 4)
+    # no record: the PKU camera's 250 x 400, rows bottom-up, as before
+    bare = tmp_path / "bare.dat"
+    pku = np.random.default_rng(2).random((2, 250, 400)) < 0.1
+    write_dat(bare, SpikeStream.from_bool(pku))
+    assert np.array_equal(read_dat(bare).unpack(), pku)
+    # a geometry given wins over the record (and is checked against the file's size)
+    with pytest.raises(ValueError, match="not a whole number"):
+        read_dat(path, 17, 24)
+
+
 # ---- C: zero frames of a flipped stream; start/stop types ----------------------------------------
 def test_zero_frames_of_a_flipped_stream_are_an_empty_stream(tmp_path):
     path, _ = _stream(tmp_path, flip=True)
