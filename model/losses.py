@@ -39,6 +39,16 @@ def l1_sum_pixels(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
 RELATIVE_LOSS_FLOOR_Y = 1e-3
 
 
+def _l1_sum_light_weighted(pred: torch.Tensor, target: torch.Tensor, power: float) -> torch.Tensor:
+    """l1_sum with each sample's error divided by level**power, the level being the sample's mean
+    ground truth over its K windows, at least RELATIVE_LOSS_FLOOR_Y: power 0 is l1_sum, 1 the
+    relative loss, 1/2 the shot-noise weighting."""
+    _check(pred, target)
+    level = target.detach().flatten(1).mean(dim=1).clamp_min(RELATIVE_LOSS_FLOOR_Y)
+    per_sample_window = (pred - target).abs().flatten(2).mean(dim=2) / level[:, None] ** power  # (B, K)
+    return per_sample_window.mean(dim=0).sum()
+
+
 @LOSS_REGISTRY.register("l1_sum_relative")
 def l1_sum_relative(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     """l1_sum with each sample's error divided by its light level (the mean ground truth over its K
@@ -46,10 +56,19 @@ def l1_sum_relative(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     one a hundredfold, so a small network spends itself on the bright scenes and learns little of
     the dark ones it is judged on; relative to the light, every sample counts alike, as the
     light-normalised and aligned metrics count every frame alike (model/metrics.py)."""
-    _check(pred, target)
-    level = target.detach().flatten(1).mean(dim=1).clamp_min(RELATIVE_LOSS_FLOOR_Y)
-    per_sample_window = (pred - target).abs().flatten(2).mean(dim=2) / level[:, None]  # (B, K)
-    return per_sample_window.mean(dim=0).sum()
+    return _l1_sum_light_weighted(pred, target, 1.0)
+
+
+@LOSS_REGISTRY.register("l1_sum_shot")
+def l1_sum_shot(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """l1_sum with each sample's error divided by the square root of its light level (floored as in
+    l1_sum_relative): between plain L1 and the relative loss. Why: a window's spike count is
+    Poisson, so a window average's error grows as sqrt(level); relative to that shot-noise floor a
+    bright sample, where a window average is already good, weighs sqrt(level) times what the
+    relative loss gives it (a 100-fold brighter sample 10 times more), and a dark one still far
+    more than plain L1 gives it. A lever of issue 39 (loss weights by light level), measured in
+    docs/model.md."""
+    return _l1_sum_light_weighted(pred, target, 0.5)
 
 
 #: The loss of networks trained from spikes alone (SSML, model/published_nets/ssml.py): the model

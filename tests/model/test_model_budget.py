@@ -112,6 +112,33 @@ def test_relative_loss_weighs_every_light_level_alike():
     assert math.isfinite(dark) and dark == pytest.approx(2 * 1e-3 / RELATIVE_LOSS_FLOOR_Y)
 
 
+def test_shot_noise_loss_weighs_light_by_its_square_root():
+    """l1_sum_shot lies between plain L1 (power 0) and the relative loss (power 1): each sample's
+    error over the square root of its light level, so brightness scales it as sqrt."""
+    shot, rel, plain = build_loss("l1_sum_shot"), build_loss("l1_sum_relative"), build_loss("l1_sum")
+    g = torch.Generator().manual_seed(3)
+    target = torch.rand(4, 3, 8, 8, generator=g) * 0.4 + 0.05
+    pred = target + 0.03 * torch.randn(4, 3, 8, 8, generator=g)
+    level = target.flatten(1).mean(1)
+    expected = ((pred - target).abs().flatten(2).mean(2) / level.sqrt()[:, None]).mean(0).sum()
+    assert shot(pred, target).item() == pytest.approx(expected.item(), rel=1e-6)
+    # a scene 100 times darker with errors 100 times smaller costs a tenth: sqrt, not 1 or 1/100
+    assert shot(pred / 100, target / 100).item() == pytest.approx(shot(pred, target).item() / 10, rel=1e-5)
+    # one sample: rel <= shot <= plain when its level is below 1 (the weights 1/l >= 1/sqrt(l) >= 1 reversed)
+    one_p, one_t = pred[:1], target[:1]
+    lv = one_t.mean().item()
+    assert shot(one_p, one_t).item() == pytest.approx(plain(one_p, one_t).item() / math.sqrt(lv), rel=1e-5)
+    assert shot(one_p, one_t).item() == pytest.approx(rel(one_p, one_t).item() * math.sqrt(lv), rel=1e-5)
+    # a black target divides by the floor's square root, not by zero
+    dark = shot(torch.full((1, 2, 4, 4), 1e-3), torch.zeros(1, 2, 4, 4)).item()
+    assert math.isfinite(dark) and dark == pytest.approx(2 * 1e-3 / math.sqrt(RELATIVE_LOSS_FLOOR_Y))
+    # the gradient of one sample's error is sign(error) / (pixels * sqrt(level)): the level is a weight, not learned
+    p = one_p.clone().requires_grad_(True)
+    shot(p, one_t).backward()
+    expected_grad = torch.sign(one_p - one_t) / (one_p[0, 0].numel() * math.sqrt(lv))
+    assert torch.allclose(p.grad, expected_grad, rtol=1e-5)
+
+
 def test_span_tfp_averages_the_windows_around_each_frame():
     g = torch.Generator().manual_seed(1)
     spikes = torch.rand(7, 5, 4, 6, generator=g) < 0.2
