@@ -224,14 +224,44 @@ def _train_task(task: RunTask) -> tuple[str, int, int]:
                            progress=task.progress, init=None if task.resume else task.init, overwrite=task.overwrite)
     _record_compute(task.folder, _process_cpu_seconds() - cpu0, time.monotonic() - wall0, int(summary["steps"]),
                     torch.get_num_threads())
+    if summary.get("stopped_by"):  # the run took Ctrl-C or SIGTERM, wrote last.pt and returned: the comparison
+        raise _interruption(summary["stopped_by"])  # stops too (it went on to its next run, or called the stop an error)
     if task.steps is not None and summary["steps"] != task.steps:
         raise ValueError(f"config {task.label}: its {task.experiment.train.epochs} epochs end after "
                          f"{summary['steps']} steps, before --steps {task.steps}; raise its epochs or lower --steps")
     return task.label, task.seed, int(summary["steps"])
 
 
+def _interruption(signal_name: str) -> KeyboardInterrupt:
+    """What a task stopped by a signal raises: Terminated for SIGTERM (the CLI's exit status 143),
+    KeyboardInterrupt for Ctrl-C."""
+    from spikesim.signals import Terminated
+    return Terminated(f"stopped by {signal_name}") if signal_name == "SIGTERM" else KeyboardInterrupt(signal_name)
+
+
+#: In a worker process: the signal that stopped a task there. The pool hands a worker its next task
+#: from a queue that cancelling cannot empty, so a worker refuses every task after a stop.
+_STOPPED_IN_THIS_WORKER: list[str] = []
+
+
+def _in_worker(fn: Any, task: Any) -> Any:
+    """fn(task) in a pool worker, not started once a task there was stopped by a signal (round
+    twenty-four: a training worker catches SIGTERM, writes last.pt and returns, and the pool gave it
+    the next run, so `compare` asked to stop went on training every run left)."""
+    if _STOPPED_IN_THIS_WORKER:
+        raise _interruption(_STOPPED_IN_THIS_WORKER[0])
+    try:
+        return fn(task)
+    except KeyboardInterrupt as exc:
+        from spikesim.signals import Terminated
+        _STOPPED_IN_THIS_WORKER.append("SIGTERM" if isinstance(exc, Terminated) else "SIGINT")
+        raise
+
+
 def _run_parallel(fn: Any, tasks: Sequence[Any], jobs: int, on_done: Any) -> list[Any]:
-    """fn over tasks, in `jobs` worker processes (spawned: no torch state is forked) or in this one."""
+    """fn over tasks, in `jobs` worker processes (spawned: no torch state is forked) or in this one.
+    Ctrl-C or SIGTERM stops the tasks running (fn's own rule: a training run finishes its step and
+    writes last.pt) and starts no other."""
     if jobs <= 1 or len(tasks) <= 1:
         results = []
         for t in tasks:
@@ -246,13 +276,15 @@ def _run_parallel(fn: Any, tasks: Sequence[Any], jobs: int, on_done: Any) -> lis
     results = []
     with concurrent.futures.ProcessPoolExecutor(min(jobs, len(tasks)),
                                                 mp_context=multiprocessing.get_context("spawn")) as pool:
-        futures = {pool.submit(fn, t): t for t in tasks}
+        futures = {pool.submit(_in_worker, fn, t): t for t in tasks}
         try:
             for fut in concurrent.futures.as_completed(futures):
                 results.append(fut.result())
                 on_done(results[-1])
-        except KeyboardInterrupt:  # Ctrl-C or SIGTERM: stop the workers rather than wait for their runs (each
-            stop_pool_workers(pool)  # finishes its step and writes last.pt, so a rerun goes on: round fourteen)
+        except KeyboardInterrupt:  # Ctrl-C or SIGTERM (here or in a worker): the tasks not started are not started,
+            for fut in futures:   # and the workers stop rather than finish their runs (each finishes its step and
+                fut.cancel()      # writes last.pt, so a rerun goes on: round fourteen)
+            stop_pool_workers(pool)
             raise
         except BrokenProcessPool:  # a worker killed from outside: most often the kernel, for memory
             running = [getattr(t, "name", None) or f"{getattr(t, 'label', '?')} seed {getattr(t, 'seed', '?')}"
