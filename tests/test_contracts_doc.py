@@ -184,7 +184,7 @@ def test_every_name_and_signature_in_the_contracts_agrees_with_the_code():
 
 
 @pytest.mark.parametrize("doc, problem", [
-    ("## S (`spikesim.stream`)\n- `read_dat(path, height=250, width=400, header_columns=16)`\n", "defaults to 0"),
+    ("## S (`spikesim.stream`)\n- `read_dat(path, height=None, width=None, header_columns=16)`\n", "defaults to 0"),
     ("## S (`spikesim.stream`)\n- `read_dat(path, num_steps=5)`\n", "no parameter 'num_steps'"),
     ("## S (`spikesim.stream`)\n- `read_dat(height=250, path)`\n", "out of the code's order"),
     ("## S (`spikesim.stream`)\n- `detect_header_columns(path, height)`\n", "['width'] not listed"),
@@ -200,6 +200,6 @@ def test_the_check_finds_each_kind_of_disagreement(doc, problem):
 
 def test_the_check_accepts_what_agrees():
     doc = ("## S (`spikesim.stream`, `spikesim.camera`)\n- `SpikeStream`: `.unpack(start=0, stop=None)`,"
-           " `read_dat(path, height=250, ..., header_columns=0)`, `camera.Y_MAX`, `write_dat(...)`, `meta.json`\n")
+           " `read_dat(path, height=None, ..., header_columns=0)`, `camera.Y_MAX`, `write_dat(...)`, `meta.json`\n")
     checked, problems = checked_spans(doc)
     assert not problems and len(checked) == 5, (checked, problems)
