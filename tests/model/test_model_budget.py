@@ -124,7 +124,7 @@ def test_shot_noise_loss_weighs_light_by_its_square_root():
     assert shot(pred, target).item() == pytest.approx(expected.item(), rel=1e-6)
     # a scene 100 times darker with errors 100 times smaller costs a tenth: sqrt, not 1 or 1/100
     assert shot(pred / 100, target / 100).item() == pytest.approx(shot(pred, target).item() / 10, rel=1e-5)
-    # one sample: rel <= shot <= plain when its level is below 1 (the weights 1/l >= 1/sqrt(l) >= 1 reversed)
+    # one sample of level l: shot = plain / sqrt(l) = relative * sqrt(l), the geometric middle of the other two
     one_p, one_t = pred[:1], target[:1]
     lv = one_t.mean().item()
     assert shot(one_p, one_t).item() == pytest.approx(plain(one_p, one_t).item() / math.sqrt(lv), rel=1e-5)
