@@ -37,6 +37,8 @@ DEFORM_BACKENDS = ("auto", "torch", "torchvision")
 #: weights' memory as a whole.
 MAX_FEATURES, MAX_BLOCKS, MAX_WINDOW, MAX_PAD_MULTIPLE = 4096, 1024, 4095, 1024
 #: Bound on the recipe's counts (epochs, steps, samples per epoch): far past any run, inside the
+#: How far the shares of train.set_shares may add up past 1 (or short of it) by rounding alone.
+SHARE_TOLERANCE = 1e-9
 #: 64-bit indices torch and NumPy take (a larger count overflowed them with a traceback).
 MAX_COUNT = 2 ** 62
 
@@ -189,6 +191,11 @@ class TrainConfig:
       its first calibration_steps steps, plans the number of steps that fits the budget, records it
       in its checkpoints (a resumed run keeps the same plan, so the same schedule) and ends there;
       with "cosine" the decay ends at the budget. max_steps, when also given, caps the plan.
+    set_shares: the share of each epoch's samples drawn from a training dataset, by its folder name
+      (the prefix of its scenes' names when --data gives several roots), e.g. {"rllr_nat8tr": 0.2};
+      the sets it does not name share what is left in proportion to their samples. None: every
+      (scene, start) sample alike, so a set's share is its share of the samples (model/data.py,
+      set_probabilities).
     """
 
     num_windows: int = 21
@@ -224,6 +231,7 @@ class TrainConfig:
     channels_last: bool = False
     budget_minutes: float | None = None
     calibration_steps: int = 10
+    set_shares: dict[str, float] | None = None
 
     def __post_init__(self) -> None:
         def pos_int(name: str, allow_none: bool = False) -> None:
@@ -263,6 +271,18 @@ class TrainConfig:
                  f"train.budget_minutes must be a positive number of minutes (at most a year), got {self.budget_minutes!r}")
         pos_int("calibration_steps")
         _require(isinstance(self.channels_last, bool), f"train.channels_last must be a boolean, got {self.channels_last!r}")
+        if self.set_shares is not None:
+            shares = self.set_shares
+            _require(isinstance(shares, dict) and bool(shares),
+                     f"train.set_shares must be an object of dataset folder names and shares, got {shares!r}")
+            for name, share in shares.items():
+                _require(isinstance(name, str) and bool(name) and ":" not in name and "/" not in name,
+                         f"train.set_shares: {name!r} is not a dataset folder name (the prefix of its scenes' names)")
+                _require(isinstance(share, (int, float)) and not isinstance(share, bool) and math.isfinite(share)
+                         and 0 < share <= 1, f"train.set_shares[{name!r}] must be a share in (0, 1], got {share!r}")
+            total = math.fsum(shares.values())
+            _require(total <= 1 + SHARE_TOLERANCE,
+                     f"train.set_shares add up to {total:g}, more than every sample (1): lower them")
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)

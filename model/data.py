@@ -23,6 +23,8 @@ from torch.utils.data import Dataset
 
 from spikesim.dataset import SATURATION_Y
 
+from .config import SHARE_TOLERANCE
+
 
 class Scene(Protocol):
     name: str
@@ -220,6 +222,42 @@ class SampleRef:
     first_centre: int
 
 
+def scene_set(name: str) -> str | None:
+    """The dataset a scene came from: the `<root folder>` of a name open_scenes gave `<root folder>:<scene>`
+    (several roots), else None (one root)."""
+    return name.split(":", 1)[0] if ":" in name else None
+
+
+def set_probabilities(samples_per_set: dict[str, int], shares: dict[str, float]) -> dict[str, float]:
+    """The probability that a training sample comes from each set: the shares named, and what they
+    leave split over the other sets in proportion to their samples (as if they were drawn alike).
+
+    A share naming no set, a set left with nothing, or shares that leave something with no set to
+    take it are errors naming the sets: a typo would otherwise train on another mix without a word.
+    """
+    unknown = sorted(set(shares) - set(samples_per_set))
+    if unknown:
+        raise ValueError(f"train.set_shares names {unknown}, not among the training sets {sorted(samples_per_set)} "
+                         "(a set is the folder name of a --data root)")
+    empty = sorted(name for name in shares if samples_per_set[name] == 0)
+    if empty:
+        raise ValueError(f"train.set_shares gives a share to {empty}, which have no training sample")
+    named = math.fsum(shares.values())
+    rest = {name: n for name, n in samples_per_set.items() if name not in shares and n > 0}
+    left = 1.0 - named
+    if rest and left <= SHARE_TOLERANCE:
+        raise ValueError(f"train.set_shares add up to {named:g}, leaving nothing for {sorted(rest)}: lower the "
+                         "shares or leave those sets out of --data")
+    if not rest and abs(left) > SHARE_TOLERANCE:
+        raise ValueError(f"train.set_shares add up to {named:g}, not 1, and name every training set: the rest "
+                         "would have no set to come from")
+    total_rest = sum(rest.values())
+    probs = {name: float(shares[name]) if name in shares else left * rest[name] / total_rest
+             for name in samples_per_set if name in shares or name in rest}  # in the sets' order
+    norm = math.fsum(probs.values())
+    return {name: p / norm for name, p in probs.items()}
+
+
 class SequenceDataset(Dataset):
     """Samples of K windows: {"spikes": uint8 (K, T, h, w), "gt": float32 (K, h, w), ...}.
 
@@ -227,13 +265,15 @@ class SequenceDataset(Dataset):
     (seed, epoch, index), so a run is reproducible whatever the worker count; with
     samples_per_epoch the sequence itself is drawn the same way. Validation (random_crop=False):
     a centre crop (or the full frame when crop is None). Ground truth is clipped to
-    [0, saturation] (the module's docstring says why).
+    [0, saturation] (the module's docstring says why). With set_shares (training only) each item
+    first draws its set by set_probabilities, then a sample of that set alike, from the same
+    generator; an epoch keeps its length (samples_per_epoch, or every sample's count).
     """
 
     def __init__(self, scenes: Sequence[Scene], window: int, num_windows: int, crop: int | None,
                  random_crop: bool = True, seed: int = 0, start_stride: int = 1,
                  samples_per_epoch: int | None = None, max_per_scene: int | None = None,
-                 saturation: float = SATURATION_Y) -> None:
+                 saturation: float = SATURATION_Y, set_shares: dict[str, float] | None = None) -> None:
         if not saturation > 0:
             raise ValueError(f"saturation must be > 0 (expected spikes per step), got {saturation!r}")
         self.scenes = list(scenes)
@@ -254,6 +294,22 @@ class SequenceDataset(Dataset):
             raise ValueError(f"no scene has {num_windows} consecutive windows of {window} steps with ground "
                              f"truth at every centre (scenes: {[s.name for s in self.scenes]})")
         self.refs = refs
+        self.set_probs: dict[str, float] | None = None
+        self._set_refs: list[list[int]] = []
+        self._set_cum: np.ndarray | None = None
+        if set_shares is not None:
+            if not random_crop:
+                raise ValueError("set_shares draws training samples; a validation set scores every sample")
+            sets = [scene_set(sc.name) for sc in self.scenes]
+            if None in sets:
+                raise ValueError("train.set_shares needs the training data as several --data roots (each scene named "
+                                 f"<root folder>:<scene>); these scenes are one set: {[sc.name for sc in self.scenes][:3]} ...")
+            names = list(dict.fromkeys(sets))  # the order of --data
+            members = {name: [j for j, r in enumerate(refs) if sets[r.scene] == name] for name in names}
+            self.set_probs = set_probabilities({name: len(m) for name, m in members.items()}, set_shares)
+            kept = [name for name in names if self.set_probs.get(name, 0.0) > 0]
+            self._set_refs = [members[name] for name in kept]
+            self._set_cum = np.cumsum([self.set_probs[name] for name in kept])
 
     def set_epoch(self, epoch: int) -> None:
         self.epoch = epoch
@@ -263,7 +319,13 @@ class SequenceDataset(Dataset):
 
     def __getitem__(self, index: int) -> dict[str, Any]:
         rng = np.random.default_rng([self.seed, self.epoch, index])
-        ref = self.refs[int(rng.integers(len(self.refs)))] if self.samples_per_epoch else self.refs[index]
+        if self._set_cum is not None:
+            pick = min(int(np.searchsorted(self._set_cum, rng.random() * self._set_cum[-1], side="right")),
+                       len(self._set_refs) - 1)
+            members = self._set_refs[pick]
+            ref = self.refs[members[int(rng.integers(len(members)))]]
+        else:
+            ref = self.refs[int(rng.integers(len(self.refs)))] if self.samples_per_epoch else self.refs[index]
         sc = self.scenes[ref.scene]
         t, k, half = self.window, self.num_windows, self.window // 2
         h, w = sc.height, sc.width

@@ -255,7 +255,7 @@ def _epoch_batches(order: Sequence[int], batch_size: int, dist: "_Distributed", 
 #: the loader's processes, may change between legs).
 RESUME_FIXED = ("num_windows", "crop", "batch_size", "lr", "betas", "lr_milestones", "lr_gamma", "loss",
                 "samples_per_epoch", "start_stride", "precision", "grad_clip", "seed", "lr_schedule",
-                "lr_final_ratio", "channels_last", "calibration_steps")
+                "lr_final_ratio", "channels_last", "calibration_steps", "set_shares")
 
 
 def _resume(last_path: Path, dev: torch.device, mc: Any, tc: Any, model: torch.nn.Module, opt: Any, sched: Any,
@@ -399,7 +399,8 @@ def _datasets(experiment: ExperimentConfig, train_scenes: Sequence[Scene],
               val_scenes: Sequence[Scene]) -> tuple[SequenceDataset, SequenceDataset | None]:
     tc, mc = experiment.train, experiment.model
     train_ds = SequenceDataset(train_scenes, mc.window, tc.num_windows, tc.crop, random_crop=True,
-                               seed=tc.seed, start_stride=tc.start_stride, samples_per_epoch=tc.samples_per_epoch)
+                               seed=tc.seed, start_stride=tc.start_stride, samples_per_epoch=tc.samples_per_epoch,
+                               set_shares=tc.set_shares)
     val_ds = None
     if val_scenes:
         per_scene = max(1, tc.val_max_samples // len(val_scenes))
@@ -685,6 +686,9 @@ def _train(experiment: ExperimentConfig, train_scenes: Sequence[Scene], val_scen
               f"{f' x {dist.world} processes' if dist.world > 1 else ''}, {run.precision}, {len(train_ds)} "
               f"samples/epoch from {len(train_scenes)} scenes, {len(val_ds) if val_ds else 0} validation samples",
               file=sys.stderr)
+        if train_ds.set_probs is not None:
+            print("[train] samples drawn by set (train.set_shares): "
+                  + ", ".join(f"{name} {100 * p:.1f} %" for name, p in train_ds.set_probs.items()), file=sys.stderr)
         if tc.batch_size > len(train_ds):
             print(f"[train] the batch size {tc.batch_size} is more than the {len(train_ds)} samples of an epoch: each step "
                   f"takes those {len(train_ds)} (more samples per epoch with --samples-per-epoch)", file=sys.stderr)

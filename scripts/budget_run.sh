@@ -3,10 +3,11 @@
 # network trained from a random draw, data and training within 6 CPU-hours on a 2-core machine.
 #   1. the data: the eight sets, with the commands and seeds the GPU campaign's recipe uses (one list,
 #      pipelines/gpu_campaign/options.py), made here on the CPU;
-#   2. stage A: config lrrep_span from a random draw, lr 1e-3 cosine over 9,000 steps of batch 4 of
+#   2. stage A: config lrrep_span (or $CONFIG) from a random draw, lr 1e-3 cosine over 9,000 steps of batch 4 of
 #      32 x 32 (two one-thread processes);
 #   (a stage B, batch 8 of 48 x 48 from stage A, was measured and did not pay: docs/model.md).
-# Usage: bash scripts/budget_run.sh; DATA=DIR and RUNS=DIR choose the folders (data/ and runs/budget/);
+# Usage: bash scripts/budget_run.sh; DATA=DIR and RUNS=DIR choose the folders (data/ and runs/budget/),
+# CONFIG=NAME the config of stage A (lrrep_span; lrrep_span_shot is the loss lever's long run);
 # DRY_RUN=1 prints the commands instead of running them.
 # Interrupt it at any point and run it again: `generate` resumes each dataset, `train --resume`
 # each stage bit for bit, and a finished stage says "nothing to do". It prints the CPU time its
@@ -19,6 +20,7 @@ RUN=()
 [ -n "${DRY_RUN:-}" ] && RUN=(echo)
 DATA="${DATA:-data}"
 RUNS="${RUNS:-runs/budget}"
+CONFIG="${CONFIG:-lrrep_span}"
 WORKERS="${WORKERS:-2}"
 export OMP_NUM_THREADS=1
 [ -z "${DRY_RUN:-}" ] && mkdir -p "$DATA" "$RUNS"
@@ -49,7 +51,7 @@ train_stage() {  # OUT, then the stage's own flags; resumes a stage that has a l
   local out=$1; shift
   local how=("$@")
   if [ -f "$out/last.pt" ]; then how=(--resume); fi
-  "${RUN[@]}" .venv/bin/torchrun --standalone --nproc_per_node 2 "$S" train --config lrrep_span --threads 1 --quiet \
+  "${RUN[@]}" .venv/bin/torchrun --standalone --nproc_per_node 2 "$S" train --config "$CONFIG" --threads 1 --quiet \
     --data "${TRAIN[@]}" --val-data "${VAL[@]}" "${how[@]}" -o "$out"
 }
 train_stage "$RUNS/a" --lr 1e-3 --max-steps 9000 --seed 11

@@ -76,3 +76,17 @@ def test_a_stage_with_a_checkpoint_is_resumed_with_its_own_plan(tmp_path):
     # the plan (lr, length, seed) comes from last.pt; the data flags must name the same data
     assert not {"--lr", "--max-steps", "--seed", "--init"} & set(train)
     assert len(_values(train, "--data")) == 6
+
+
+def test_config_names_the_stage_a_config_and_nothing_else_moves(tmp_path, monkeypatch):
+    """CONFIG=lrrep_span_shot (the loss lever's long run) changes the config alone: the data, plan
+    and seed stay the measured run's, so the two runs differ by one factor."""
+    if not (ROOT / ".venv" / "bin" / "python").exists():
+        pytest.skip("the script runs the project's .venv")
+    monkeypatch.delenv("CONFIG", raising=False)
+    (base,) = [c for c in _dry_run(tmp_path) if c[0].endswith("torchrun")]
+    monkeypatch.setenv("CONFIG", "lrrep_span_shot")
+    (lever,) = [c for c in _dry_run(tmp_path) if c[0].endswith("torchrun")]
+    i = base.index("--config") + 1
+    assert lever[i] == "lrrep_span_shot" and base[i] == "lrrep_span"
+    assert lever[:i] + lever[i + 1:] == base[:i] + base[i + 1:]

@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from model.checkpoint import load_checkpoint, state_fingerprint
-from model.config import ExperimentConfig, TrainConfig
+from model.config import ExperimentConfig, TrainConfig, load_config
 from model.losses import RELATIVE_LOSS_FLOOR_Y, build_loss
 from model.methods import SpanTFPMethod, method_from_spec
 from model.streaming import TensorWindows
@@ -272,3 +272,12 @@ def test_a_run_without_validation_says_no_best_pt_will_be_written(scenes, tmp_pa
     err = capsys.readouterr().err
     assert "no validation scenes" in err and "best.pt will not be written" in err
     assert not (tmp_path / "best.pt").exists() and (tmp_path / "last.pt").exists()
+
+
+def test_the_shot_loss_config_is_the_span_config_with_that_loss_alone():
+    """lrrep_span_shot, the loss lever's long run (scripts/budget_run.sh CONFIG=...), is one factor
+    away from lrrep_span: the same network and recipe, only train.loss differs."""
+    span, shot = load_config("lrrep_span"), load_config("lrrep_span_shot")
+    assert shot.model == span.model
+    a, b = span.train.to_dict(), shot.train.to_dict()
+    assert {k for k in a if a[k] != b[k]} == {"loss"} and b["loss"] == "l1_sum_shot"
