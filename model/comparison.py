@@ -592,7 +592,14 @@ def aggregate(rows: Sequence[Any], labels: Sequence[str], baselines: Sequence[st
 
 def _fmt(s: SeedStat, fmt: str) -> str:
     body = fmt.format(s.mean)
-    return body if s.n == 1 else f"{body} ± {fmt.format(s.std)}"
+    # an infinite mean (a frame whose 8-bit image equals the ground truth's: a dark scene, both all
+    # zeros) has no spread to give: "inf ± nan" read as a failure
+    return body if s.n == 1 or not math.isfinite(s.mean) else f"{body} ± {fmt.format(s.std)}"
+
+
+#: What a difference of two scores says where one is infinite: inf - inf has no value, and a
+#: finite score against an infinite one is no measured gap.
+NO_DIFFERENCE = "n/a (a frame scores inf: exact in 8 bits)"
 
 
 def run_costs(configs: Sequence[tuple[str, Any]], checkpoints: dict[tuple[str, int], Path], height: int,
@@ -671,6 +678,9 @@ def markdown(stats: Sequence[SeedStat], labels: Sequence[str], baselines: Sequen
                 cells = []
                 for a, b in pairs:
                     sa, sb = by[(a, g, key)], by[(b, g, key)]
+                    if not (math.isfinite(sa.mean) and math.isfinite(sb.mean)):
+                        cells.append(NO_DIFFERENCE)
+                        continue
                     d = fmt.format(sa.mean - sb.mean)
                     cells.append(f"**{d}**" if difference_holds(sa, sb) else f"{d} (within spread)")
                 lines.append(f"| {g} | {label} | " + " | ".join(cells) + " |")

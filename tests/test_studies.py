@@ -284,3 +284,22 @@ def _die_if_one(x: int) -> int:  # a worker the kernel kills (SIGKILL), as the O
         os.kill(os.getpid(), signal.SIGKILL)
     time.sleep(0.5)
     return x
+
+
+def test_an_infinite_8bit_psnr_is_shown_plainly_and_gives_no_difference():
+    """A dark scene's 8-bit frames can equal the ground truth's (both all zeros): PSNR inf. The
+    table said "inf ± nan" and "-inf (within spread)"; it says inf, and that no gap is measured."""
+    from model.comparison import NO_DIFFERENCE, markdown
+    from model.evaluation import ALL, TABLE_ROWS
+    inf = float("inf")
+    stats = [seed_stat(label, ALL, metric, ([inf, 40.0, inf] if (label, metric) == ("A", "psnr_8bit")
+                                            else [20.0 + i, 20.5 + i, 21.0 + i]))
+             for i, label in enumerate(("A", "B")) for metric in TABLE_ROWS]
+    text = markdown(stats, ["A", "B"], [], [0, 1, 2], 10)
+    row = next(line for line in text.splitlines() if line.startswith("| PSNR 8-bit |"))
+    assert row.split(" | ")[1] == "inf" and "nan" not in text
+    diff = next(line for line in text.splitlines() if line.startswith(f"| {ALL} | PSNR 8-bit |"))
+    assert NO_DIFFERENCE in diff and "inf (within" not in text
+    # the finite rows keep their spread and their called differences
+    aligned = next(line for line in text.splitlines() if line.startswith(f"| {ALL} | ") and "-1.000" in line)
+    assert "within spread" in aligned
