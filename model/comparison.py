@@ -413,8 +413,12 @@ def _scores_file(test_id: str) -> str:
 
 
 def _checkpoint_stamp(path: Path) -> list[Any]:
+    """What a kept score was made from: the file's size, time and content. The content too: a
+    checkpoint copied over another with its time kept (`cp -p`, an archive unpacked) has the same
+    size and time, and kept the old weights' scores."""
+    from spikesim.dataset import sha256_file
     st = path.stat()
-    return [st.st_size, st.st_mtime_ns]
+    return [st.st_size, st.st_mtime_ns, sha256_file(path)]
 
 
 def _read_scores(path: Path, stamp: list[Any], scenes: Sequence[str] | None = None) -> list[Any] | None:

@@ -7,7 +7,7 @@ import json
 
 import pytest
 
-from model.comparison import _read_scores, _write_scores, read_compute
+from model.comparison import _checkpoint_stamp, _read_scores, _write_scores, read_compute
 from model.evaluation import Score
 
 ROWS = [Score("ball_low", "tfp", 20.0, 0.5, 3, 20.0, 0.5, 1.0, 0.1, 14.0, 0.3),
@@ -34,6 +34,21 @@ def test_a_score_cache_reads_back_for_its_checkpoint_and_test_set(tmp_path):
     _write_scores(path, [1, 2], ROWS)
     assert _read_scores(path, [1, 2], ["ball_low"]) == ROWS
     assert _read_scores(path, [1, 3], ["ball_low"]) is None  # another checkpoint: not this run's scores
+
+
+def test_a_checkpoint_swapped_with_the_same_size_and_time_is_scored_again(tmp_path):
+    """`cp -p` of other weights over a run's best.pt keeps its size and time: the kept scores were the
+    old weights'. The stamp holds the content's hash, so they are not used."""
+    import os
+    ckpt, path = tmp_path / "best.pt", tmp_path / "scores.json"
+    ckpt.write_bytes(b"weights A" * 100)
+    _write_scores(path, _checkpoint_stamp(ckpt), ROWS)
+    assert _read_scores(path, _checkpoint_stamp(ckpt), ["ball_low"]) == ROWS
+    st = ckpt.stat()
+    ckpt.write_bytes(b"weights B" * 100)
+    os.utime(ckpt, ns=(st.st_atime_ns, st.st_mtime_ns))
+    assert ckpt.stat().st_size == st.st_size and ckpt.stat().st_mtime_ns == st.st_mtime_ns
+    assert _read_scores(path, _checkpoint_stamp(ckpt), ["ball_low"]) is None
 
 
 @pytest.mark.parametrize("edit", [
