@@ -148,8 +148,16 @@ def run_mismatch(last: Path, run: Any, identity: str, init: str | None, content:
     (the checks `train --resume` makes). `identity` and `content` are the training data's
     (model.training.data_identity, data_content): names and sizes, and what the files hold."""
     from model.checkpoint import load_checkpoint
+    from model.config import ExperimentConfig
     state = load_checkpoint(last)
     stored = state.get("experiment")
+    if isinstance(stored, dict):
+        # read as `train --resume` reads it: a field added since the run was written takes its default,
+        # which is what that run trained with (a new field's default keeps the old behaviour)
+        try:
+            stored = ExperimentConfig.from_dict(stored, where=str(last)).to_dict()
+        except ValueError:
+            pass  # compared as stored: the fields that differ are named below
     if not isinstance(stored, dict) or _comparable(stored) != _comparable(run.to_dict()):
         have = _comparable(stored) if isinstance(stored, dict) else {}
         want = _comparable(run.to_dict())

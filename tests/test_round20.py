@@ -183,3 +183,25 @@ def test_a_blank_method_label_and_a_float_keyframe_step_are_refused():
     with pytest.raises(ValueError, match="keyframe_every must be a positive integer, got 2.0"):
         sim.run(np.full((3, 4, 4), 0.2, np.float32), keyframe_every=2.0)
     assert sim.run(np.full((3, 4, 4), 0.2, np.float32), keyframe_every=np.int64(1)).num_steps == 3
+
+
+def test_compare_keeps_a_run_written_before_a_config_field_existed(trained, tmp_path):
+    """A run whose stored config has no `train.set_shares` (written before the field) trained with its
+    default: compare kept none of the 800-step runs of runs/study_norm once the field existed ("another
+    network or recipe (its config)"). Read as `train --resume` reads it, it is the same run; a real
+    difference in the new field is still named."""
+    import dataclasses
+    from model.checkpoint import atomic_torch_save, load_checkpoint
+    from model.comparison import run_mismatch
+    from model.data import open_scenes
+    from model.training import data_content, data_identity
+    tmp, data, exp = trained
+    state = load_checkpoint(tmp / "run" / "last.pt")
+    del state["experiment"]["train"]["set_shares"]  # as written before the field
+    old = tmp_path / "last.pt"
+    atomic_torch_save(state, old)
+    scenes = open_scenes(data)
+    ident, content = data_identity(scenes, []), data_content(scenes, [])
+    assert run_mismatch(old, exp, ident, None, content) is None
+    other = dataclasses.replace(exp, train=dataclasses.replace(exp.train, set_shares={"x": 1.0}))
+    assert "train.set_shares" in run_mismatch(old, other, ident, None, content)
