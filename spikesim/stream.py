@@ -370,7 +370,11 @@ def read_dat(path: str | Path, height: int | None = None, width: int | None = No
 
 # ---- sidecar ------------------------------------------------------------------------------------
 def sidecar_path(dat_path: str | Path) -> Path:
+    """`<name>.dat.json` beside a stream. A path that names no file ("." or "/", ".."), given where
+    a stream goes, is refused by name: pathlib's "has an empty name" said nothing of the stream."""
     p = Path(dat_path)
+    if p.name in ("", ".", ".."):
+        raise ValueError(f"{dat_path}: names a folder, not a spike stream (a .dat file)")
     return p.with_suffix(p.suffix + ".json")
 
 

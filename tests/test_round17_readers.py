@@ -191,3 +191,14 @@ def test_a_scene_dropped_from_the_manifest_takes_its_job_with_it(tmp_path):
     drop_from_manifest(root, ["s_low"])
     assert "s_low" not in json.loads((root / MANIFEST).read_text())["jobs"]
     assert verify(root) == []
+
+
+@pytest.mark.parametrize("folder", [".", "/", ".."])
+def test_a_folder_given_as_a_stream_is_named_not_a_pathlib_error(folder, capsys, tmp_path):
+    """`spikesim inspect .` said "PosixPath('.') has an empty name" (the recorded-geometry lookup asked
+    pathlib for the sidecar of a path with no name); now every reader says the path is a folder."""
+    with pytest.raises(ValueError, match="names a folder, not a spike stream"):
+        read_dat(folder)
+    for argv in (["inspect", folder], ["reconstruct", folder, "-o", tmp_path / "frames"]):
+        rc, err = run_cli(argv, capsys)
+        assert rc == 2 and f"{folder}: names a folder, not a spike stream" in one_line(err)
