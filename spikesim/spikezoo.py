@@ -307,8 +307,8 @@ def export_spikezoo(dataset: str | Path, out: str | Path, split: str = "test", s
     if rate is not None and not (math.isfinite(rate) and rate > 0):
         raise ValueError(f"--rate {rate}: must be a finite number > 0")
     dataset, out = Path(dataset), Path(out)
+    chosen = pick_scenes(dataset, open_dataset(dataset), scenes)  # an input that is no dataset is said first
     check_outside_datasets(out, [dataset])
-    chosen = pick_scenes(dataset, open_dataset(dataset), scenes)
     height, width = check_geometry(dataset, chosen)
     plans = plan_export(chosen, steps, gt_stride)
     if not any(p.steps for p in plans):

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from cli_testing import run_cli
+from cli_testing import one_line, run_cli
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -141,3 +141,20 @@ def test_a_ground_truth_scale_that_overflows_is_named_not_the_image(tmp_path):
         with pytest.raises(ValueError, match="--gt-scale"):
             read_image_y(tmp_path / "gt.npy", scale)
     assert read_image_y(tmp_path / "gt.npy", 2.0).max() == 1.0
+
+
+def test_an_output_inside_an_input_that_is_no_dataset_is_not_called_a_dataset(tmp_path, capsys):
+    """`export FOLDER -o FOLDER/x` where FOLDER held no dataset said "inside the dataset FOLDER, whose
+    files a manifest lists": there was no manifest. The check says what the folder is, and export
+    says first that its input is no dataset (or does not exist)."""
+    from spikesim.dataset import check_outside_datasets
+    plain = tmp_path / "plain"
+    plain.mkdir()
+    with pytest.raises(ValueError, match="the folder this command reads its input from") as err:
+        check_outside_datasets(plain / "out", [plain])
+    assert "manifest" not in str(err.value)
+    code, err_text = run_cli(["export", plain, "--format", "spikezoo", "-o", plain / "x"], capsys)
+    assert code == 2 and "holds no scene folders" in one_line(err_text)
+    code, err_text = run_cli(["export", tmp_path / "nothere", "--format", "spikezoo", "-o", tmp_path / "nothere" / "x"],
+                             capsys)
+    assert code == 2 and "does not exist" in one_line(err_text)
