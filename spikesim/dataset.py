@@ -507,9 +507,9 @@ def check_outside_datasets(out: str | Path, roots: Sequence[str | Path] = (), fl
     for root in roots:
         base = Path(root).resolve()
         if where == base or base in where.parents:
-            if not _is_dataset_manifest(base):  # not a dataset (yet): the message must not say it is one
-                raise ValueError(f"{flag} {out}: inside {root}, the folder this command reads its input from; "
-                                 "choose a folder outside it")
+            if not _is_dataset_manifest(base):  # no manifest: the message must not say one lists its files
+                raise ValueError(f"{flag} {out}: inside the dataset {root}, which this command reads; choose a folder "
+                                 "outside it")
             raise ValueError(f"{flag} {out}: inside the dataset {root}, whose files a manifest lists (verify would "
                              "report the outputs as extra files); choose a folder outside it")
     for base in (where, *where.parents):

@@ -145,12 +145,12 @@ def test_a_ground_truth_scale_that_overflows_is_named_not_the_image(tmp_path):
 
 def test_an_output_inside_an_input_that_is_no_dataset_is_not_called_a_dataset(tmp_path, capsys):
     """`export FOLDER -o FOLDER/x` where FOLDER held no dataset said "inside the dataset FOLDER, whose
-    files a manifest lists": there was no manifest. The check says what the folder is, and export
-    says first that its input is no dataset (or does not exist)."""
+    files a manifest lists": there was no manifest. The check names no manifest where there is none,
+    and export says first that its input is no dataset (or does not exist)."""
     from spikesim.dataset import check_outside_datasets
     plain = tmp_path / "plain"
     plain.mkdir()
-    with pytest.raises(ValueError, match="the folder this command reads its input from") as err:
+    with pytest.raises(ValueError, match="inside the dataset .*plain, which this command reads") as err:
         check_outside_datasets(plain / "out", [plain])
     assert "manifest" not in str(err.value)
     code, err_text = run_cli(["export", plain, "--format", "spikezoo", "-o", plain / "x"], capsys)
