@@ -407,7 +407,8 @@ def check_samples(configs: Sequence[tuple[str, Any]], train_scenes: Sequence[Any
     from model.data import SequenceDataset
     for label, exp in configs:
         try:
-            SequenceDataset(train_scenes, exp.model.window, exp.train.num_windows, exp.train.crop)
+            SequenceDataset(train_scenes, exp.model.window, exp.train.num_windows, exp.train.crop,
+                            set_shares=exp.train.set_shares)  # a share naming no set: refused before any run
         except ValueError as exc:
             raise ValueError(f"{flag} {label}: {exc}") from None
 

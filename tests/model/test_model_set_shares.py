@@ -96,3 +96,15 @@ def test_a_run_says_its_shares_and_keeps_them_on_resume(two_sets, tmp_path, caps
     with pytest.raises(ValueError, match=r"names \['natural'\]"):
         run_training(tiny_experiment(max_steps=2, set_shares={"natural": 0.5}), two_sets, [], tmp_path / "b",
                      device="cpu", progress=False)
+
+
+def test_compare_refuses_a_share_naming_no_set_before_any_run_trains(two_sets):
+    """compare checks every config's samples before training: a set_shares typo is named there, not
+    after the other configs' runs have trained."""
+    import dataclasses
+    from model.comparison import check_samples
+    good = tiny_experiment()
+    bad = dataclasses.replace(good, train=dataclasses.replace(good.train, set_shares={"natural": 0.5}))
+    check_samples([("A", good)], two_sets)
+    with pytest.raises(ValueError, match=r"--configs B: train.set_shares names \['natural'\]"):
+        check_samples([("A", good), ("B", bad)], two_sets)
