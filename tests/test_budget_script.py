@@ -90,3 +90,15 @@ def test_config_names_the_stage_a_config_and_nothing_else_moves(tmp_path, monkey
     i = base.index("--config") + 1
     assert lever[i] == "lrrep_span_shot" and base[i] == "lrrep_span"
     assert lever[:i] + lever[i + 1:] == base[:i] + base[i + 1:]
+
+
+def test_every_share_a_budget_config_names_is_a_set_the_script_trains_on(commands):
+    """A config's train.set_shares names sets by folder; one naming no --data root is refused only when
+    the run starts. The budget configs' shares must name the script's training sets."""
+    from model.config import load_config
+    (train,) = [c for c in commands if c[0].endswith("torchrun")]
+    trained = {Path(p).name for p in _values(train, "--data")}
+    for name in ("lrrep_span", "lrrep_span_shot", "lrrep_span_shot_nat20"):
+        shares = load_config(name).train.set_shares or {}
+        assert set(shares) <= trained, name
+    assert load_config("lrrep_span_shot_nat20").train.set_shares

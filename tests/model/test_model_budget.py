@@ -281,3 +281,13 @@ def test_the_shot_loss_config_is_the_span_config_with_that_loss_alone():
     assert shot.model == span.model
     a, b = span.train.to_dict(), shot.train.to_dict()
     assert {k for k in a if a[k] != b[k]} == {"loss"} and b["loss"] == "l1_sum_shot"
+
+
+def test_the_natural_share_config_is_the_shot_config_with_that_share_alone():
+    """lrrep_span_shot_nat20 (the budget run with the natural share on top of the shot loss) is one
+    factor away from lrrep_span_shot: only train.set_shares differs, and it names the natural set."""
+    shot, nat = load_config("lrrep_span_shot"), load_config("lrrep_span_shot_nat20")
+    assert nat.model == shot.model
+    a, b = shot.train.to_dict(), nat.train.to_dict()
+    assert {k for k in a if a[k] != b[k]} == {"set_shares"}
+    assert b["set_shares"] == {"rllr_nat8tr": 0.2} and b["loss"] == "l1_sum_shot"
