@@ -1,15 +1,11 @@
 """pipelines.real_camera: the no-reference statistics that compare a recording with its twin."""
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 from pipelines.real_camera import measure, spike_time_rate, twin
 from spikesim.camera import SpikeCamera
-
-SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "uhsr-real" / "uhsr_helicopter.npz"
 
 
 def test_spike_time_rate_of_a_regular_train():
@@ -34,11 +30,13 @@ def test_measure_sees_a_row_pattern_and_outliers():
     assert plain["mean_rate"] == pytest.approx(0.05 + base.dark_per_step, abs=0.003)
 
 
-@pytest.mark.skipif(not SHARED.is_file(), reason="the UHSR recording is not beside this checkout")
-def test_the_measured_camera_matches_the_real_recording():
+def test_the_measured_camera_matches_the_real_recording(shared_data):
     """docs/sensor.md's table: the measured camera's twin within 15 % of the recording on the
     statistics it was fitted to (their seed-to-seed spread is 1-10 %); the realistic one is not."""
-    with np.load(SHARED) as z:
+    recording = shared_data / "uhsr-real" / "uhsr_helicopter.npz"
+    if not recording.is_file():
+        pytest.skip(f"the UHSR recording is not in {shared_data}")
+    with np.load(recording) as z:
         rec = z["spk"].astype(bool)
     real = measure(rec)
     fit = measure(twin(rec, SpikeCamera.measured(), seed=0))

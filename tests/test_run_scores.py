@@ -3,27 +3,25 @@ from __future__ import annotations
 
 import json
 import shutil
-from pathlib import Path
 
 import pytest
 
 from pipelines.run_scores import main
 
-SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
-PAIR = SHARED / "spk2imgnet-sample"
-REAL = SHARED / "uhsr-real" / "uhsr_helicopter.dat"
 
-
-@pytest.mark.skipif(not (PAIR.is_dir() and REAL.is_file()), reason="the shared samples are not beside this checkout")
-def test_a_run_holding_the_shipped_weights_scores_as_the_shipped_network(tmp_path, capsys):
+def test_a_run_holding_the_shipped_weights_scores_as_the_shipped_network(tmp_path, capsys, shared_data):
     from model.pretrained import pretrained_path
+
+    pair, real = shared_data / "spk2imgnet-sample", shared_data / "uhsr-real" / "uhsr_helicopter.dat"
+    if not (pair.is_dir() and real.is_file()):
+        pytest.skip(f"the Spk2ImgNet sample or the UHSR recording is not in {shared_data}")
 
     for seed in (0, 1):
         run = tmp_path / "runs" / "X" / f"seed{seed}"
         run.mkdir(parents=True)
         shutil.copy(pretrained_path("lrrep"), run / "last.pt")
-    assert main([str(tmp_path), "--pair", str(PAIR / "203_part1_key_id151.dat"), str(PAIR / "203_part1_key_id151.png"),
-                 "151", "0.6", "--real", str(REAL), "250", "250", "--baselines", "tfp", "lrrep", "--threads", "1"]) == 0
+    assert main([str(tmp_path), "--pair", str(pair / "203_part1_key_id151.dat"), str(pair / "203_part1_key_id151.png"),
+                 "151", "0.6", "--real", str(real), "250", "250", "--baselines", "tfp", "lrrep", "--threads", "1"]) == 0
     doc = json.loads((tmp_path / "external.json").read_text())
     s = doc["summary"]
     for key in ("pair.psnr_aligned", "real.edge_to_noise", "real.flat_noise"):
