@@ -1,7 +1,7 @@
 """N requested steps are N steps written, from every frame source and at every keyframe spacing
 (spikesim.keyframes is the one definition): the .dat, its sidecar (or meta.json) and `inspect`
 all say N. Tiny frames (4 x 8) on the NumPy sensor keep the grid of steps 1..100 x
-keyframe_every 1..8 fast."""
+keyframe_every 1..8 fast; the command-line cases run CLI_STEPS, every remainder of it."""
 from __future__ import annotations
 
 import contextlib
@@ -22,6 +22,10 @@ from spikesim.stream import DatReader, read_sidecar
 H, W = 4, 8
 STEPS = range(1, 101)
 SPACINGS = range(1, 9)
+#: The step counts the command-line cases run (each a simulate and an inspect call): every count up to
+#: 2 x 8 + 1, so every remainder modulo every spacing twice, and the ends and the case that wrote 49
+#: steps for 50. The in-process cases and the definition keep the whole grid.
+CLI_STEPS = (*range(1, 18), 25, 49, 50, 51, 99, 100)
 
 
 def cli(*argv) -> str:
@@ -71,7 +75,7 @@ def test_keep_last_holds_back_the_last_keyframe_only_between_keyframes():
 # ---- every source ---------------------------------------------------------------------------------
 @pytest.mark.parametrize("k", SPACINGS)
 def test_the_moving_pattern_writes_the_steps_asked(k, tmp_path):
-    for n in STEPS:
+    for n in CLI_STEPS:
         simulate_cli(tmp_path, n, k)
 
 
@@ -80,7 +84,7 @@ def test_an_npy_array_writes_the_steps_asked(k, tmp_path):
     rng = np.random.default_rng(k)
     npy = tmp_path / "y.npy"
     np.save(npy, rng.uniform(0, 0.5, (keyframe_count(100, k), H, W)).astype(np.float32))
-    for n in STEPS:
+    for n in CLI_STEPS:
         simulate_cli(tmp_path, n, k, "--frames", npy)
 
 
@@ -93,7 +97,7 @@ def test_an_exr_folder_writes_the_steps_asked(k, tmp_path):
     rng = np.random.default_rng(k)
     for j in range(keyframe_count(100, k)):
         write_exr(folder / f"{j:04d}.exr", rng.uniform(0, 0.5, (H, W)).astype(np.float32))
-    for n in STEPS:
+    for n in CLI_STEPS:
         simulate_cli(tmp_path, n, k, "--frames", folder)
 
 
@@ -123,7 +127,7 @@ def test_a_generated_scene_writes_the_steps_asked(k, tmp_path):
     from spikesim.generation.job import run_job
 
     cam = SpikeCamera.realistic(height=H, width=W).to_dict()
-    for n in STEPS:
+    for n in CLI_STEPS:
         job = SceneJob(name=f"p{n}", source={"type": "pattern", "peak_y": 0.3}, camera=cam, render={},
                        num_steps=n, gt_steps=(0,), keyframe_every=k)
         run_job(job, tmp_path, backend="numpy")
