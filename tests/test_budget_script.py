@@ -98,7 +98,7 @@ def test_every_share_a_budget_config_names_is_a_set_the_script_trains_on(command
     from model.config import load_config
     (train,) = [c for c in commands if c[0].endswith("torchrun")]
     trained = {Path(p).name for p in _values(train, "--data")}
-    for name in ("lrrep_span", "lrrep_span_shot", "lrrep_span_shot_nat20"):
+    for name in ("lrrep_span", "lrrep_span_shot", "lrrep_span_shot_nat20", "lrrep_span_knee"):
         shares = load_config(name).train.set_shares or {}
         assert set(shares) <= trained, name
     assert load_config("lrrep_span_shot_nat20").train.set_shares

@@ -267,6 +267,35 @@ def test_resume_refuses_overrides_it_would_ignore(scenes, tmp_path):
     assert summary["steps"] == 3
 
 
+def test_knee_loss_is_relative_below_the_knee_and_shot_noise_above_it():
+    """l1_sum_knee weighs a sample 1/level below KNEE_LOSS_KNEE_Y and 1/sqrt(level * knee) above it:
+    among dark samples the relative loss's balance, among bright ones the shot loss's, and one
+    continuous weight between them."""
+    from model.losses import KNEE_LOSS_KNEE_Y as K
+    knee, shot, rel = build_loss("l1_sum_knee"), build_loss("l1_sum_shot"), build_loss("l1_sum_relative")
+    g = torch.Generator().manual_seed(5)
+    base = torch.rand(1, 3, 8, 8, generator=g) * 0.5 + 0.75      # mean about 1, so the level is the scale
+    err = 0.02 * torch.randn(1, 3, 8, 8, generator=g)
+    for scale in (2e-3, 5e-3, 0.5 * K):                                # dark: exactly the relative loss
+        t = base * scale / base.mean()
+        assert knee(t + err * scale, t).item() == pytest.approx(rel(t + err * scale, t).item(), rel=1e-5)
+    for scale in (2 * K, 0.1, 0.3):                                    # bright: the shot loss over sqrt(knee)
+        t = base * scale / base.mean()
+        assert knee(t + err * scale, t).item() == pytest.approx(shot(t + err * scale, t).item() / math.sqrt(K), rel=1e-5)
+    # continuous at the knee: just below and just above weigh alike
+    below, above = base * (K * 0.999) / base.mean(), base * (K * 1.001) / base.mean()
+    assert knee(below + err, below).item() == pytest.approx(knee(above + err, above).item(), rel=3e-3)
+    # the bright-to-dark balance lies between the shot loss's and the relative loss's
+    dark, bright = torch.full((1, 2, 4, 4), RELATIVE_LOSS_FLOOR_Y), torch.full((1, 2, 4, 4), 0.3)
+    ratio = {name: f(dark + 0.01, dark).item() / f(bright + 0.01, bright).item()
+             for name, f in (("knee", knee), ("shot", shot), ("rel", rel))}
+    assert ratio["shot"] < ratio["knee"] < ratio["rel"]
+    assert ratio["knee"] == pytest.approx(math.sqrt(0.3 * K) / RELATIVE_LOSS_FLOOR_Y, rel=1e-5)
+    # a black target weighs as the floor does, finitely
+    black = knee(torch.full((1, 2, 4, 4), 1e-3), torch.zeros(1, 2, 4, 4)).item()
+    assert math.isfinite(black) and black == pytest.approx(2 * 1e-3 / RELATIVE_LOSS_FLOOR_Y)
+
+
 def test_a_run_without_validation_says_no_best_pt_will_be_written(scenes, tmp_path, capsys):
     run_training(budget_experiment(max_steps=1), scenes[:1], [], tmp_path, device="cpu", progress=False)
     err = capsys.readouterr().err
@@ -281,6 +310,14 @@ def test_the_shot_loss_config_is_the_span_config_with_that_loss_alone():
     assert shot.model == span.model
     a, b = span.train.to_dict(), shot.train.to_dict()
     assert {k for k in a if a[k] != b[k]} == {"loss"} and b["loss"] == "l1_sum_shot"
+
+
+def test_the_knee_loss_config_is_the_span_config_with_that_loss_alone():
+    """lrrep_span_knee (scripts/budget_run.sh CONFIG=...) is one factor away from lrrep_span."""
+    span, knee = load_config("lrrep_span"), load_config("lrrep_span_knee")
+    assert knee.model == span.model
+    a, b = span.train.to_dict(), knee.train.to_dict()
+    assert {k for k in a if a[k] != b[k]} == {"loss"} and b["loss"] == "l1_sum_knee"
 
 
 def test_the_natural_share_config_is_the_shot_config_with_that_share_alone():
