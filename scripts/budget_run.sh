@@ -56,5 +56,6 @@ train_stage() {  # OUT, then the stage's own flags; resumes a stage that has a l
 }
 train_stage "$RUNS/a" --lr 1e-3 --max-steps 9000 --seed 11
 echo "[budget] the network is $RUNS/a/best.pt (score it with --methods budget=$RUNS/a/best.pt)"
-echo "[budget] CPU time of this call's commands (user, system):"
-times | tail -1
+# `times` in the script's own shell: in a pipeline or $(...) it runs in a subshell, which ran nothing
+echo "[budget] CPU time (user, system): first this script's shell, then the commands it ran (children):"
+times

@@ -102,3 +102,17 @@ def test_every_share_a_budget_config_names_is_a_set_the_script_trains_on(command
         shares = load_config(name).train.set_shares or {}
         assert set(shares) <= trained, name
     assert load_config("lrrep_span_shot_nat20").train.set_shares
+
+
+def test_the_cpu_time_it_prints_is_its_commands_not_a_subshells(tmp_path):
+    """The script prints bash's `times` to compare with the budget. Piped (`times | tail -1`) it ran in
+    a subshell and printed 0m0.000s after a 2-hour run; the commands' line must count what ran, and
+    even a dry run runs a Python process (the list of sets)."""
+    if not (ROOT / ".venv" / "bin" / "python").exists():
+        pytest.skip("the script runs the project's .venv")
+    env = {**os.environ, "DRY_RUN": "1", "DATA": str(tmp_path / "d"), "RUNS": str(tmp_path / "r")}
+    out = subprocess.run(["bash", str(SCRIPT)], env=env, capture_output=True, text=True, check=True, timeout=120)
+    lines = out.stdout.splitlines()
+    i = next(k for k, line in enumerate(lines) if line.startswith("[budget] CPU time"))
+    children = lines[i + 2].split()
+    assert len(children) == 2 and children != ["0m0.000s", "0m0.000s"], lines[i:]
