@@ -92,7 +92,8 @@ def l1_sum_knee(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     above it, continuous at the knee. Why: the shot loss's budget run gained in bright light but lost
     3-4 dB on the darkest natural scenes, where the relative loss weighs a sample 10 times more
     against one at y 0.01 and the shot loss only 3 times more (docs/model.md); this keeps the
-    relative loss's balance among dark samples and the shot loss's among bright ones."""
+    relative loss's balance among dark samples and the shot loss's among bright ones. Measured in a
+    budget run, not kept: the darkest scene stayed without structure (docs/model.md, "The knee loss")."""
     return _l1_sum_weighted(
         pred, target, lambda level: 1.0 / (level.sqrt() * level.clamp_max(KNEE_LOSS_KNEE_Y).sqrt()))
 
