@@ -77,9 +77,9 @@ def l1_sum_shot(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
 
 
 #: The light level (y, expected spikes per step) where l1_sum_knee turns from the relative weighting
-#: to the shot-noise one. Chosen so that both regimes keep what was measured for them (docs/model.md,
-#: "The knee loss"): the held-out natural scene the shot loss lost (mean y 4.9e-4) and its validation
-#: twin (4.5e-4) lie far below it, as do most natural scenes (median mean y 0.002, docs/scenes.md
+#: to the shot-noise one, set from light levels (docs/model.md, "The knee loss"): the validation
+#: scene the shot loss lost (val_nat8 rllr_0001, mean y 4.5e-4) lies far below it, as do most natural
+#: scenes (median mean y 0.002, docs/scenes.md
 #: section 11); the bright photo scenes and REDS-like frames where the shot loss gained (y 0.1-0.35)
 #: lie far above it. A sample at y 0.3 then weighs 1/55 of one at the floor: relative 1/300, shot 1/17.
 KNEE_LOSS_KNEE_Y = 1e-2
