@@ -7,7 +7,9 @@
 #      32 x 32 (two one-thread processes);
 #   (a stage B, batch 8 of 48 x 48 from stage A, was measured and did not pay: docs/model.md).
 # Usage: bash scripts/budget_run.sh; DATA=DIR and RUNS=DIR choose the folders (data/ and runs/budget/),
-# CONFIG=NAME the config of stage A (lrrep_span; lrrep_span_shot is the loss lever's long run);
+# CONFIG=NAME the config of stage A (lrrep_span; lrrep_span_shot is the loss lever's long run),
+# DATA_VARIANT=NAME adds that variant's training sets (pipelines/gpu_campaign/options.py,
+# BUDGET_DATA_VARIANTS; "natdark": 24 dark natural scenes);
 # DRY_RUN=1 prints the commands instead of running them.
 # Interrupt it at any point and run it again: `generate` resumes each dataset, `train --resume`
 # each stage bit for bit, and a finished stage says "nothing to do". It prints the CPU time its
@@ -21,15 +23,21 @@ RUN=()
 DATA="${DATA:-data}"
 RUNS="${RUNS:-runs/budget}"
 CONFIG="${CONFIG:-lrrep_span}"
+export DATA_VARIANT="${DATA_VARIANT:-}"
 WORKERS="${WORKERS:-2}"
 export OMP_NUM_THREADS=1
 [ -z "${DRY_RUN:-}" ] && mkdir -p "$DATA" "$RUNS"
 
 # name, role and generate arguments of each set, without the campaign's --workers; the natural sets
 # first, the order of the measured run's --data and --val-data (a sample's order depends on it)
-mapfile -t SETS < <($PY - <<'EOF'
-from pipelines.gpu_campaign.options import PROFILES
-sets = PROFILES["gpu"].recipe_sets
+# in $(...), not <(...), so that a bad DATA_VARIANT stops the script (set -e)
+SETS_TEXT=$($PY - <<'EOF'
+import os, sys
+from pipelines.gpu_campaign.options import BUDGET_DATA_VARIANTS, PROFILES
+variant = os.environ["DATA_VARIANT"]
+if variant and variant not in BUDGET_DATA_VARIANTS:
+    sys.exit(f"DATA_VARIANT={variant!r}: expected one of {sorted(BUDGET_DATA_VARIANTS)} or nothing")
+sets = PROFILES["gpu"].recipe_sets + (BUDGET_DATA_VARIANTS[variant] if variant else ())
 for name, role, args in sorted(sets, key=lambda s: ("_nat" not in s[0], sets.index(s))):
     a = list(args)
     if "--workers" in a:
@@ -38,6 +46,7 @@ for name, role, args in sorted(sets, key=lambda s: ("_nat" not in s[0], sets.ind
     print(name, role, " ".join(a))
 EOF
 )
+mapfile -t SETS <<< "$SETS_TEXT"
 TRAIN=() VAL=()
 for line in "${SETS[@]}"; do
   read -r name role args <<< "$line"

@@ -8,14 +8,15 @@ from pathlib import Path
 
 import pytest
 
-from pipelines.gpu_campaign.options import PROFILES
+from pipelines.gpu_campaign.options import BUDGET_DATA_VARIANTS, PROFILES
 
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "scripts" / "budget_run.sh"
 
 
-def _dry_run(tmp_path: Path) -> list[list[str]]:
-    env = {**os.environ, "DRY_RUN": "1", "DATA": str(tmp_path / "d"), "RUNS": str(tmp_path / "r")}
+def _dry_run(tmp_path: Path, data_variant: str = "") -> list[list[str]]:
+    env = {**os.environ, "DRY_RUN": "1", "DATA": str(tmp_path / "d"), "RUNS": str(tmp_path / "r"),
+           "DATA_VARIANT": data_variant}
     out = subprocess.run(["bash", str(SCRIPT)], env=env, capture_output=True, text=True, check=True, timeout=120)
     return [shlex.split(line) for line in out.stdout.splitlines() if not line.startswith("[budget]")
             and ("generate" in line or "torchrun" in line)]
@@ -116,3 +117,37 @@ def test_the_cpu_time_it_prints_is_its_commands_not_a_subshells(tmp_path):
     i = next(k for k, line in enumerate(lines) if line.startswith("[budget] CPU time"))
     children = lines[i + 2].split()
     assert len(children) == 2 and children != ["0m0.000s", "0m0.000s"], lines[i:]
+
+
+def test_a_data_variant_adds_its_sets_and_nothing_else_moves(tmp_path):
+    """DATA_VARIANT=natdark (the dark natural scenes' budget run) adds its training sets, made with
+    their own seeds, after the recipe's natural set; the recipe's sets, the validation sets, the plan
+    and the seed stay the measured run's, so the two runs differ by the data alone."""
+    if not (ROOT / ".venv" / "bin" / "python").exists():
+        pytest.skip("the script runs the project's .venv")
+    base = _dry_run(tmp_path)
+    added = _dry_run(tmp_path, "natdark")
+    d = tmp_path / "d"
+    (variant_set,) = BUDGET_DATA_VARIANTS["natdark"]
+    name, role, args = variant_set
+    assert role == "train" and "--lamps-lux" in args
+    new_generate = [c for c in added if "generate" in c and c not in base]
+    assert [c[c.index("-o") + 1] for c in new_generate] == [str(d / name)]
+    assert new_generate[0][new_generate[0].index("rllr") + 1:new_generate[0].index("--workers")] == \
+        _without_workers(args)
+    (train0,) = [c for c in base if c[0].endswith("torchrun")]
+    (train1,) = [c for c in added if c[0].endswith("torchrun")]
+    data0, data1 = _values(train0, "--data"), _values(train1, "--data")
+    assert data1 == [data0[0], str(d / name), *data0[1:]]
+    assert [a for a in train1 if a != str(d / name)] == train0
+
+
+def test_an_unknown_data_variant_stops_the_script_before_it_runs_anything(tmp_path):
+    if not (ROOT / ".venv" / "bin" / "python").exists():
+        pytest.skip("the script runs the project's .venv")
+    env = {**os.environ, "DRY_RUN": "1", "DATA": str(tmp_path / "d"), "RUNS": str(tmp_path / "r"),
+           "DATA_VARIANT": "natdrak"}
+    out = subprocess.run(["bash", str(SCRIPT)], env=env, capture_output=True, text=True, timeout=120)
+    assert out.returncode != 0
+    assert "natdrak" in out.stderr and "natdark" in out.stderr
+    assert "generate" not in out.stdout and "torchrun" not in out.stdout

@@ -194,6 +194,15 @@ _SIXTH_STAGE_SETS = (
     ("val_nat8", "val", (*_NATURAL, "--scales", "0.5", "--count", "8", "--seed", "301")),
     ("rllr_nat8tr", "train", (*_NATURAL, *_SCALES, "--count", "8", "--seed", "300")),
 )
+#: Training sets that a CPU budget run (scripts/budget_run.sh, DATA_VARIANT=NAME) adds to the recipe's,
+#: each measured as one factor against the run without it (docs/model.md).
+#: "natdark": 24 rendered natural scenes under dim lamps (10-100 lx at the subject before the
+#: log-uniform darkening, so 0.05-100 lx): the budget data hold 8 natural scenes, 4 of them below
+#: y 1e-3, and three budget runs learned no structure in the darkest held-out natural scenes.
+BUDGET_DATA_VARIANTS: dict[str, tuple[tuple[str, str, tuple[str, ...]], ...]] = {
+    "natdark": (("rllr_natdark24", "train", (*_NATURAL, *_SCALES, "--lamps-lux", "10", "100", "--count", "24",
+                                             "--seed", "310")),),
+}
 PROFILES: dict[str, Profile] = {
     "gpu": Profile(
         "gpu", "cuda", "cuda", True,
