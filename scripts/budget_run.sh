@@ -10,6 +10,8 @@
 # CONFIG=NAME the config of stage A (lrrep_span; lrrep_span_shot is the loss lever's long run),
 # DATA_VARIANT=NAME adds that variant's training sets (pipelines/gpu_campaign/options.py,
 # BUDGET_DATA_VARIANTS; "natdark": 24 dark natural scenes);
+# DIRECT_STEPS=N trains the first N of the 9,000 steps as the config's direct twin ($DIRECT_CONFIG, by
+# default ${CONFIG}_direct: no refining gates) in $RUNS/d, then the rest as $CONFIG from its best.pt;
 # DRY_RUN=1 prints the commands instead of running them.
 # Interrupt it at any point and run it again: `generate` resumes each dataset, `train --resume`
 # each stage bit for bit, and a finished stage says "nothing to do". It prints the CPU time its
@@ -24,6 +26,12 @@ DATA="${DATA:-data}"
 RUNS="${RUNS:-runs/budget}"
 CONFIG="${CONFIG:-lrrep_span}"
 export DATA_VARIANT="${DATA_VARIANT:-}"
+DIRECT_STEPS="${DIRECT_STEPS:-}"
+DIRECT_CONFIG="${DIRECT_CONFIG:-${CONFIG}_direct}"
+if [ -n "$DIRECT_STEPS" ] && ! { [[ "$DIRECT_STEPS" =~ ^[0-9]+$ ]] && [ "$DIRECT_STEPS" -ge 1 ] && [ "$DIRECT_STEPS" -lt 9000 ]; }; then
+  echo "DIRECT_STEPS=$DIRECT_STEPS: expected a whole number of steps from 1 to 8999 (of the run's 9,000)" >&2
+  exit 2
+fi
 WORKERS="${WORKERS:-2}"
 export OMP_NUM_THREADS=1
 [ -z "${DRY_RUN:-}" ] && mkdir -p "$DATA" "$RUNS"
@@ -56,14 +64,23 @@ for line in "${SETS[@]}"; do
   echo "[budget] data: $DATA/$name ($role)"
 done
 
-train_stage() {  # OUT, then the stage's own flags; resumes a stage that has a last.pt
-  local out=$1; shift
+train_stage() {  # CONFIG, OUT, then the stage's own flags; resumes a stage that has a last.pt
+  local config=$1 out=$2; shift 2
   local how=("$@")
   if [ -f "$out/last.pt" ]; then how=(--resume); fi
-  "${RUN[@]}" .venv/bin/torchrun --standalone --nproc_per_node 2 "$S" train --config "$CONFIG" --threads 1 --quiet \
+  "${RUN[@]}" .venv/bin/torchrun --standalone --nproc_per_node 2 "$S" train --config "$config" --threads 1 --quiet \
     --data "${TRAIN[@]}" --val-data "${VAL[@]}" "${how[@]}" -o "$out"
 }
-train_stage "$RUNS/a" --lr 1e-3 --max-steps 9000 --seed 11
+TOTAL_STEPS=9000
+if [ -z "$DIRECT_STEPS" ]; then
+  train_stage "$CONFIG" "$RUNS/a" --lr 1e-3 --max-steps "$TOTAL_STEPS" --seed 11
+else
+  # the same 9,000 steps in two stages: the config's direct twin from the random draw, then the
+  # config itself from its best.pt (the head widened with the gates), a second cosine cycle at
+  # the lineage's fine-tuning rate and another data order
+  train_stage "$DIRECT_CONFIG" "$RUNS/d" --lr 1e-3 --max-steps "$DIRECT_STEPS" --seed 11
+  train_stage "$CONFIG" "$RUNS/a" --init "$RUNS/d/best.pt" --lr 3e-4 --max-steps $((TOTAL_STEPS - DIRECT_STEPS)) --seed 12
+fi
 echo "[budget] the network is $RUNS/a/best.pt (score it with --methods budget=$RUNS/a/best.pt)"
 # `times` in the script's own shell: in a pipeline or $(...) it runs in a subshell, which ran nothing
 echo "[budget] CPU time (user, system): first this script's shell, then the commands it ran (children):"

@@ -14,9 +14,9 @@ ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "scripts" / "budget_run.sh"
 
 
-def _dry_run(tmp_path: Path, data_variant: str = "") -> list[list[str]]:
+def _dry_run(tmp_path: Path, data_variant: str = "", **extra: str) -> list[list[str]]:
     env = {**os.environ, "DRY_RUN": "1", "DATA": str(tmp_path / "d"), "RUNS": str(tmp_path / "r"),
-           "DATA_VARIANT": data_variant}
+           "DATA_VARIANT": data_variant, **extra}
     out = subprocess.run(["bash", str(SCRIPT)], env=env, capture_output=True, text=True, check=True, timeout=120)
     return [shlex.split(line) for line in out.stdout.splitlines() if not line.startswith("[budget]")
             and ("generate" in line or "torchrun" in line)]
@@ -150,4 +150,63 @@ def test_an_unknown_data_variant_stops_the_script_before_it_runs_anything(tmp_pa
     out = subprocess.run(["bash", str(SCRIPT)], env=env, capture_output=True, text=True, timeout=120)
     assert out.returncode != 0
     assert "natdrak" in out.stderr and "natdark" in out.stderr
+    assert "generate" not in out.stdout and "torchrun" not in out.stdout
+
+
+def test_direct_steps_split_the_same_run_into_a_direct_stage_and_the_config_from_its_best(tmp_path, monkeypatch):
+    """DIRECT_STEPS=5000 (the budget run with the direct network first): the first 5,000 of the 9,000
+    steps train the config's direct twin from the random draw, the other 4,000 the config itself
+    from that stage's best.pt; the data and validation sets stay the measured run's."""
+    if not (ROOT / ".venv" / "bin" / "python").exists():
+        pytest.skip("the script runs the project's .venv")
+    monkeypatch.setenv("CONFIG", "lrrep_span_shot")
+    (base,) = [c for c in _dry_run(tmp_path) if c[0].endswith("torchrun")]
+    direct, refine = [c for c in _dry_run(tmp_path, DIRECT_STEPS="5000") if c[0].endswith("torchrun")]
+    r = tmp_path / "r"
+    flags = ("--config", "--lr", "--max-steps", "--seed", "--init", "-o")
+    assert {f: _values(direct, f) for f in flags if f in direct} == {
+        "--config": ["lrrep_span_shot_direct"], "--lr": ["1e-3"], "--max-steps": ["5000"], "--seed": ["11"],
+        "-o": [str(r / "d")]}
+    assert {f: _values(refine, f) for f in flags} == {
+        "--config": ["lrrep_span_shot"], "--lr": ["3e-4"], "--max-steps": ["4000"], "--seed": ["12"],
+        "--init": [str(r / "d" / "best.pt")], "-o": [str(r / "a")]}
+    for stage in (direct, refine):
+        assert _values(stage, "--data") == _values(base, "--data")
+        assert _values(stage, "--val-data") == _values(base, "--val-data")
+
+
+def test_the_direct_twin_is_the_config_with_the_direct_output_so_its_weights_widen():
+    """`train --init` widens a direct network's head to the refining one only when the two model
+    sections differ in the output alone (model.training.initial_weights); the twin must also train
+    the same way, so the two stages differ by the head."""
+    import dataclasses
+
+    from model.config import load_config
+    twin, target = load_config("lrrep_span_shot_direct"), load_config("lrrep_span_shot")
+    assert twin.model.output == "direct" and target.model.output == "refine"
+    assert dataclasses.replace(twin.model, output="refine", refine_span=target.model.refine_span) == target.model
+    assert twin.train == target.train
+
+
+def test_both_stages_resume_from_their_own_checkpoints(tmp_path):
+    if not (ROOT / ".venv" / "bin" / "python").exists():
+        pytest.skip("the script runs the project's .venv")
+    for stage in ("d", "a"):
+        (tmp_path / "r" / stage).mkdir(parents=True)
+        (tmp_path / "r" / stage / "last.pt").write_bytes(b"")
+    trains = [c for c in _dry_run(tmp_path, DIRECT_STEPS="5000") if c[0].endswith("torchrun")]
+    assert [_values(c, "-o") for c in trains] == [[str(tmp_path / "r" / "d")], [str(tmp_path / "r" / "a")]]
+    for c in trains:
+        assert "--resume" in c and not {"--lr", "--max-steps", "--seed", "--init"} & set(c)
+
+
+@pytest.mark.parametrize("steps", ["0", "9000", "5k", "-1"])
+def test_bad_direct_steps_stop_the_script_before_it_runs_anything(tmp_path, steps):
+    if not (ROOT / ".venv" / "bin" / "python").exists():
+        pytest.skip("the script runs the project's .venv")
+    env = {**os.environ, "DRY_RUN": "1", "DATA": str(tmp_path / "d"), "RUNS": str(tmp_path / "r"),
+           "DIRECT_STEPS": steps}
+    out = subprocess.run(["bash", str(SCRIPT)], env=env, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 2
+    assert f"DIRECT_STEPS={steps}" in out.stderr and "9,000" in out.stderr
     assert "generate" not in out.stdout and "torchrun" not in out.stdout
