@@ -26,11 +26,19 @@ DATA="${DATA:-data}"
 RUNS="${RUNS:-runs/budget}"
 CONFIG="${CONFIG:-lrrep_span}"
 export DATA_VARIANT="${DATA_VARIANT:-}"
+TOTAL_STEPS=9000
 DIRECT_STEPS="${DIRECT_STEPS:-}"
 DIRECT_CONFIG="${DIRECT_CONFIG:-${CONFIG}_direct}"
-if [ -n "$DIRECT_STEPS" ] && ! { [[ "$DIRECT_STEPS" =~ ^[0-9]+$ ]] && [ "$DIRECT_STEPS" -ge 1 ] && [ "$DIRECT_STEPS" -lt 9000 ]; }; then
-  echo "DIRECT_STEPS=$DIRECT_STEPS: expected a whole number of steps from 1 to 8999 (of the run's 9,000)" >&2
-  exit 2
+if [ -n "$DIRECT_STEPS" ]; then
+  if ! { [[ "$DIRECT_STEPS" =~ ^[0-9]+$ ]] && [ "$DIRECT_STEPS" -ge 1 ] && [ "$DIRECT_STEPS" -lt "$TOTAL_STEPS" ]; }; then
+    echo "DIRECT_STEPS=$DIRECT_STEPS: expected a whole number of steps from 1 to $((TOTAL_STEPS - 1)) (of the run's 9,000)" >&2
+    exit 2
+  fi
+  # the direct stage's config must exist before hours of data are made for it
+  $PY -c "import sys; from model.config import load_config; load_config(sys.argv[1])" "$DIRECT_CONFIG" >/dev/null || {
+    echo "DIRECT_CONFIG=$DIRECT_CONFIG: no such config (DIRECT_STEPS needs the direct twin of CONFIG=$CONFIG)" >&2
+    exit 2
+  }
 fi
 WORKERS="${WORKERS:-2}"
 export OMP_NUM_THREADS=1
@@ -71,7 +79,6 @@ train_stage() {  # CONFIG, OUT, then the stage's own flags; resumes a stage that
   "${RUN[@]}" .venv/bin/torchrun --standalone --nproc_per_node 2 "$S" train --config "$config" --threads 1 --quiet \
     --data "${TRAIN[@]}" --val-data "${VAL[@]}" "${how[@]}" -o "$out"
 }
-TOTAL_STEPS=9000
 if [ -z "$DIRECT_STEPS" ]; then
   train_stage "$CONFIG" "$RUNS/a" --lr 1e-3 --max-steps "$TOTAL_STEPS" --seed 11
 else

@@ -194,7 +194,7 @@ def test_both_stages_resume_from_their_own_checkpoints(tmp_path):
     for stage in ("d", "a"):
         (tmp_path / "r" / stage).mkdir(parents=True)
         (tmp_path / "r" / stage / "last.pt").write_bytes(b"")
-    trains = [c for c in _dry_run(tmp_path, DIRECT_STEPS="5000") if c[0].endswith("torchrun")]
+    trains = [c for c in _dry_run(tmp_path, DIRECT_STEPS="5000", CONFIG="lrrep_span_shot") if c[0].endswith("torchrun")]
     assert [_values(c, "-o") for c in trains] == [[str(tmp_path / "r" / "d")], [str(tmp_path / "r" / "a")]]
     for c in trains:
         assert "--resume" in c and not {"--lr", "--max-steps", "--seed", "--init"} & set(c)
@@ -209,4 +209,16 @@ def test_bad_direct_steps_stop_the_script_before_it_runs_anything(tmp_path, step
     out = subprocess.run(["bash", str(SCRIPT)], env=env, capture_output=True, text=True, timeout=120)
     assert out.returncode == 2
     assert f"DIRECT_STEPS={steps}" in out.stderr and "9,000" in out.stderr
+    assert "generate" not in out.stdout and "torchrun" not in out.stdout
+
+
+def test_a_direct_stage_without_its_config_stops_the_script_before_it_runs_anything(tmp_path):
+    """CONFIG=lrrep_span has no direct twin: the script must say so before it makes any data."""
+    if not (ROOT / ".venv" / "bin" / "python").exists():
+        pytest.skip("the script runs the project's .venv")
+    env = {**os.environ, "DRY_RUN": "1", "DATA": str(tmp_path / "d"), "RUNS": str(tmp_path / "r"),
+           "CONFIG": "lrrep_span", "DIRECT_STEPS": "5000"}
+    out = subprocess.run(["bash", str(SCRIPT)], env=env, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 2
+    assert "DIRECT_CONFIG=lrrep_span_direct" in out.stderr
     assert "generate" not in out.stdout and "torchrun" not in out.stdout
