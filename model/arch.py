@@ -11,6 +11,8 @@ with a() the PCD alignment shared by both directions and g = conv 2C->C + leaky 
 """
 from __future__ import annotations
 
+from typing import Callable, NamedTuple
+
 import torch
 from torch import nn
 
@@ -34,6 +36,9 @@ class ReconNet(nn.Module):
         # Training sequences of K windows never exceed K*T + 1; on a longer stream the "never
         # fired" distance grows with its length, so inference clips to what training saw.
         self.max_interval: float | None = None
+        # Inference hook, not part of the config: called with each decoded batch's RefineParts
+        # (padded maps) when the head refines, so a reader sees the gates (`spikesim gates`).
+        self.refine_observer: Callable[[RefineParts], None] | None = None
         c, nb = cfg.num_features, cfg.num_blocks
         self.representation = build_representation(cfg)
         self.extract = residual_stack(c, nb)
@@ -112,7 +117,10 @@ class ReconNet(nn.Module):
             return out.squeeze(1)
         if (span is None) != (self.cfg.refine_span == 1):
             raise ValueError(f"model.refine_span={self.cfg.refine_span}: decode takes span= exactly when it is > 1")
-        return refine(out, window, span)
+        parts = refine_parts(out, window, span)
+        if self.refine_observer is not None:
+            self.refine_observer(parts)
+        return parts.frame
 
     # ---- whole sequence ---------------------------------------------------------------------
     def forward(self, spikes: torch.Tensor, maps: torch.Tensor | None = None) -> torch.Tensor:
@@ -218,24 +226,43 @@ def window_span_rate(rates: torch.Tensor, i: int, span: int) -> torch.Tensor:
     return rates[:, max(0, i - r): i + r + 1].mean(dim=1)
 
 
-def refine(head_out: torch.Tensor, window: torch.Tensor, span: torch.Tensor | None = None) -> torch.Tensor:
+class RefineParts(NamedTuple):
+    """The refining head's pieces for a batch of windows, each (N, H, W) float32: what `refine`
+    blends, kept apart so a reader can see where the network trusts the window average
+    (`spikesim gates`). `span_gate` is None for a head without one (refine_span == 1)."""
+
+    frame: torch.Tensor         # Y, the output
+    net: torch.Tensor           # N, the network's own frame
+    classic: torch.Tensor       # C = m * TFP' + (1 - m) * TFI, TFP' the span-blended TFP
+    classic_gate: torch.Tensor  # g: 1 = the frame is C, 0 = it is N
+    tfp_share: torch.Tensor     # m: TFP's share of C
+    span_gate: torch.Tensor | None  # s: the span's rate's share of TFP'
+
+
+def refine_parts(head_out: torch.Tensor, window: torch.Tensor, span: torch.Tensor | None = None) -> RefineParts:
     """Y = g * (m * TFP + (1 - m) * TFI) + (1 - g) * N, with (N, g, m) the head's three channels
     (gates: sigmoid of REFINE_GATE_GAIN times the channel). Why: a small network that must rebuild
     a window average from its features loses to that average wherever it is already right (bright
     light, slow motion); with the average as an input to its output, matching it costs one gate,
     and the network's capacity goes to what the average gets wrong. With a fourth channel s and the
     span's rate S, TFP becomes s * S + (1 - s) * TFP: where the scene is still, the longer average."""
-    net = head_out[:, 0]
+    net = head_out[:, 0].float()
     gate = torch.sigmoid(REFINE_GATE_GAIN * head_out[:, 1].float())
     mix = torch.sigmoid(REFINE_GATE_GAIN * head_out[:, 2].float())
     tfp_map, tfi_map = classic_estimates(window)
+    still = None
     if head_out.shape[1] > 3:
         if span is None:
             raise ValueError("the head has a span gate: refine needs the span's rate (span=)")
         still = torch.sigmoid(REFINE_GATE_GAIN * head_out[:, 3].float())
         tfp_map = still * span.float() + (1 - still) * tfp_map
     classic = mix * tfp_map + (1 - mix) * tfi_map
-    return gate * classic + (1 - gate) * net.float()
+    return RefineParts(gate * classic + (1 - gate) * net, net, classic, gate, mix, still)
+
+
+def refine(head_out: torch.Tensor, window: torch.Tensor, span: torch.Tensor | None = None) -> torch.Tensor:
+    """The refining head's frame Y (refine_parts says how it is made)."""
+    return refine_parts(head_out, window, span).frame
 
 
 def widen_head_state(state: dict[str, torch.Tensor], cfg: ModelConfig) -> dict[str, torch.Tensor]:
