@@ -65,17 +65,6 @@ def open_scenes(root: str | Path | Sequence[str | Path]) -> list[Scene]:
     return scenes
 
 
-def select_scenes(scenes: Sequence[Scene], wanted: Sequence[str] | None, root: object) -> list[Scene]:
-    """The scenes named in `wanted` (all of them when it is empty or None), in the dataset's order;
-    a name the dataset lacks is a ValueError listing what `root` has (what `--scenes` takes)."""
-    if not wanted:
-        return list(scenes)
-    missing = sorted(set(wanted) - {s.name for s in scenes})
-    if missing:
-        raise ValueError(f"--scenes: {', '.join(missing)} not in {root} (it has {', '.join(s.name for s in scenes)})")
-    return [s for s in scenes if s.name in set(wanted)]
-
-
 def stream_sha256(sc: Any) -> str | None:
     """The sha256 of a scene's spike stream as its dataset's checksum record (checksums.json) gives
     it, or None (a scene made in memory, or a record that is missing or unreadable). Names do not

@@ -23,7 +23,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Sequence
 
-from model.data import open_scenes, select_scenes
+from model.data import open_scenes
 # the library (model/evaluation.py); re-exported here for callers of pipelines.evaluate
 from model.evaluation import (ALL, CONDITIONS, CSV_FIELDS, DEFAULT_OUT, RESULT_FILES, TABLE_ROWS, Score,  # noqa: F401
                               check_results, evaluate, evaluate_pair, evaluate_scene, evaluation_run, group_name,
@@ -58,6 +58,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         return _evaluate_spikezoo_cmd(args, methods, names)
     if args.gt is not None or args.center is not None:
         raise ValueError("--gt and --center go with --dat (one external stream), not with --data")
+    from spikesim.dataset import select_scenes
     scenes = select_scenes(open_scenes(args.data), args.scenes, args.data)
     rows = evaluate(scenes, methods, args.window, progress=not (args.quiet or args.json))
     return _report(args, rows, names, {"data": str(args.data)}, training_scene_notes(methods, scenes))

@@ -35,10 +35,11 @@ def map_files(scene: str) -> tuple[str, str]:
 def cmd_gates(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from model.data import open_scenes, select_scenes
+    from model.data import open_scenes
     from model.gates import GATE_FIELDS, gate_scene, gates_markdown, refining_network
     from model.methods import method_from_spec
     from model.threads import set_cpu_threads
+    from spikesim.dataset import select_scenes
     from model.training import resolve_device
 
     if args.maps and args.out is None:

@@ -31,7 +31,7 @@ import shutil
 import stat
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Sequence
+from typing import Any, Iterable, Sequence, TypeVar
 
 import numpy as np
 
@@ -496,6 +496,22 @@ def _is_dataset_manifest(root: Path) -> bool:
     except (OSError, ValueError):
         return False
     return True
+
+
+Named = TypeVar("Named")
+
+
+def select_scenes(scenes: Sequence[Named], names: Sequence[str] | None, dataset: object) -> list[Named]:
+    """The scenes (anything with a `.name`) named in `names`, all when it is empty or None, in the
+    dataset's order; a name the dataset lacks is a ValueError listing what `dataset` has (what
+    every command's `--scenes` takes)."""
+    if not names:
+        return list(scenes)
+    have = [sc.name for sc in scenes]  # type: ignore[attr-defined]
+    missing = sorted(set(names) - set(have))
+    if missing:
+        raise ValueError(f"--scenes: {', '.join(missing)} not in {dataset} (it has {', '.join(have)})")
+    return [sc for sc, name in zip(scenes, have) if name in set(names)]
 
 
 def check_outside_datasets(out: str | Path, roots: Sequence[str | Path] = (), flag: str = "-o") -> None:

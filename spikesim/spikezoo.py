@@ -46,7 +46,8 @@ import numpy as np
 
 from . import outputs
 from .config_io import read_json_object
-from .dataset import LOCK_FILE, SATURATION_Y, SceneRecord, check_outside_datasets, open_dataset, sha256_file
+from .dataset import (LOCK_FILE, SATURATION_Y, SceneRecord, check_outside_datasets, open_dataset, select_scenes,
+                      sha256_file)
 from .stream import write_dat
 
 SPLITS = ("train", "test")
@@ -279,16 +280,6 @@ def _export_scene(out: Path, split: str, plan: ScenePlan, steps: int, rate: floa
     return {"scene": entry, "pairs": pairs}
 
 
-def pick_scenes(dataset: str | Path, scenes: Sequence[SceneRecord], names: Sequence[str] | None) -> list[SceneRecord]:
-    """The scenes named (all when None); a name the dataset lacks is a ValueError listing its own."""
-    if not names:
-        return list(scenes)
-    missing = sorted(set(names) - {sc.name for sc in scenes})
-    if missing:
-        raise ValueError(f"--scenes: {', '.join(missing)} not in {dataset} (it has {', '.join(sc.name for sc in scenes)})")
-    return [sc for sc in scenes if sc.name in set(names)]
-
-
 def export_spikezoo(dataset: str | Path, out: str | Path, split: str = "test", steps: int = STEPS,
                     rate: float | None = None, scenes: Sequence[str] | None = None, gt_stride: int = 1,
                     log: Callable[[str], None] | None = None) -> dict[str, Any]:
@@ -307,7 +298,7 @@ def export_spikezoo(dataset: str | Path, out: str | Path, split: str = "test", s
     if rate is not None and not (math.isfinite(rate) and rate > 0):
         raise ValueError(f"--rate {rate}: must be a finite number > 0")
     dataset, out = Path(dataset), Path(out)
-    chosen = pick_scenes(dataset, open_dataset(dataset), scenes)  # an input that is no dataset is said first
+    chosen = select_scenes(open_dataset(dataset), scenes, dataset)  # an input that is no dataset is said first
     check_outside_datasets(out, [dataset])
     height, width = check_geometry(dataset, chosen)
     plans = plan_export(chosen, steps, gt_stride)
@@ -572,4 +563,4 @@ def _pair(dat: Path, spike_dir: Path, gt_dir: Path, height: int, width: int, ent
 
 __all__ = ["SPLITS", "STEPS", "HEIGHT", "WIDTH", "RATE", "RECORD", "README", "key_index", "window_of", "scene_rate",
            "png_levels", "gray8", "ScenePlan", "plan_export", "check_geometry", "check_output", "read_record",
-           "pick_scenes", "export_spikezoo", "readme_text", "SpikeZooPair", "SpikeZooLayout", "read_layout"]
+           "export_spikezoo", "readme_text", "SpikeZooPair", "SpikeZooLayout", "read_layout"]
