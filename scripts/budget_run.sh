@@ -3,13 +3,14 @@
 # network trained from a random draw, data and training within 6 CPU-hours on a 2-core machine.
 #   1. the data: the eight sets, with the commands and seeds the GPU campaign's recipe uses (one list,
 #      pipelines/gpu_campaign/options.py), made here on the CPU;
-#   2. stage A: config lrrep_span (or $CONFIG) from a random draw, lr 1e-3 cosine over 9,000 steps of batch 4 of
+#   2. stage A: config lrrep_span (or $CONFIG) from a random draw, lr 1e-3 cosine over 9,000 steps (TOTAL_STEPS) of batch 4 of
 #      32 x 32 (two one-thread processes);
 #   (a stage B, batch 8 of 48 x 48 from stage A, was measured and did not pay: docs/model.md).
 # Usage: bash scripts/budget_run.sh; DATA=DIR and RUNS=DIR choose the folders (data/ and runs/budget/),
 # CONFIG=NAME the config of stage A (lrrep_span; lrrep_span_shot is the loss lever's long run),
 # DATA_VARIANT=NAME adds that variant's training sets (pipelines/gpu_campaign/options.py,
 # BUDGET_DATA_VARIANTS; "natdark": 24 dark natural scenes);
+# TOTAL_STEPS=N trains N steps instead of the measured runs' 9,000;
 # DIRECT_STEPS=N trains the first N of the 9,000 steps as the config's direct twin ($DIRECT_CONFIG, by
 # default ${CONFIG}_direct: no refining gates) in $RUNS/d, then the rest as $CONFIG from its best.pt;
 # DRY_RUN=1 prints the commands instead of running them.
@@ -26,12 +27,19 @@ DATA="${DATA:-data}"
 RUNS="${RUNS:-runs/budget}"
 CONFIG="${CONFIG:-lrrep_span}"
 export DATA_VARIANT="${DATA_VARIANT:-}"
-TOTAL_STEPS=9000
+TOTAL_STEPS="${TOTAL_STEPS:-9000}"
+# the measured runs' length; a longer run is the budget's other lever: a step costs about 1.7 CPU-seconds
+# (two one-thread processes, fp32, measured on a 2-core AMD EPYC), so the 6 CPU-hours less the
+# data's 0.44 hold about 11,700 steps (docs/model.md, "The budget run")
+if ! { [[ "$TOTAL_STEPS" =~ ^[1-9][0-9]*$ ]] && [ "$TOTAL_STEPS" -ge 2 ] && [ "$TOTAL_STEPS" -le 100000 ]; }; then
+  echo "TOTAL_STEPS=$TOTAL_STEPS: expected a whole number of training steps from 2 to 100000" >&2
+  exit 2
+fi
 DIRECT_STEPS="${DIRECT_STEPS:-}"
 DIRECT_CONFIG="${DIRECT_CONFIG:-${CONFIG}_direct}"
 if [ -n "$DIRECT_STEPS" ]; then
-  if ! { [[ "$DIRECT_STEPS" =~ ^[0-9]+$ ]] && [ "$DIRECT_STEPS" -ge 1 ] && [ "$DIRECT_STEPS" -lt "$TOTAL_STEPS" ]; }; then
-    echo "DIRECT_STEPS=$DIRECT_STEPS: expected a whole number of steps from 1 to $((TOTAL_STEPS - 1)) (of the run's 9,000)" >&2
+  if ! { [[ "$DIRECT_STEPS" =~ ^[1-9][0-9]*$ ]] && [ "$DIRECT_STEPS" -ge 1 ] && [ "$DIRECT_STEPS" -lt "$TOTAL_STEPS" ]; }; then
+    echo "DIRECT_STEPS=$DIRECT_STEPS: expected a whole number of steps from 1 to $((TOTAL_STEPS - 1)) (of the run's $TOTAL_STEPS)" >&2
     exit 2
   fi
   # the direct stage's config must exist before hours of data are made for it
@@ -82,7 +90,7 @@ train_stage() {  # CONFIG, OUT, then the stage's own flags; resumes a stage that
 if [ -z "$DIRECT_STEPS" ]; then
   train_stage "$CONFIG" "$RUNS/a" --lr 1e-3 --max-steps "$TOTAL_STEPS" --seed 11
 else
-  # the same 9,000 steps in two stages: the config's direct twin from the random draw, then the
+  # the same $TOTAL_STEPS steps in two stages: the config's direct twin from the random draw, then the
   # config itself from its best.pt (the head widened with the gates), a second cosine cycle at
   # the lineage's fine-tuning rate and another data order
   train_stage "$DIRECT_CONFIG" "$RUNS/d" --lr 1e-3 --max-steps "$DIRECT_STEPS" --seed 11
