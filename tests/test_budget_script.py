@@ -200,17 +200,18 @@ def test_both_stages_resume_from_their_own_checkpoints(tmp_path):
         assert "--resume" in c and not {"--lr", "--max-steps", "--seed", "--init"} & set(c)
 
 
-@pytest.mark.parametrize("steps", ["0", "9000", "5k", "-1", "0100"])
-def test_bad_direct_steps_stop_the_script_before_it_runs_anything(tmp_path, steps):
-    """"0100" too: bash's arithmetic reads a leading zero as octal, so it would have trained 64 and
-    8,936 steps."""
+@pytest.mark.parametrize("variable, steps, said", [
+    *(("DIRECT_STEPS", v, "of the run's 9000") for v in ("0", "9000", "5k", "-1", "0100")),
+    *(("TOTAL_STEPS", v, "from 2 to 100000") for v in ("0", "1", "9k", "0900", "100001"))])
+def test_bad_step_counts_stop_the_script_before_it_runs_anything(tmp_path, variable, steps, said):
+    """A leading zero too ("0100"): bash's arithmetic reads it as octal, so DIRECT_STEPS=0100 would
+    have trained 64 and 8,936 steps."""
     if not (ROOT / ".venv" / "bin" / "python").exists():
         pytest.skip("the script runs the project's .venv")
-    env = {**os.environ, "DRY_RUN": "1", "DATA": str(tmp_path / "d"), "RUNS": str(tmp_path / "r"),
-           "DIRECT_STEPS": steps}
+    env = {**os.environ, "DRY_RUN": "1", "DATA": str(tmp_path / "d"), "RUNS": str(tmp_path / "r"), variable: steps}
     out = subprocess.run(["bash", str(SCRIPT)], env=env, capture_output=True, text=True, timeout=120)
     assert out.returncode == 2
-    assert f"DIRECT_STEPS={steps}" in out.stderr and "of the run's 9000" in out.stderr
+    assert f"{variable}={steps}" in out.stderr and said in out.stderr
     assert "generate" not in out.stdout and "torchrun" not in out.stdout
 
 
@@ -228,18 +229,6 @@ def test_total_steps_sets_the_runs_length_and_the_split_follows(tmp_path):
     direct, refine = [c for c in _dry_run(tmp_path, CONFIG="lrrep_span_shot", TOTAL_STEPS="11000",
                                           DIRECT_STEPS="4000") if c[0].endswith("torchrun")]
     assert _values(direct, "--max-steps") == ["4000"] and _values(refine, "--max-steps") == ["7000"]
-
-
-@pytest.mark.parametrize("steps", ["0", "1", "9k", "0900", "100001"])
-def test_bad_total_steps_stop_the_script_before_it_runs_anything(tmp_path, steps):
-    if not (ROOT / ".venv" / "bin" / "python").exists():
-        pytest.skip("the script runs the project's .venv")
-    env = {**os.environ, "DRY_RUN": "1", "DATA": str(tmp_path / "d"), "RUNS": str(tmp_path / "r"),
-           "TOTAL_STEPS": steps}
-    out = subprocess.run(["bash", str(SCRIPT)], env=env, capture_output=True, text=True, timeout=120)
-    assert out.returncode == 2
-    assert f"TOTAL_STEPS={steps}" in out.stderr
-    assert "generate" not in out.stdout and "torchrun" not in out.stdout
 
 
 def test_a_direct_stage_without_its_config_stops_the_script_before_it_runs_anything(tmp_path):
