@@ -13,6 +13,8 @@
 # TOTAL_STEPS=N trains N steps instead of the measured runs' 9,000;
 # DIRECT_STEPS=N trains the first N of the 9,000 steps as the config's direct twin ($DIRECT_CONFIG, by
 # default ${CONFIG}_direct: no refining gates) in $RUNS/d, then the rest as $CONFIG from its best.pt;
+# SEED=N draws the network and the data order from another seed (11, the measured runs'; a second
+# stage takes N+1), for the spread between runs;
 # DRY_RUN=1 prints the commands instead of running them.
 # Interrupt it at any point and run it again: `generate` resumes each dataset, `train --resume`
 # each stage bit for bit, and a finished stage says "nothing to do". It prints the CPU time its
@@ -33,6 +35,11 @@ TOTAL_STEPS="${TOTAL_STEPS:-9000}"
 # data's 0.44 hold about 11,700 steps (docs/model.md, "The budget run")
 if ! { [[ "$TOTAL_STEPS" =~ ^[1-9][0-9]*$ ]] && [ "$TOTAL_STEPS" -ge 2 ] && [ "$TOTAL_STEPS" -le 100000 ]; }; then
   echo "TOTAL_STEPS=$TOTAL_STEPS: expected a whole number of training steps from 2 to 100000" >&2
+  exit 2
+fi
+SEED="${SEED:-11}"
+if ! { [[ "$SEED" =~ ^(0|[1-9][0-9]*)$ ]] && [ "$SEED" -le 1000000 ]; }; then
+  echo "SEED=$SEED: expected a whole number from 0 to 1000000" >&2
   exit 2
 fi
 DIRECT_STEPS="${DIRECT_STEPS:-}"
@@ -88,13 +95,13 @@ train_stage() {  # CONFIG, OUT, then the stage's own flags; resumes a stage that
     --data "${TRAIN[@]}" --val-data "${VAL[@]}" "${how[@]}" -o "$out"
 }
 if [ -z "$DIRECT_STEPS" ]; then
-  train_stage "$CONFIG" "$RUNS/a" --lr 1e-3 --max-steps "$TOTAL_STEPS" --seed 11
+  train_stage "$CONFIG" "$RUNS/a" --lr 1e-3 --max-steps "$TOTAL_STEPS" --seed "$SEED"
 else
   # the same $TOTAL_STEPS steps in two stages: the config's direct twin from the random draw, then the
   # config itself from its best.pt (the head widened with the gates), a second cosine cycle at
   # the lineage's fine-tuning rate and another data order
-  train_stage "$DIRECT_CONFIG" "$RUNS/d" --lr 1e-3 --max-steps "$DIRECT_STEPS" --seed 11
-  train_stage "$CONFIG" "$RUNS/a" --init "$RUNS/d/best.pt" --lr 3e-4 --max-steps $((TOTAL_STEPS - DIRECT_STEPS)) --seed 12
+  train_stage "$DIRECT_CONFIG" "$RUNS/d" --lr 1e-3 --max-steps "$DIRECT_STEPS" --seed "$SEED"
+  train_stage "$CONFIG" "$RUNS/a" --init "$RUNS/d/best.pt" --lr 3e-4 --max-steps $((TOTAL_STEPS - DIRECT_STEPS)) --seed $((SEED + 1))
 fi
 echo "[budget] the network is $RUNS/a/best.pt (score it with --methods budget=$RUNS/a/best.pt)"
 # `times` in the script's own shell: in a pipeline or $(...) it runs in a subshell, which ran nothing

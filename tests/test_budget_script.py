@@ -202,7 +202,8 @@ def test_both_stages_resume_from_their_own_checkpoints(tmp_path):
 
 @pytest.mark.parametrize("variable, steps, said", [
     *(("DIRECT_STEPS", v, "of the run's 9000") for v in ("0", "9000", "5k", "-1", "0100")),
-    *(("TOTAL_STEPS", v, "from 2 to 100000") for v in ("0", "1", "9k", "0900", "100001"))])
+    *(("TOTAL_STEPS", v, "from 2 to 100000") for v in ("0", "1", "9k", "0900", "100001")),
+    *(("SEED", v, "from 0 to 1000000") for v in ("-1", "x", "011", "1000001"))])
 def test_bad_step_counts_stop_the_script_before_it_runs_anything(tmp_path, variable, steps, said):
     """A leading zero too ("0100"): bash's arithmetic reads it as octal, so DIRECT_STEPS=0100 would
     have trained 64 and 8,936 steps."""
@@ -241,3 +242,18 @@ def test_a_direct_stage_without_its_config_stops_the_script_before_it_runs_anyth
     assert out.returncode == 2
     assert "DIRECT_CONFIG=lrrep_span_direct" in out.stderr
     assert "generate" not in out.stdout and "torchrun" not in out.stdout
+
+
+def test_seed_draws_another_run_and_nothing_else_moves(tmp_path):
+    """SEED=5: the single stage (or the direct stage) takes seed 5, a refining stage 6; the measured
+    runs' 11 and 12 by default."""
+    if not (ROOT / ".venv" / "bin" / "python").exists():
+        pytest.skip("the script runs the project's .venv")
+    (base,) = [c for c in _dry_run(tmp_path) if c[0].endswith("torchrun")]
+    (other,) = [c for c in _dry_run(tmp_path, SEED="5") if c[0].endswith("torchrun")]
+    i = base.index("--seed") + 1
+    assert base[i] == "11" and other[i] == "5"
+    assert other[:i] + other[i + 1:] == base[:i] + base[i + 1:]
+    direct, refine = [c for c in _dry_run(tmp_path, CONFIG="lrrep_span_shot", DIRECT_STEPS="4000", SEED="5")
+                      if c[0].endswith("torchrun")]
+    assert _values(direct, "--seed") == ["5"] and _values(refine, "--seed") == ["6"]
