@@ -200,19 +200,19 @@ def test_both_stages_resume_from_their_own_checkpoints(tmp_path):
         assert "--resume" in c and not {"--lr", "--max-steps", "--seed", "--init"} & set(c)
 
 
-@pytest.mark.parametrize("variable, steps, said", [
+@pytest.mark.parametrize("variable, value, said", [
     *(("DIRECT_STEPS", v, "of the run's 9000") for v in ("0", "9000", "5k", "-1", "0100")),
     *(("TOTAL_STEPS", v, "from 2 to 100000") for v in ("0", "1", "9k", "0900", "100001")),
     *(("SEED", v, "from 0 to 1000000") for v in ("-1", "x", "011", "1000001"))])
-def test_bad_step_counts_stop_the_script_before_it_runs_anything(tmp_path, variable, steps, said):
+def test_bad_step_counts_and_seeds_stop_the_script_before_it_runs_anything(tmp_path, variable, value, said):
     """A leading zero too ("0100"): bash's arithmetic reads it as octal, so DIRECT_STEPS=0100 would
-    have trained 64 and 8,936 steps."""
+    have trained 64 and 8,936 steps (and SEED=011 a refining stage of seed 10)."""
     if not (ROOT / ".venv" / "bin" / "python").exists():
         pytest.skip("the script runs the project's .venv")
-    env = {**os.environ, "DRY_RUN": "1", "DATA": str(tmp_path / "d"), "RUNS": str(tmp_path / "r"), variable: steps}
+    env = {**os.environ, "DRY_RUN": "1", "DATA": str(tmp_path / "d"), "RUNS": str(tmp_path / "r"), variable: value}
     out = subprocess.run(["bash", str(SCRIPT)], env=env, capture_output=True, text=True, timeout=120)
     assert out.returncode == 2
-    assert f"{variable}={steps}" in out.stderr and said in out.stderr
+    assert f"{variable}={value}" in out.stderr and said in out.stderr
     assert "generate" not in out.stdout and "torchrun" not in out.stdout
 
 
