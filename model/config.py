@@ -219,6 +219,10 @@ class TrainConfig:
     run of few, short epochs, such as `tiny`'s one-step epochs), the cadence becomes the run's
     epochs / min_validations, so best.pt is chosen from the run and not just its last step."""
     ckpt_every: int = 1
+    keep_validated: bool = False
+    """Also keep the checkpoint of every validation (validated/step_NNNNNN.pt beside the per-scene
+    scores of val_scenes.csv), so that a rule other than the mean (the worst scene's score, one
+    set's mean) can pick the run's network afterwards (`spikesim pick-checkpoint`)."""
     ckpt_every_steps: int | None = None
     """Also write last.pt every this many steps, so a run cut anywhere loses at most that many."""
     max_steps: int | None = None
@@ -271,6 +275,7 @@ class TrainConfig:
                  f"train.budget_minutes must be a positive number of minutes (at most a year), got {self.budget_minutes!r}")
         pos_int("calibration_steps")
         _require(isinstance(self.channels_last, bool), f"train.channels_last must be a boolean, got {self.channels_last!r}")
+        _require(isinstance(self.keep_validated, bool), f"train.keep_validated must be a boolean, got {self.keep_validated!r}")
         if self.set_shares is not None:
             shares = self.set_shares
             _require(isinstance(shares, dict) and bool(shares),

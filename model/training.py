@@ -196,29 +196,46 @@ class _Tensorboard:
 
 
 @torch.no_grad()
-def validate(model: torch.nn.Module, dataset: SequenceDataset, device: torch.device) -> dict[str, float]:
+def validate(model: torch.nn.Module, dataset: SequenceDataset, device: torch.device
+             ) -> tuple[dict[str, float], dict[str, dict[str, float]]]:
     """Mean PSNR / SSIM / aligned PSNR over every frame of the validation samples, for the model
-    and for TFP on the same windows (the yardstick the model has to beat). The aligned PSNR judges
-    dark and bright frames on one scale (model/metrics.py), so it is what picks best.pt."""
+    and for TFP on the same windows (the yardstick the model has to beat), then each scene's own
+    mean aligned PSNR (model and TFP). The aligned PSNR judges dark and bright frames on one scale
+    (model/metrics.py), so its mean is what picks best.pt; the per-scene scores let another rule
+    (the worst scene's, one set's) pick among kept checkpoints (`spikesim pick-checkpoint`): a
+    mean over many scenes barely moves when one dark scene swings by 2-3 dB between checkpoints."""
     model.eval()
     scores: dict[str, list[float]] = {k: [] for k in VALIDATION_COLUMNS}
+    by_scene: dict[str, dict[str, list[float]]] = {}
     for i in range(len(dataset)):
         item = dataset[i]
         spikes = item["spikes"].to(device)
         pred = model(spikes.unsqueeze(0))[0].float().cpu().numpy()
         base = tfp_windows(spikes).cpu().numpy()
         gt = item["gt"].numpy()
+        scene = by_scene.setdefault(str(item["scene"]), {k: [] for k in SCENE_COLUMNS})
         for k in range(gt.shape[0]):
             for name, image in (("", pred[k]), ("_tfp", base[k])):
                 scores["psnr" + name].append(psnr(image, gt[k]))
                 scores["ssim" + name].append(ssim(image, gt[k]))
                 scores["psnr_aligned" + name].append(psnr_aligned(image, gt[k]))
+                scene["psnr_aligned" + name].append(scores["psnr_aligned" + name][-1])
     model.train()
-    return {k: float(np.mean(v)) for k, v in scores.items()}
+    return ({k: float(np.mean(v)) for k, v in scores.items()},
+            {name: {k: float(np.mean(v)) for k, v in cols.items()} for name, cols in by_scene.items()})
 
 
 #: The validation log's metrics: the model's, then TFP's on the same windows.
 VALIDATION_COLUMNS = ("psnr", "ssim", "psnr_aligned", "psnr_tfp", "ssim_tfp", "psnr_aligned_tfp")
+#: The per-scene validation log's metrics (val_scenes.csv: a row per scene and validation).
+SCENE_COLUMNS = ("psnr_aligned", "psnr_aligned_tfp")
+#: The folder of the checkpoints a run keeps at each validation (train.keep_validated), and their names.
+VALIDATED_DIR = "validated"
+
+
+def validated_name(step: int) -> str:
+    """The file name of the checkpoint kept at validation `step` (sorts in step order)."""
+    return f"step_{step:06d}.pt"
 
 
 #: Above this many samples per epoch the order is not shuffled and batches are made as they are
@@ -410,7 +427,8 @@ def _datasets(experiment: ExperimentConfig, train_scenes: Sequence[Scene],
 
 
 #: What a run folder holds; a new run refuses a folder holding any of it unless told to overwrite.
-RUN_FILES = ("last.pt", "best.pt", "train_log.csv", "val_log.csv", "config.json", "tb")
+RUN_FILES = ("last.pt", "best.pt", "train_log.csv", "val_log.csv", "val_scenes.csv", "config.json", "tb",
+             VALIDATED_DIR)
 #: TensorBoard's event files, the run's own part of tb/ (SummaryWriter names them so).
 TB_EVENT_PREFIX = "events.out.tfevents."
 
@@ -802,8 +820,11 @@ def _train(experiment: ExperimentConfig, train_scenes: Sequence[Scene], val_scen
                     warnings.filterwarnings("ignore", message="Detected call of `lr_scheduler.step")
                     run.sched.step()
             if dist.is_main and val_ds is not None and (stopped or epoch % validation_every() == 0):
-                scores = validate(run.model, val_ds, dev)
-                logs.validation(epoch, step, scores)
+                scores, scene_scores = validate(run.model, val_ds, dev)
+                logs.validation(epoch, step, scores, scene_scores)
+                if tc.keep_validated:  # every validated state, for a choice by another rule afterwards
+                    make_dirs(out, VALIDATED_DIR)
+                    checkpoint(writable(out, VALIDATED_DIR, validated_name(step)))
                 bar.write(f"[train] step {step} of {last_step()} (epoch {epoch}, {batches_per_epoch} step(s) each): "
                           + (f"loss {last_loss:.4f}, " if math.isfinite(last_loss) else "no step since the resume, ")
                           + "val aligned PSNR "
@@ -869,9 +890,11 @@ class _Logs:
             self.train = _CsvLog(out / "train_log.csv",
                                  ["time", "epoch", "step", "loss", "lr", "samples_per_s", "data_wait_s"])
             self.val = _CsvLog(out / "val_log.csv", ["time", "epoch", "step", *VALIDATION_COLUMNS])
+            self.scenes = _CsvLog(out / "val_scenes.csv", ["time", "epoch", "step", "scene", *SCENE_COLUMNS])
             if resumed_at is not None:
                 self.train.keep_steps_up_to(resumed_at)
                 self.val.keep_steps_up_to(resumed_at)
+                self.scenes.keep_steps_up_to(resumed_at)
             self.tb = _Tensorboard(make_dirs(out, "tb"))
 
     def train_step(self, epoch: int, step: int, loss: float, lr: float, rate: float, waited: float) -> None:
@@ -880,9 +903,13 @@ class _Logs:
                               "samples_per_s": rate, "data_wait_s": waited})
             self.tb.scalar("train/loss", loss, step)
 
-    def validation(self, epoch: int, step: int, scores: dict[str, float]) -> None:
+    def validation(self, epoch: int, step: int, scores: dict[str, float],
+                   scene_scores: dict[str, dict[str, float]] | None = None) -> None:
         if self.enabled:
-            self.val.write({"time": time.time(), "epoch": epoch, "step": step, **scores})
+            now = time.time()
+            self.val.write({"time": now, "epoch": epoch, "step": step, **scores})
+            for scene, cols in (scene_scores or {}).items():
+                self.scenes.write({"time": now, "epoch": epoch, "step": step, "scene": scene, **cols})
             for k, v in scores.items():
                 self.tb.scalar(f"val/{k}", v, step)
 

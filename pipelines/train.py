@@ -36,6 +36,8 @@ def _apply_overrides(exp: ExperimentConfig, args: argparse.Namespace) -> Experim
         changes["precision"] = args.precision
     if getattr(args, "no_amp", False):
         changes["precision"] = "fp32"
+    if getattr(args, "keep_validated", False):
+        changes["keep_validated"] = True
     return dataclasses.replace(exp, train=dataclasses.replace(exp.train, **changes)) if changes else exp
 
 
@@ -134,6 +136,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     g.add_argument("--seed", type=seed_int, help="seed of the weights, the sample order and the crops")
     g.add_argument("--num-workers", type=nonnegative_int, help="data-loader processes (0: load in the training process)")
     g.add_argument("--samples-per-epoch", type=positive_int, help="random samples drawn per epoch (default: every start once)")
+    g.add_argument("--keep-validated", action="store_true",
+                   help="also keep the checkpoint of every validation in <out>/validated/, beside the per-scene "
+                        "scores of <out>/val_scenes.csv, to pick the network by another rule afterwards "
+                        "(spikesim pick-checkpoint)")
     g.add_argument("--ckpt-every-steps", type=positive_int,
                    help="also write last.pt every this many steps (a run cut anywhere then loses at most that many)")
     prec = g.add_mutually_exclusive_group()

@@ -91,7 +91,10 @@ train_stage() {  # CONFIG, OUT, then the stage's own flags; resumes a stage that
   local config=$1 out=$2; shift 2
   local how=("$@")
   if [ -f "$out/last.pt" ]; then how=(--resume); fi
+  # --keep-validated: every validated checkpoint is kept (validated/), beside each scene's scores
+  # (val_scenes.csv), so the network can be picked by another rule afterwards (spikesim pick-checkpoint)
   "${RUN[@]}" .venv/bin/torchrun --standalone --nproc_per_node 2 "$S" train --config "$config" --threads 1 --quiet \
+    --keep-validated \
     --data "${TRAIN[@]}" --val-data "${VAL[@]}" "${how[@]}" -o "$out"
 }
 if [ -z "$DIRECT_STEPS" ]; then

@@ -65,6 +65,7 @@ def test_the_training_is_the_measured_run_from_a_random_draw(commands, tmp_path)
                      "-o": [str(tmp_path / "r" / "a")]}
     assert "--init" not in train and "--resume" not in train
     assert _values(train, "--nproc_per_node")[0] == "2" and _values(train, "--threads") == ["1"]
+    assert "--keep-validated" in train  # the network can be picked by another rule afterwards
 
 
 def test_a_stage_with_a_checkpoint_is_resumed_with_its_own_plan(tmp_path):
@@ -77,6 +78,7 @@ def test_a_stage_with_a_checkpoint_is_resumed_with_its_own_plan(tmp_path):
     # the plan (lr, length, seed) comes from last.pt; the data flags must name the same data
     assert not {"--lr", "--max-steps", "--seed", "--init"} & set(train)
     assert len(_values(train, "--data")) == 6
+    assert "--keep-validated" in train  # a run begun without it keeps the validations after the resume
 
 
 def test_config_names_the_stage_a_config_and_nothing_else_moves(tmp_path, monkeypatch):
