@@ -24,6 +24,7 @@ _SUBCOMMANDS = (
     "pipelines.train",
     "pipelines.evaluate",
     "pipelines.gates_cmd",
+    "pipelines.pick_cmd",
     "pipelines.export",
     "pipelines.compare",
     "pipelines.reconstruct",
@@ -40,7 +41,7 @@ _COMMAND_MODULE = {
     "demo": "pipelines.demo", "simulate": "pipelines.simulate_cmd", "inspect": "pipelines.inspect_cmd",
     "bench": "pipelines.bench", "golden": "pipelines.golden_stats", "camera": "pipelines.camera_cmd", "calibrate": "pipelines.calibrate_cmd", "generate": "pipelines.generate",
     "verify": "pipelines.generate", "render": "pipelines.render_cmd", "train": "pipelines.train",
-    "evaluate": "pipelines.evaluate", "gates": "pipelines.gates_cmd", "export": "pipelines.export", "compare": "pipelines.compare", "reconstruct": "pipelines.reconstruct", "tradeoff": "pipelines.tradeoff",
+    "evaluate": "pipelines.evaluate", "gates": "pipelines.gates_cmd", "pick-checkpoint": "pipelines.pick_cmd", "export": "pipelines.export", "compare": "pipelines.compare", "reconstruct": "pipelines.reconstruct", "tradeoff": "pipelines.tradeoff",
     "panel": "pipelines.panel", "sweep": "pipelines.sweep", "gpu-campaign": "pipelines.gpu_campaign.cmd",
 }
 

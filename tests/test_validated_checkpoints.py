@@ -96,3 +96,80 @@ def test_overwrite_removes_the_kept_checkpoints_of_the_run_it_replaces(tmp_path,
                  progress=False, overwrite=True)
     assert not (run / VALIDATED_DIR).exists()
     assert {r["step"] for r in _rows(run / "val_scenes.csv")} == {"1", "2"}
+
+
+# ---- spikesim pick-checkpoint -----------------------------------------------------------------------
+def _scene_log(run, rows):
+    """A val_scenes.csv of (step, scene, aligned PSNR) rows."""
+    run.mkdir(parents=True, exist_ok=True)
+    lines = ["time,epoch,step,scene,psnr_aligned,psnr_aligned_tfp"]
+    lines += [f"0,{step},{step},{scene},{value},10.0" for step, scene, value in rows]
+    (run / "val_scenes.csv").write_text("\n".join(lines) + "\n")
+
+
+# at step 2 the dark scene drops: the mean still rises, the floor does not
+ROWS = [(1, "val_a:dark", 14.0), (1, "val_a:lit", 28.0), (1, "val_b:card", 30.0),
+        (2, "val_a:dark", 12.0), (2, "val_a:lit", 29.5), (2, "val_b:card", 31.0),
+        (3, "val_a:dark", 14.0), (3, "val_a:lit", 28.5), (3, "val_b:card", 29.0)]
+
+
+def test_the_rules_rank_validations_by_their_mean_and_by_their_floor(tmp_path):
+    from model.selection import rank_validations, read_scene_scores
+    _scene_log(tmp_path / "run", ROWS)
+    scores = read_scene_scores(tmp_path / "run")
+    by_mean = rank_validations(scores, "mean")
+    assert [v.step for v in by_mean] == [2, 1, 3]
+    assert by_mean[0].score == pytest.approx((12.0 + 29.5 + 31.0) / 3)
+    by_floor = rank_validations(scores, "worst")
+    # steps 1 and 3 share the floor (14 dB): the earlier wins, as best.pt's strict "better" does
+    assert [v.step for v in by_floor] == [1, 3, 2] and by_floor[0].worst_scene == "val_a:dark"
+    one_set = rank_validations(scores, "mean", "val_a")
+    assert [v.step for v in one_set] == [3, 1, 2] and one_set[0].score == pytest.approx(21.25)
+    with pytest.raises(ValueError, match="val_c.*its sets: val_a, val_b"):
+        rank_validations(scores, "mean", "val_c")
+    with pytest.raises(ValueError, match="rule 'median'"):
+        rank_validations(scores, "median")
+
+
+@pytest.mark.parametrize("text, match", [
+    ("time,epoch,step,scene,psnr_aligned,psnr_aligned_tfp\n0,1,one,s0,1.0,1.0\n", "line 2"),
+    ("time,epoch,step,scene,psnr_aligned,psnr_aligned_tfp\n0,1,1,s0,nan,1.0\n", "no usable score"),
+    ("time,epoch,step,scene,psnr_aligned,psnr_aligned_tfp\n", "no validation yet"),
+])
+def test_a_damaged_scene_log_is_named(tmp_path, text, match):
+    from model.selection import read_scene_scores
+    (tmp_path / "val_scenes.csv").write_text(text)
+    with pytest.raises(ValueError, match=match):
+        read_scene_scores(tmp_path)
+    with pytest.raises(FileNotFoundError, match="no per-scene validation log"):
+        read_scene_scores(tmp_path / "elsewhere")
+
+
+def test_pick_checkpoint_copies_the_kept_checkpoint_the_rule_chose(tmp_path, data, capsys):
+    from pipelines.cli import main
+    train, val = data
+    run = tmp_path / "run"
+    run_training(_tiny(keep=True), open_scenes(train), open_scenes(val), run, device="cpu", progress=False)
+    assert main(["pick-checkpoint", str(run), "--rule", "worst"]) == 0
+    scenes = _rows(run / "val_scenes.csv")
+    floors = {int(s): min(float(r["psnr_aligned"]) for r in scenes if r["step"] == s) for s in {r["step"] for r in scenes}}
+    want = min(floors, key=lambda s: (-floors[s], s))
+    picked = load_checkpoint(run / "best_worst.pt")
+    assert picked["step"] == want
+    assert (run / "best_worst.pt").read_bytes() == (run / VALIDATED_DIR / validated_name(want)).read_bytes()
+    table = capsys.readouterr().out
+    assert table.splitlines()[2].startswith(f"| {want} | {floors[want]:.2f} |")
+    # the mean rule over every scene is best.pt's own choice
+    assert main(["pick-checkpoint", str(run), "--rule", "mean"]) == 0
+    assert load_checkpoint(run / "best_mean.pt")["step"] == load_checkpoint(run / "best.pt")["step"]
+
+
+def test_pick_checkpoint_refuses_a_run_that_kept_none(tmp_path, data, capsys):
+    from pipelines.cli import main
+    train, val = data
+    run = tmp_path / "run"
+    run_training(_tiny(keep=False, max_steps=2), open_scenes(train), open_scenes(val), run, device="cpu",
+                 progress=False)
+    assert main(["pick-checkpoint", str(run), "--rule", "worst"]) == 2
+    assert "--keep-validated" in capsys.readouterr().err
+    assert not (run / "best_worst.pt").exists()
