@@ -10,6 +10,12 @@ by 0.4 dB (docs/model.md, "Picking the network by another rule"). The rules:
 each over every validation scene or over one validation set's (`set_name`: the folder the scenes
 came from, the prefix of their names when a run validates on several roots). Ties go to the
 earlier step, as best.pt's strict "better than" does.
+
+Or no pick at all: the mean of the last K kept checkpoints' weights (`average_last`), the tail of
+a cosine run, which smooths the step-to-step swings a single checkpoint carries (stochastic weight
+averaging, Izmailov et al. 2018, "Averaging Weights Leads to Wider Optima and Better
+Generalization"; the networks here hold no batch-norm statistics to recompute). Whether it pays is
+a question for the validation sets: score it beside best.pt with `evaluate`.
 """
 from __future__ import annotations
 
@@ -21,6 +27,8 @@ from pathlib import Path
 
 from spikesim.config_io import read_small_file
 
+from .checkpoint import load_checkpoint, save_checkpoint
+from .config import ExperimentConfig
 from .training import VALIDATED_DIR, validated_name
 
 #: The rules a network can be picked by.
@@ -119,3 +127,43 @@ def pick_validation(run: str | Path, rule: str, set_name: str | None = None) -> 
         raise FileNotFoundError(f"{Path(run) / VALIDATED_DIR}: no kept checkpoint of a logged validation (train "
                                 "with --keep-validated to keep one at each validation)")
     return usable[0], ranked
+
+
+def averaged_name(count: int) -> str:
+    """The file the mean of the last `count` kept checkpoints is written to in the run folder."""
+    return f"average_last_{count}.pt"
+
+
+def average_last(run: str | Path, count: int, out: str | Path) -> list[int]:
+    """Write to `out` a checkpoint whose weights are the mean of the last `count` kept checkpoints'
+    (no optimiser state: a network to score or fine-tune, not a run to resume); returns their steps.
+    Every one must hold the same model config, so the mean is of one architecture's weights."""
+    import torch
+
+    if not (isinstance(count, int) and count >= 2):
+        raise ValueError(f"average: expected at least 2 checkpoints, got {count!r}")
+    steps = sorted(kept_steps(run))
+    if len(steps) < count:
+        raise ValueError(f"{Path(run) / VALIDATED_DIR}: {len(steps)} kept checkpoint(s), fewer than the {count} to "
+                         "average (train with --keep-validated, and validate that often)")
+    steps = steps[-count:]
+    total: dict[str, torch.Tensor] = {}
+    first = None
+    for step in steps:
+        state = load_checkpoint(Path(run) / VALIDATED_DIR / validated_name(step))
+        if first is None:
+            first = state
+        elif state["experiment"]["model"] != first["experiment"]["model"]:
+            raise ValueError(f"{Path(run) / VALIDATED_DIR / validated_name(step)}: another model config than "
+                             f"{validated_name(steps[0])}'s; only one network's checkpoints can be averaged")
+        for key, value in state["model_state"].items():
+            total[key] = total[key] + value.double() if key in total else value.double()
+    assert first is not None
+    mean = {key: (value / count).to(first["model_state"][key].dtype) for key, value in total.items()}
+    experiment = ExperimentConfig.from_dict(first["experiment"])
+    from .arch import build_model
+    model = build_model(experiment.model)
+    model.load_state_dict(mean)
+    save_checkpoint(out, model, experiment, epoch=int(state["epoch"]), step=int(state["step"]),
+                    extra={"averaged_steps": steps})
+    return steps

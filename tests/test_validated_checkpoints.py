@@ -173,3 +173,25 @@ def test_pick_checkpoint_refuses_a_run_that_kept_none(tmp_path, data, capsys):
     assert main(["pick-checkpoint", str(run), "--rule", "worst"]) == 2
     assert "--keep-validated" in capsys.readouterr().err
     assert not (run / "best_worst.pt").exists()
+
+
+def test_average_writes_the_mean_of_the_last_kept_weights(tmp_path, data, capsys):
+    from model.methods import method_from_spec
+    from pipelines.cli import main
+    train, val = data
+    run = tmp_path / "run"
+    run_training(_tiny(keep=True), open_scenes(train), open_scenes(val), run, device="cpu", progress=False)
+    assert main(["pick-checkpoint", str(run), "--average", "3"]) == 0
+    got = load_checkpoint(run / "average_last_3.pt")
+    assert got["extra"]["averaged_steps"] == [2, 3, 4] and got["optimizer_state"] is None
+    states = [load_checkpoint(run / VALIDATED_DIR / validated_name(s))["model_state"] for s in (2, 3, 4)]
+    for key, value in got["model_state"].items():
+        want = (states[0][key].double() + states[1][key].double() + states[2][key].double()) / 3
+        assert value.dtype == states[0][key].dtype
+        assert torch.allclose(value.double(), want, rtol=0, atol=1e-6)
+    assert any(not torch.equal(states[0][k], states[2][k]) for k in states[0])  # a mean of different weights
+    # a network `evaluate` and `reconstruct` take as they take best.pt
+    method_from_spec(f"avg={run / 'average_last_3.pt'}", device="cpu")
+    assert main(["pick-checkpoint", str(run), "--average", "5"]) == 2
+    assert "4 kept checkpoint(s), fewer than the 5" in capsys.readouterr().err
+    assert main(["pick-checkpoint", str(run), "--average", "2", "--set", "val"]) == 2
