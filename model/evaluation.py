@@ -129,7 +129,8 @@ def training_scene_notes(methods: Sequence[Method], scenes: Sequence[Any]) -> li
     scored = [(sc if isinstance(sc, str) else sc.name, None if isinstance(sc, str) else stream_sha256(sc))
               for sc in scenes]
     notes = []
-    for m in methods:
+    for named in methods:
+        m = getattr(named, "inner", named)  # a flip self-ensemble's network
         if not isinstance(m, ModelMethod) or m.checkpoint is None:
             continue
         try:
@@ -157,7 +158,7 @@ def training_scene_notes(methods: Sequence[Method], scenes: Sequence[Any]) -> li
                                 (by_name, "scenes of the same names (their streams not recorded: another "
                                           "dataset's scenes of those names would be named too)")):
                 if shared:
-                    notes.append(f"{m.name} ({m.checkpoint}) {verb} on {len(shared)} of the scenes scored here "
+                    notes.append(f"{named.name} ({m.checkpoint}) {verb} on {len(shared)} of the scenes scored here "
                                  f"({', '.join(shared[:6])}{' ...' if len(shared) > 6 else ''}): {how}, as its "
                                  "record (extra.data_order) names them; its scores there measure training fit, "
                                  "not held-out scenes")

@@ -164,6 +164,56 @@ class ModelMethod:
         yield from stream_reconstruct(self.model, source, self.chunk, self.device)
 
 
+#: The spatial flips of the self-ensemble (dims of an (..., H, W) tensor): each is its own inverse.
+FLIPS: tuple[tuple[int, ...], ...] = ((), (-1,), (-2,), (-2, -1))
+#: The spec prefix of a network's flip self-ensemble ("flips:lrrep", "mine=flips:runs/mine/best.pt").
+FLIPS_PREFIX = "flips:"
+
+
+@dataclass
+class _FlippedSource:
+    """A window source seen through one spatial flip."""
+
+    source: WindowSource
+    dims: tuple[int, ...]
+
+    def __post_init__(self) -> None:
+        self.num_windows, self.window, self.first_step = self.source.num_windows, self.source.window, self.source.first_step
+
+    def windows(self, start: int, stop: int) -> torch.Tensor:
+        w = self.source.windows(start, stop)
+        return w.flip(self.dims) if self.dims else w
+
+
+@dataclass
+class FlipEnsembleMethod:
+    """A network's geometric self-ensemble: the stream reconstructed as it is and under each flip
+    of FLIPS, each frame flipped back and the four averaged (Lim et al. 2017, EDSR's "+"; BasicSR's
+    self-ensemble testing). A mirrored scene is as likely as the scene, so the four frames are four
+    estimates whose independent errors the mean shrinks; it costs four passes of inference."""
+
+    name: str
+    inner: ModelMethod
+
+    def __post_init__(self) -> None:
+        self.window = self.inner.window
+        self.experiment = self.inner.experiment
+
+    @property
+    def span(self) -> int:
+        return self.inner.span
+
+    def frames(self, source: WindowSource) -> Iterator[tuple[int, torch.Tensor]]:
+        passes = [self.inner.frames(_FlippedSource(source, dims)) for dims in FLIPS]
+        for parts in zip(*passes):
+            index = parts[0][0]
+            total = torch.zeros_like(parts[0][1])
+            for (i, frame), dims in zip(parts, FLIPS):
+                assert i == index
+                total += frame.flip(dims) if dims else frame
+            yield index, total / len(FLIPS)
+
+
 #: The shipped network's name in every command (`--method lrrep`, `--methods lrrep`).
 PRETRAINED_METHOD = "lrrep"
 
@@ -183,11 +233,18 @@ def method_from_spec(spec: str, window: int = 41, chunk: int = 8, device: str = 
     """"tfp", "tfi", "stp", "snm" (the traditional STP and SNM), "black", "mean", "tfp:N" (TFP over
     N steps), "lrrep" (the shipped weights; any
     name of model.pretrained.PRETRAINED, e.g. the earlier lrrep_v1) or
-    a checkpoint path; "label=..." names the method in tables."""
+    a checkpoint path; "flips:NETWORK" is that network's flip self-ensemble (FlipEnsembleMethod);
+    "label=..." names the method in tables."""
     # a checkpoint path may hold "=" (runs/lr=3e-4/best.pt): an existing file is a path, not label=spec
     label, eq, body = spec.partition("=") if "=" in spec and not Path(spec).is_file() else ("", "", spec)
     if eq and not label.strip():  # a blank label named the method "" in every table (round twenty)
         raise ValueError(f"method {spec!r}: the label before '=' is blank; give one (mine={body}) or none ({body})")
+    if body.startswith(FLIPS_PREFIX) and not Path(body).is_file():
+        inner = method_from_spec(body.removeprefix(FLIPS_PREFIX), window, chunk, device)
+        if not isinstance(inner, ModelMethod):
+            raise ValueError(f"method {spec!r}: a flip self-ensemble is of a network (shipped weights or a "
+                             f"checkpoint); {inner.name} gives the same frame under every flip")
+        return FlipEnsembleMethod(label or f"{inner.name}+flips", inner)
     if body in MAP_METHODS:
         return MapMethod(label or (body.upper() if body in ("tfp", "tfi") else body), body, window, chunk)
     if body in CLASSIC_METHODS:
