@@ -79,6 +79,9 @@ class GateMaps:
 def refining_network(method: Any) -> torch.nn.Module:
     """The network of a method spec's method, if it has a refining head; else a ValueError that says
     why there are no gates to read (a window average, a direct network, a published one)."""
+    if hasattr(method, "inner"):  # model.methods.FlipEnsembleMethod
+        raise ValueError(f"{method.name}: a flip self-ensemble averages four passes, each with its own gates; "
+                         f"read the gates of the network itself ({method.inner.name})")
     net = getattr(method, "model", None)
     cfg = getattr(net, "cfg", None)
     if net is None or not hasattr(net, "refine_observer"):

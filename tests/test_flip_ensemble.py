@@ -62,3 +62,9 @@ def test_a_missing_network_is_named(tmp_path):
 def test_the_shipped_network_has_one(tmp_path):
     ens = method_from_spec("flips:lrrep")
     assert isinstance(ens.inner, ModelMethod) and ens.name == "LR-Rep+flips" and ens.span == ens.inner.span
+
+
+def test_gates_refuses_an_ensemble_naming_its_network():
+    from model.gates import refining_network
+    with pytest.raises(ValueError, match="read the gates of the network itself \\(LR-Rep\\)"):
+        refining_network(method_from_spec("flips:lrrep"))
