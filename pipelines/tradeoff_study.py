@@ -900,7 +900,7 @@ def collect_rows(cfg: StudyConfig, out: Path, runs: Sequence[RunSpec] | None = N
             total, ref_total = row["render_s"] + row["simulate_s"], ref_render + ref["simulate_s"]
             timed = ref_total >= MIN_TIMED_S and total > 0  # else the ratios would be the machine's timing noise
             if not timed and not untimed_said:
-                log.warning("%s %s: the reference took %.3f s, below the %.1f s a ratio of times needs (a render's "
+                log.warning("%s %s: the reference took %.3f s, below the %.2f s a ratio of times needs (a render's "
                             "time varies by tens of ms from call to call): no time ratios and no Pareto front; use "
                             "a larger --height/--width or more --windows", scene, light, ref_total, MIN_TIMED_S)
                 untimed_said = True
@@ -1111,7 +1111,15 @@ def plot(rows: Sequence[dict[str, Any]], path: Path, gt_rows: Sequence[dict[str,
             if not (gblock if axis == "gt" else block):
                 ax.axis("off")
                 continue
-            if axis == "rate":
+            if axis != "gt" and not any(math.isfinite(r["time_ratio"]) and r["time_ratio"] > 0 for r in block):
+                # an untimed study (a reference under MIN_TIMED_S): no time axis to place the runs on; a log
+                # axis of NaNs failed the whole command (a fast CPU made the tests' small studies untimed)
+                ax.text(0.5, 0.5, f"no time ratios: the reference took under {MIN_TIMED_S:g} s\n(a larger "
+                        "--height/--width or more --windows)", transform=ax.transAxes, ha="center", va="center",
+                        fontsize=7)
+                ax.set_xticks([])
+                ax.set_yticks([])
+            elif axis == "rate":
                 _rate_panel(ax, block)
             elif axis == "gt":
                 _gt_panel(ax, gblock)

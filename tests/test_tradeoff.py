@@ -215,6 +215,8 @@ def test_plan_covers_every_knob():
 def test_study_rows_and_resume(tmp_path, monkeypatch):
     from pipelines import tradeoff_study as tradeoff
 
+    # the figures as a timed study gives them: on a fast CPU this small reference is under MIN_TIMED_S
+    monkeypatch.setattr(tradeoff, "MIN_TIMED_S", 0.0)
     cfg = tradeoff.StudyConfig.of(scenes=("ball",), lights=("low",), resolution=(25, 40), windows=1, ref_spp=2,
                                gt_spp=4, knobs=("spp", "precision", "adaptive"), spp_values=(1,),
                                adaptive_px=(1.0,), repeats=1)
@@ -322,3 +324,17 @@ def test_a_users_scene_edited_since_the_last_run_is_measured_again(tmp_path):
     assert main(argv) == 0
     again = json.loads(run.read_text())
     assert again["key"] != first["key"]  # rewritten under the new key: measured again
+
+
+@requires_llvm
+def test_an_untimed_study_still_plots(tmp_path, monkeypatch):
+    """A reference under MIN_TIMED_S gives no time ratios; the plot's log time axis of NaNs failed
+    the whole command (rc 2, "Data cannot be log-scaled") once a faster CPU made small studies untimed."""
+    from pipelines import tradeoff_study as tradeoff
+    from pipelines.cli import main
+    monkeypatch.setattr(tradeoff, "MIN_TIMED_S", 1e9)
+    out = tmp_path / "study"
+    assert main(["tradeoff", "--scenes", "ball", "--light", "low", "--height", "25", "--width", "40", "--windows", "1",
+                 "--ref-spp", "2", "--gt-spp", "4", "--knobs", "precision", "--repeats", "1", "--quiet",
+                 "-o", str(out)]) == 0
+    assert any(p.suffix == ".png" for p in out.iterdir())

@@ -227,7 +227,7 @@ def test_overwrite_replaces_the_runs_event_files_and_keeps_the_users_files_in_tb
     run_training(budget_experiment(max_steps=1), scenes, [], tmp_path, device="cpu", progress=False)  # no run here
     first = sorted(p.name for p in (tmp_path / "tb").glob("events.out.tfevents.*"))
     assert first
-    with pytest.raises(FileExistsError, match=r"holds a run \(last\.pt, train_log\.csv, val_log\.csv, config\.json, tb\)"):
+    with pytest.raises(FileExistsError, match=r"holds a run \(last\.pt, train_log\.csv, val_log\.csv, val_scenes\.csv, config\.json, tb\)"):
         run_training(budget_experiment(max_steps=1), scenes, [], tmp_path, device="cpu", progress=False)
     run_training(budget_experiment(max_steps=1), scenes, [], tmp_path, device="cpu", progress=False, overwrite=True)
     assert (tmp_path / "tb" / "analysis" / "plot.txt").read_text() == "mine"
