@@ -3,7 +3,9 @@
 (pipelines/train.py) only parses arguments and prints; a notebook calls `run_training` directly.
 
 A run folder holds last.pt (atomic; at epoch ends, every ckpt_every_steps, and when stopped),
-best.pt (best validation aligned PSNR), train_log.csv, val_log.csv, tb/ and config.json; a resumed
+best.pt (best validation aligned PSNR), train_log.csv, val_log.csv, val_scenes.csv (each validation
+scene's score), tb/, config.json and, with train.keep_validated, validated/ (a checkpoint per
+validation, for model/selection.py); a resumed
 run continues bit for bit, and a wall-clock budget is planned into steps once and kept
 (`_BudgetPlan`). What each file and option means for a user: `spikesim train --help`.
 """

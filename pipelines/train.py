@@ -3,8 +3,9 @@
 The default config ("full") is the paper's recipe: 41-step windows, 64x64 random crops, batch 8,
 K = 21 consecutive windows, Adam (0.9, 0.99), lr 1e-4 x0.1 at epoch 70 of 100, L1 summed over the
 K windows. Writes <out>/last.pt (every ckpt_every epochs and on stopping; atomic), <out>/best.pt
-(best validation aligned PSNR), <out>/train_log.csv, <out>/val_log.csv, <out>/tb/ (TensorBoard) and
-<out>/config.json; `--resume` continues from <out>/last.pt exactly where it stopped. Precision:
+(best validation aligned PSNR), <out>/train_log.csv, <out>/val_log.csv, <out>/val_scenes.csv (each
+validation scene's aligned PSNR), <out>/tb/ (TensorBoard) and <out>/config.json (with --keep-validated
+also <out>/validated/, a checkpoint per validation, for `spikesim pick-checkpoint`); `--resume` continues from <out>/last.pt exactly where it stopped. Precision:
 bf16 autocast on GPUs that support it, fp32 on the CPU, `--precision` to choose (model/precision.py).
 The loop itself is model/training.py; this module parses arguments and prints.
 """

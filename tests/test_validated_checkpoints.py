@@ -145,11 +145,18 @@ def test_a_damaged_scene_log_is_named(tmp_path, text, match):
         read_scene_scores(tmp_path / "elsewhere")
 
 
-def test_pick_checkpoint_copies_the_kept_checkpoint_the_rule_chose(tmp_path, data, capsys):
-    from pipelines.cli import main
+@pytest.fixture
+def kept_run(tmp_path, data):
+    """A 4-step run that validated and kept its checkpoint at every step."""
     train, val = data
     run = tmp_path / "run"
     run_training(_tiny(keep=True), open_scenes(train), open_scenes(val), run, device="cpu", progress=False)
+    return run
+
+
+def test_pick_checkpoint_copies_the_kept_checkpoint_the_rule_chose(kept_run, capsys):
+    from pipelines.cli import main
+    run = kept_run
     assert main(["pick-checkpoint", str(run), "--rule", "worst"]) == 0
     scenes = _rows(run / "val_scenes.csv")
     floors = {int(s): min(float(r["psnr_aligned"]) for r in scenes if r["step"] == s) for s in {r["step"] for r in scenes}}
@@ -175,12 +182,10 @@ def test_pick_checkpoint_refuses_a_run_that_kept_none(tmp_path, data, capsys):
     assert not (run / "best_worst.pt").exists()
 
 
-def test_average_writes_the_mean_of_the_last_kept_weights(tmp_path, data, capsys):
+def test_average_writes_the_mean_of_the_last_kept_weights(kept_run, capsys):
     from model.methods import method_from_spec
     from pipelines.cli import main
-    train, val = data
-    run = tmp_path / "run"
-    run_training(_tiny(keep=True), open_scenes(train), open_scenes(val), run, device="cpu", progress=False)
+    run = kept_run
     assert main(["pick-checkpoint", str(run), "--average", "3"]) == 0
     got = load_checkpoint(run / "average_last_3.pt")
     assert got["extra"]["averaged_steps"] == [2, 3, 4] and got["optimizer_state"] is None
