@@ -29,12 +29,11 @@ from spikesim.config_io import read_small_file
 
 from .checkpoint import load_checkpoint, save_checkpoint
 from .config import ExperimentConfig
-from .training import VALIDATED_DIR, validated_name
+from .data import scene_set
+from .training import RUN_LOG_LIMIT, SCENE_LOG, VALIDATED_DIR, validated_name
 
 #: The rules a network can be picked by.
 PICK_RULES = ("mean", "worst")
-#: The per-scene log a run writes at each validation (model/training.py).
-SCENE_LOG = "val_scenes.csv"
 
 
 @dataclass(frozen=True)
@@ -56,7 +55,7 @@ def read_scene_scores(run: str | Path) -> dict[int, dict[str, float]]:
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no per-scene validation log (runs validate scene by scene from "
                                 "this version on; an older run has only val_log.csv)")
-    text = read_small_file(path, "the run's per-scene validation log", limit=100 << 20)
+    text = read_small_file(path, "the run's per-scene validation log", limit=RUN_LOG_LIMIT)
     rows = list(csv.DictReader(io.StringIO(text, newline="")))
     scores: dict[int, dict[str, float]] = {}
     for n, row in enumerate(rows, start=2):
@@ -70,12 +69,6 @@ def read_scene_scores(run: str | Path) -> dict[int, dict[str, float]]:
     if not scores:
         raise ValueError(f"{path} holds no validation yet")
     return scores
-
-
-def scene_set(scene: str) -> str | None:
-    """The validation set (folder) a scene came from: the prefix of "root:scene", or None for a
-    run that validated on one root (its scenes carry no prefix)."""
-    return scene.split(":", 1)[0] if ":" in scene else None
 
 
 def rank_validations(scores: dict[int, dict[str, float]], rule: str, set_name: str | None = None,

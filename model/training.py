@@ -106,12 +106,15 @@ def _csv_text(rows: Sequence[Sequence[Any]]) -> str:
     return buf.getvalue()
 
 
+#: A run's log is a row per step: 100 MiB is millions of steps; a larger "log" is not one.
+RUN_LOG_LIMIT = 100 << 20
+
+
 class _CsvLog:
     """Append-only CSV with a fixed header (kept across resumes); never written through a link,
     and a full disk names the file (spikesim.outputs)."""
 
-    #: A run's log is a row per step: 100 MiB is millions of steps; a larger "log" is not one.
-    LIMIT = 100 << 20
+    LIMIT = RUN_LOG_LIMIT
 
     def __init__(self, path: Path, fields: Sequence[str]) -> None:
         self.path, self.fields = path, list(fields)
@@ -231,6 +234,8 @@ def validate(model: torch.nn.Module, dataset: SequenceDataset, device: torch.dev
 VALIDATION_COLUMNS = ("psnr", "ssim", "psnr_aligned", "psnr_tfp", "ssim_tfp", "psnr_aligned_tfp")
 #: The per-scene validation log's metrics (val_scenes.csv: a row per scene and validation).
 SCENE_COLUMNS = ("psnr_aligned", "psnr_aligned_tfp")
+#: The per-scene validation log's file name (model/selection.py reads it).
+SCENE_LOG = "val_scenes.csv"
 #: The folder of the checkpoints a run keeps at each validation (train.keep_validated), and their names.
 VALIDATED_DIR = "validated"
 
@@ -429,7 +434,7 @@ def _datasets(experiment: ExperimentConfig, train_scenes: Sequence[Scene],
 
 
 #: What a run folder holds; a new run refuses a folder holding any of it unless told to overwrite.
-RUN_FILES = ("last.pt", "best.pt", "train_log.csv", "val_log.csv", "val_scenes.csv", "config.json", "tb",
+RUN_FILES = ("last.pt", "best.pt", "train_log.csv", "val_log.csv", SCENE_LOG, "config.json", "tb",
              VALIDATED_DIR)
 #: TensorBoard's event files, the run's own part of tb/ (SummaryWriter names them so).
 TB_EVENT_PREFIX = "events.out.tfevents."
@@ -892,7 +897,7 @@ class _Logs:
             self.train = _CsvLog(out / "train_log.csv",
                                  ["time", "epoch", "step", "loss", "lr", "samples_per_s", "data_wait_s"])
             self.val = _CsvLog(out / "val_log.csv", ["time", "epoch", "step", *VALIDATION_COLUMNS])
-            self.scenes = _CsvLog(out / "val_scenes.csv", ["time", "epoch", "step", "scene", *SCENE_COLUMNS])
+            self.scenes = _CsvLog(out / SCENE_LOG, ["time", "epoch", "step", "scene", *SCENE_COLUMNS])
             if resumed_at is not None:
                 self.train.keep_steps_up_to(resumed_at)
                 self.val.keep_steps_up_to(resumed_at)
