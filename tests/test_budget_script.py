@@ -47,7 +47,10 @@ def test_the_data_are_the_campaigns_eight_sets_with_their_seeds(commands, tmp_pa
 
 
 def _without_workers(args: tuple[str, ...]) -> list[str]:
+    """The arguments as the script passes them: without the campaign's --workers, where they have one."""
     a = list(args)
+    if "--workers" not in a:
+        return a
     i = a.index("--workers")
     return a[:i] + a[i + 2:]
 
@@ -121,27 +124,31 @@ def test_the_cpu_time_it_prints_is_its_commands_not_a_subshells(tmp_path):
     assert len(children) == 2 and children != ["0m0.000s", "0m0.000s"], lines[i:]
 
 
-def test_a_data_variant_adds_its_sets_and_nothing_else_moves(tmp_path):
-    """DATA_VARIANT=natdark (the dark natural scenes' budget run) adds its training sets, made with
-    their own seeds, after the recipe's natural set; the recipe's sets, the validation sets, the plan
-    and the seed stay the measured run's, so the two runs differ by the data alone."""
+@pytest.mark.parametrize("variant", sorted(BUDGET_DATA_VARIANTS))
+def test_a_data_variant_adds_its_sets_and_nothing_else_moves(tmp_path, variant):
+    """DATA_VARIANT=NAME (natdark: the dark natural scenes' budget run; procedural: the first shipped
+    model's kind of scenes) adds its training sets, made with their own seeds, natural sets first as
+    the recipe orders them; the recipe's sets, the validation sets, the plan and the seed stay the
+    measured run's, so the two runs differ by the data alone."""
     if not (ROOT / ".venv" / "bin" / "python").exists():
         pytest.skip("the script runs the project's .venv")
     base = _dry_run(tmp_path)
-    added = _dry_run(tmp_path, "natdark")
+    added = _dry_run(tmp_path, variant)
     d = tmp_path / "d"
-    (variant_set,) = BUDGET_DATA_VARIANTS["natdark"]
-    name, role, args = variant_set
-    assert role == "train" and "--lamps-lux" in args
+    variant_sets = BUDGET_DATA_VARIANTS[variant]
+    assert all(role == "train" for _, role, _ in variant_sets)
     new_generate = [c for c in added if "generate" in c and c not in base]
-    assert [c[c.index("-o") + 1] for c in new_generate] == [str(d / name)]
-    assert new_generate[0][new_generate[0].index("rllr") + 1:new_generate[0].index("--workers")] == \
-        _without_workers(args)
+    assert [c[c.index("-o") + 1] for c in new_generate] == [str(d / name) for name, _, _ in variant_sets]
+    for command, (_, _, args) in zip(new_generate, variant_sets):
+        assert command[command.index("rllr") + 1:command.index("--workers")] == _without_workers(args)
     (train0,) = [c for c in base if c[0].endswith("torchrun")]
     (train1,) = [c for c in added if c[0].endswith("torchrun")]
     data0, data1 = _values(train0, "--data"), _values(train1, "--data")
-    assert data1 == [data0[0], str(d / name), *data0[1:]]
-    assert [a for a in train1 if a != str(d / name)] == train0
+    new_paths = [str(d / name) for name, _, _ in variant_sets]
+    assert [p for p in data1 if p not in new_paths] == data0 and set(new_paths) <= set(data1)
+    natural_first = sorted(data1, key=lambda p: "_nat" not in Path(p).name)
+    assert data1 == natural_first
+    assert [a for a in train1 if a not in new_paths] == train0
 
 
 def test_an_unknown_data_variant_stops_the_script_before_it_runs_anything(tmp_path):
