@@ -9,7 +9,8 @@
 # Usage: bash scripts/budget_run.sh; DATA=DIR and RUNS=DIR choose the folders (data/ and runs/budget/),
 # CONFIG=NAME the config of stage A (lrrep_span; lrrep_span_shot is the loss lever's long run),
 # DATA_VARIANT=NAME adds that variant's training sets (pipelines/gpu_campaign/options.py,
-# BUDGET_DATA_VARIANTS; "natdark": 24 dark natural scenes);
+# BUDGET_DATA_VARIANTS; "natdark": 24 dark natural scenes; "procedural": 40 procedural scenes, lrrep_v1's
+# kind, the best budget data measured, with CONFIG=lrrep_span_shot_direct TOTAL_STEPS=11000);
 # TOTAL_STEPS=N trains N steps instead of the measured runs' 9,000;
 # DIRECT_STEPS=N trains the first N of the 9,000 steps as the config's direct twin ($DIRECT_CONFIG, by
 # default ${CONFIG}_direct: no refining gates) in $RUNS/d, then the rest as $CONFIG from its best.pt;
