@@ -206,6 +206,31 @@ def init_gate_channels(last: nn.Conv2d, first: int) -> None:
             last.bias[ch] = start[ch - 1] / REFINE_GATE_GAIN
 
 
+def trainable_parameters(model: "ReconNet", trainable: str) -> list[nn.Parameter]:
+    """The parameters a run trains (train.trainable), every other one frozen: "all"; "head" (the
+    head's convs, on the frozen body's features); "gates" (the gate rows of the refining head's
+    last conv: its weight and bias train with the frame row's gradient held at 0, so Adam, with no
+    weight decay, leaves that row, and so the network's own frame, exactly as it was)."""
+    if trainable == "all":
+        return list(model.parameters())
+    if trainable not in ("head", "gates"):
+        raise ValueError(f"trainable must be 'all', 'head' or 'gates', got {trainable!r}")
+    if trainable == "gates" and model.cfg.output != "refine":
+        raise ValueError(f"training the gates alone needs a refining head (model.output 'refine'), got {model.cfg.output!r}")
+    for p in model.parameters():
+        p.requires_grad_(False)
+    last = model.head[-1]
+    params = list(model.head.parameters()) if trainable == "head" else [last.weight, last.bias]
+    for p in params:
+        p.requires_grad_(True)
+    if trainable == "gates":
+        for p in params:
+            mask = torch.ones_like(p)
+            mask[0] = 0.0  # channel 0 is the network's own frame (refine_parts)
+            p.register_hook(lambda grad, mask=mask: grad * mask)
+    return params
+
+
 def classic_estimates(window: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """(TFP, TFI) of each window, (N, H, W), from its spikes (N, T, H, W) 0/1."""
     return window.mean(dim=1), tfi(window != 0)

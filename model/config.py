@@ -22,6 +22,9 @@ REPRESENTATIONS = ("lr_rep", "spike", "tfp", "tfi", "ast", "amim", "sali", "wgse
 INTERVALS = ("gisi", "lisi")
 LR_SCHEDULES = ("multistep", "cosine")
 OUTPUTS = ("direct", "refine")
+#: What a run trains: every weight, the head alone, or the refining head's gates alone
+#: (model/arch.py, trainable_parameters).
+TRAINABLE = ("all", "head", "gates")
 #: The widest span the refining head averages over (windows): beyond it a still scene is rare.
 MAX_REFINE_SPAN = 21
 INPUT_NORMS = ("none", "window_rate")
@@ -196,6 +199,12 @@ class TrainConfig:
       the sets it does not name share what is left in proportion to their samples. None: every
       (scene, start) sample alike, so a set's share is its share of the samples (model/data.py,
       set_probabilities).
+    trainable: "all" (every weight), "head" (the head's convs alone, on the frozen body's features)
+      or "gates" (only the refining head's gate channels: the rows of the head's last conv that
+      give the gates; the body and the network's own frame stay as the run's --init gave them, bit
+      for bit; model.output must be "refine"). Why: a direct network widened with gates
+      (widen_head_state) can learn where a classic estimate beats its frame without its body being
+      retrained, so what the direct network holds (the darkest scenes) is not given back.
     """
 
     num_windows: int = 21
@@ -236,6 +245,7 @@ class TrainConfig:
     budget_minutes: float | None = None
     calibration_steps: int = 10
     set_shares: dict[str, float] | None = None
+    trainable: str = "all"
 
     def __post_init__(self) -> None:
         def pos_int(name: str, allow_none: bool = False) -> None:
@@ -276,6 +286,7 @@ class TrainConfig:
         pos_int("calibration_steps")
         _require(isinstance(self.channels_last, bool), f"train.channels_last must be a boolean, got {self.channels_last!r}")
         _require(isinstance(self.keep_validated, bool), f"train.keep_validated must be a boolean, got {self.keep_validated!r}")
+        _require(self.trainable in TRAINABLE, f"train.trainable must be one of {TRAINABLE}, got {self.trainable!r}")
         if self.set_shares is not None:
             shares = self.set_shares
             _require(isinstance(shares, dict) and bool(shares),
@@ -314,6 +325,9 @@ class ExperimentConfig:
 
     def __post_init__(self) -> None:
         name = self.name
+        _require(self.train.trainable != "gates" or self.model.output == "refine",
+                 f"train.trainable='gates' trains the refining head's gates: it needs model.output 'refine', "
+                 f"got {self.model.output!r}")
         _require(isinstance(name, str) and bool(name) and not name.startswith(".")
                  and not any(c in name for c in "/\\\0"),
                  f"config name {name!r} must be a plain name (no path separators, not starting with a dot): "

@@ -30,7 +30,7 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader
 
-from .arch import build_model, count_parameters
+from .arch import build_model, count_parameters, trainable_parameters
 from .checkpoint import load_checkpoint, save_checkpoint, state_fingerprint
 from .config import ExperimentConfig
 from .data import Scene, SequenceDataset, TimeSlice, shared_scenes, stream_sha256
@@ -407,12 +407,14 @@ def _build_run(experiment: ExperimentConfig, dev: torch.device, dist: _Distribut
     model = model.to(dev)
     if tc.channels_last:
         model = model.to(memory_format=torch.channels_last)
+    # before DDP wraps it: DDP reduces the gradients of the parameters that require them
+    params = trainable_parameters(model, tc.trainable)
     self_supervised = tc.loss == SELF_SUPERVISED
     forward = SelfSupervisedObjective(model) if self_supervised else model
     if dist.world > 1:
         from torch.nn.parallel import DistributedDataParallel
         forward = DistributedDataParallel(forward, device_ids=[dev.index] if dev.type == "cuda" else None)
-    opt = torch.optim.Adam(model.parameters(), lr=tc.lr, betas=tuple(tc.betas))
+    opt = torch.optim.Adam(params, lr=tc.lr, betas=tuple(tc.betas))
     sched = torch.optim.lr_scheduler.MultiStepLR(opt, milestones=list(tc.lr_milestones), gamma=tc.lr_gamma)
     precision = resolve_precision(tc.precision, dev)
     return _Run(model, forward, opt, sched, grad_scaler(precision, dev), build_loss(tc.loss), precision,
@@ -706,7 +708,8 @@ def _train(experiment: ExperimentConfig, train_scenes: Sequence[Scene], val_scen
         raise ValueError(f"{len(train_ds)} training sample(s) per epoch give no batch that {dist.world} processes can "
                          "share: more scenes or steps, or fewer processes")
     if dist.is_main:
-        print(f"[train] {experiment.name}: {count_parameters(run.model):,} parameters, device {dev}"
+        print(f"[train] {experiment.name}: {count_parameters(run.model):,} parameters"
+              f"{'' if tc.trainable == 'all' else f' to train (train.trainable {tc.trainable!r})'}, device {dev}"
               f"{f', {describe_threads()}' if dev.type == 'cpu' else ''}"
               f"{f' x {dist.world} processes' if dist.world > 1 else ''}, {run.precision}, {len(train_ds)} "
               f"samples/epoch from {len(train_scenes)} scenes, {len(val_ds) if val_ds else 0} validation samples",
