@@ -14,8 +14,12 @@
 # TOTAL_STEPS=N trains N steps instead of the measured runs' 9,000;
 # DIRECT_STEPS=N trains the first N of the 9,000 steps as the config's direct twin ($DIRECT_CONFIG, by
 # default ${CONFIG}_direct: no refining gates) in $RUNS/d, then the rest as $CONFIG from its best.pt;
-# SEED=N draws the network and the data order from another seed (11, the measured runs'; a second
-# stage takes N+1), for the spread between runs;
+# HEAD_STEPS=N adds a last stage of N steps: $HEAD_CONFIG (by default ${CONFIG%_direct}_head) from the
+# network's best.pt, the head widened with the refining gates and trained alone on the frozen body
+# (train.trainable "head"), in $RUNS/h; with CONFIG=lrrep_span_shot_direct, HEAD_STEPS=1500 is the
+# best budget recipe measured (docs/model.md, "The head on a frozen direct network");
+# SEED=N draws the network and the data order from another seed (11, the measured runs'; each later
+# stage takes the next seed), for the spread between runs;
 # DRY_RUN=1 prints the commands instead of running them.
 # Interrupt it at any point and run it again: `generate` resumes each dataset, `train --resume`
 # each stage bit for bit, and a finished stage says "nothing to do". It prints the CPU time its
@@ -55,6 +59,30 @@ if [ -n "$DIRECT_STEPS" ]; then
     echo "DIRECT_CONFIG=$DIRECT_CONFIG: no such config (DIRECT_STEPS needs the direct twin of CONFIG=$CONFIG)" >&2
     exit 2
   }
+fi
+HEAD_STEPS="${HEAD_STEPS:-}"
+HEAD_CONFIG="${HEAD_CONFIG:-${CONFIG%_direct}_head}"
+if [ -n "$HEAD_STEPS" ]; then
+  if ! { [[ "$HEAD_STEPS" =~ ^[1-9][0-9]*$ ]] && [ "$HEAD_STEPS" -le 100000 ]; }; then
+    echo "HEAD_STEPS=$HEAD_STEPS: expected a whole number of steps from 1 to 100000" >&2
+    exit 2
+  fi
+  # the head stage starts from the network before it (--init): the same network but for its head's
+  # output, checked before hours of data are made for it
+  $PY - "$CONFIG" "$HEAD_CONFIG" <<'EOF' || exit 2
+import dataclasses, sys
+from model.config import load_config
+try:
+    net, head = load_config(sys.argv[1]).model, load_config(sys.argv[2])
+except (OSError, ValueError) as exc:
+    sys.exit(f"HEAD_CONFIG={sys.argv[2]}: {exc}")
+if dataclasses.replace(net, output=head.model.output, refine_span=head.model.refine_span) != head.model:
+    sys.exit(f"HEAD_CONFIG={sys.argv[2]}: its network is not CONFIG={sys.argv[1]}'s with another head, "
+             "so it cannot start from that network's weights")
+if head.train.trainable == "all":
+    sys.exit(f"HEAD_CONFIG={sys.argv[2]}: it trains every weight (train.trainable 'all'); the head stage trains "
+             "the head on the frozen body ('head' or 'gates')")
+EOF
 fi
 WORKERS="${WORKERS:-2}"
 export OMP_NUM_THREADS=1
@@ -107,7 +135,14 @@ else
   train_stage "$DIRECT_CONFIG" "$RUNS/d" --lr 1e-3 --max-steps "$DIRECT_STEPS" --seed "$SEED"
   train_stage "$CONFIG" "$RUNS/a" --init "$RUNS/d/best.pt" --lr 3e-4 --max-steps $((TOTAL_STEPS - DIRECT_STEPS)) --seed $((SEED + 1))
 fi
-echo "[budget] the network is $RUNS/a/best.pt (score it with --methods budget=$RUNS/a/best.pt)"
+NET="$RUNS/a/best.pt"
+if [ -n "$HEAD_STEPS" ]; then
+  # the head on the frozen body of the network above, from its best.pt, with the next seed
+  train_stage "$HEAD_CONFIG" "$RUNS/h" --init "$NET" --lr 1e-3 --max-steps "$HEAD_STEPS" \
+    --seed $((SEED + 1 + (${#DIRECT_STEPS} > 0)))
+  NET="$RUNS/h/best.pt"
+fi
+echo "[budget] the network is $NET (score it with --methods budget=$NET)"
 # `times` in the script's own shell: in a pipeline or $(...) it runs in a subshell, which ran nothing
 echo "[budget] CPU time (user, system): first this script's shell, then the commands it ran (children):"
 times

@@ -266,3 +266,70 @@ def test_seed_draws_another_run_and_nothing_else_moves(tmp_path):
     direct, refine = [c for c in _dry_run(tmp_path, CONFIG="lrrep_span_shot", DIRECT_STEPS="4000", SEED="5")
                       if c[0].endswith("torchrun")]
     assert _values(direct, "--seed") == ["5"] and _values(refine, "--seed") == ["6"]
+
+
+def _trains(tmp_path, **extra):
+    return [c for c in _dry_run(tmp_path, **extra) if c[0].endswith("torchrun")]
+
+
+def test_head_steps_add_the_head_on_the_frozen_body_from_the_networks_best(tmp_path):
+    """HEAD_STEPS=1500 with the direct recipe (the measured run): the direct stage is as without it,
+    then 1,500 steps of lrrep_span_shot_head from its best.pt, the next seed, the same data."""
+    if not (ROOT / ".venv" / "bin" / "python").exists():
+        pytest.skip("the script runs the project's .venv")
+    recipe = {"CONFIG": "lrrep_span_shot_direct", "TOTAL_STEPS": "11000", "SEED": "21"}
+    (alone,) = _trains(tmp_path, **recipe)
+    direct, head = _trains(tmp_path, HEAD_STEPS="1500", **recipe)
+    assert direct == alone
+    r = tmp_path / "r"
+    flags = ("--config", "--lr", "--max-steps", "--seed", "--init", "-o")
+    assert {f: _values(head, f) for f in flags} == {
+        "--config": ["lrrep_span_shot_head"], "--lr": ["1e-3"], "--max-steps": ["1500"], "--seed": ["22"],
+        "--init": [str(r / "a" / "best.pt")], "-o": [str(r / "h")]}
+    assert _values(head, "--data") == _values(direct, "--data")
+    assert _values(head, "--val-data") == _values(direct, "--val-data")
+    # after a split run the head stage takes the seed after the refining stage's
+    *_, head = _trains(tmp_path, HEAD_STEPS="10", CONFIG="lrrep_span_shot", DIRECT_STEPS="100", SEED="5")
+    assert _values(head, "--seed") == ["7"] and _values(head, "--config") == ["lrrep_span_shot_head"]
+
+
+def test_a_head_stage_with_a_checkpoint_is_resumed(tmp_path):
+    if not (ROOT / ".venv" / "bin" / "python").exists():
+        pytest.skip("the script runs the project's .venv")
+    for stage in ("a", "h"):
+        (tmp_path / "r" / stage).mkdir(parents=True)
+        (tmp_path / "r" / stage / "last.pt").write_bytes(b"")
+    trains = _trains(tmp_path, HEAD_STEPS="1500", CONFIG="lrrep_span_shot_direct")
+    assert [_values(c, "-o") for c in trains] == [[str(tmp_path / "r" / "a")], [str(tmp_path / "r" / "h")]]
+    assert all("--resume" in c and "--init" not in c for c in trains)
+
+
+def test_the_head_configs_are_the_refining_config_with_the_body_frozen():
+    """What the head stage trains differs from lrrep_span_shot by what it trains alone: the same
+    network (so `--init` widens the direct network's head) and the same recipe."""
+    import dataclasses
+
+    from model.config import load_config
+    full = load_config("lrrep_span_shot")
+    for name, trainable in (("lrrep_span_shot_head", "head"), ("lrrep_span_shot_gates", "gates")):
+        cfg = load_config(name)
+        assert cfg.model == full.model
+        assert cfg.train == dataclasses.replace(full.train, trainable=trainable)
+
+
+@pytest.mark.parametrize("extra, said", [
+    ({"HEAD_STEPS": "15x"}, "HEAD_STEPS=15x: expected a whole number"),
+    ({"HEAD_STEPS": "0"}, "HEAD_STEPS=0: expected a whole number"),
+    ({"HEAD_STEPS": "10", "HEAD_CONFIG": "nope"}, "HEAD_CONFIG=nope: no config"),
+    ({"HEAD_STEPS": "10", "CONFIG": "lrrep_span_shot_direct", "HEAD_CONFIG": "lrrep_cpu"},
+     "HEAD_CONFIG=lrrep_cpu: it trains every weight"),
+    ({"HEAD_STEPS": "10", "CONFIG": "lrrep_span_shot_direct", "HEAD_CONFIG": "tiny"},
+     "HEAD_CONFIG=tiny: its network is not CONFIG=lrrep_span_shot_direct's")])
+def test_a_bad_head_stage_stops_the_script_before_it_runs_anything(tmp_path, extra, said):
+    if not (ROOT / ".venv" / "bin" / "python").exists():
+        pytest.skip("the script runs the project's .venv")
+    env = {**os.environ, "DRY_RUN": "1", "DATA": str(tmp_path / "d"), "RUNS": str(tmp_path / "r"), **extra}
+    out = subprocess.run(["bash", str(SCRIPT)], env=env, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 2
+    assert said in out.stderr
+    assert "generate" not in out.stdout and "torchrun" not in out.stdout
