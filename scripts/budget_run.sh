@@ -16,8 +16,9 @@
 # default ${CONFIG}_direct: no refining gates) in $RUNS/d, then the rest as $CONFIG from its best.pt;
 # HEAD_STEPS=N adds a last stage of N steps: $HEAD_CONFIG (by default ${CONFIG%_direct}_head) from the
 # network's best.pt, the head widened with the refining gates and trained alone on the frozen body
-# (train.trainable "head"), in $RUNS/h; with CONFIG=lrrep_span_shot_direct, HEAD_STEPS=1500 is the
-# best budget recipe measured (docs/model.md, "The head on a frozen direct network");
+# (train.trainable "head"), in $RUNS/h; HEAD_STEPS=1500 after CONFIG=lrrep_span_shot_direct was
+# measured on three seeds and changed nothing on average (docs/model.md, "The head on a frozen direct
+# network, and a third seed");
 # SEED=N draws the network and the data order from another seed (11, the measured runs'; each later
 # stage takes the next seed), for the spread between runs;
 # DRY_RUN=1 prints the commands instead of running them.
