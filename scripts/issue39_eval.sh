@@ -14,7 +14,9 @@ NETS="${NETS:-lrrep lrrep_v2 lrrep_v1}"   # the shipped networks to score (NETS=
 M="tfp tfi tfp:123 tfp:205 stp snm black mean $NETS $*"
 OUT="${OUT:-out/issue39}"
 mkdir -p "$OUT"
-for d in ${DATASETS:-llr_small5 llr_mid5 llr_paper5 reds_like12 test_nat6}; do
+# llr_small5_gt256 and llr_small5_s77{27,37,47}: the 64 x 100 yardstick, four test seeds at a 256-spp ground
+# truth (docs/model.md, "The 64 x 100 yardstick"); pool a case over them by hand (the mean of the four)
+for d in ${DATASETS:-llr_small5 llr_mid5 llr_paper5 reds_like12 test_nat6 llr_small5_gt256 llr_small5_s7727 llr_small5_s7737 llr_small5_s7747}; do
   [ -d "data/$d" ] || { echo "[issue39] no data/$d, skipped"; continue; }
   $S evaluate --data "data/$d" --methods $M -o "$OUT/$d" --quiet > "$OUT/$d.md"
   echo "[issue39] scored data/$d"
