@@ -15,8 +15,9 @@ M="tfp tfi tfp:123 tfp:205 stp snm black mean $NETS $*"
 OUT="${OUT:-out/issue39}"
 mkdir -p "$OUT"
 # llr_small5_gt256 and llr_small5_s77{27,37,47}: the 64 x 100 yardstick, four test seeds at a 256-spp ground
-# truth (docs/model.md, "The 64 x 100 yardstick"); pool a case over them by hand (the mean of the four)
-for d in ${DATASETS:-llr_small5 llr_mid5 llr_paper5 reds_like12 test_nat6 llr_small5_gt256 llr_small5_s7727 llr_small5_s7737 llr_small5_s7747}; do
+# truth (docs/model.md, "The 64 x 100 yardstick"); pool a case over them by hand (the mean of the four);
+# llr_mid5_gt256 and llr_paper5_gt256: the larger sets' streams with a 256-spp ground truth
+for d in ${DATASETS:-llr_small5 llr_mid5 llr_paper5 reds_like12 test_nat6 llr_small5_gt256 llr_small5_s7727 llr_small5_s7737 llr_small5_s7747 llr_mid5_gt256 llr_paper5_gt256}; do
   [ -d "data/$d" ] || { echo "[issue39] no data/$d, skipped"; continue; }
   $S evaluate --data "data/$d" --methods $M -o "$OUT/$d" --quiet > "$OUT/$d.md"
   echo "[issue39] scored data/$d"
