@@ -17,7 +17,7 @@ import torch
 from torch import nn
 
 from .blocks import conv3x3, conv_lrelu, double_conv, pad_to_multiple, padded_size, residual_stack
-from .config import ModelConfig
+from .config import TRAINABLE, ModelConfig
 from .lrrep import build_representation
 from .pcd import PCDAlign
 from .published_reps import PUBLISHED_REPS, published_input_map
@@ -213,8 +213,8 @@ def trainable_parameters(model: "ReconNet", trainable: str) -> list[nn.Parameter
     weight decay, leaves that row, and so the network's own frame, exactly as it was)."""
     if trainable == "all":
         return list(model.parameters())
-    if trainable not in ("head", "gates"):
-        raise ValueError(f"trainable must be 'all', 'head' or 'gates', got {trainable!r}")
+    if trainable not in TRAINABLE:
+        raise ValueError(f"trainable must be one of {TRAINABLE}, got {trainable!r}")
     if trainable == "gates" and model.cfg.output != "refine":
         raise ValueError(f"training the gates alone needs a refining head (model.output 'refine'), got {model.cfg.output!r}")
     for p in model.parameters():

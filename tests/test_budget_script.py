@@ -197,14 +197,19 @@ def test_the_direct_twin_is_the_config_with_the_direct_output_so_its_weights_wid
     assert twin.train == target.train
 
 
-def test_both_stages_resume_from_their_own_checkpoints(tmp_path):
+@pytest.mark.parametrize("stages, extra", [
+    (("d", "a"), {"DIRECT_STEPS": "5000", "CONFIG": "lrrep_span_shot"}),
+    (("a", "h"), {"HEAD_STEPS": "1500", "CONFIG": "lrrep_span_shot_direct"})])
+def test_every_stage_resumes_from_its_own_checkpoint(tmp_path, stages, extra):
+    """A split run (d, a) and a run with the head stage (a, h): each stage with a last.pt resumes it,
+    with its own recorded plan (no new flags, no --init)."""
     if not (ROOT / ".venv" / "bin" / "python").exists():
         pytest.skip("the script runs the project's .venv")
-    for stage in ("d", "a"):
+    for stage in stages:
         (tmp_path / "r" / stage).mkdir(parents=True)
         (tmp_path / "r" / stage / "last.pt").write_bytes(b"")
-    trains = [c for c in _dry_run(tmp_path, DIRECT_STEPS="5000", CONFIG="lrrep_span_shot") if c[0].endswith("torchrun")]
-    assert [_values(c, "-o") for c in trains] == [[str(tmp_path / "r" / "d")], [str(tmp_path / "r" / "a")]]
+    trains = [c for c in _dry_run(tmp_path, **extra) if c[0].endswith("torchrun")]
+    assert [_values(c, "-o") for c in trains] == [[str(tmp_path / "r" / s)] for s in stages]
     for c in trains:
         assert "--resume" in c and not {"--lr", "--max-steps", "--seed", "--init"} & set(c)
 
@@ -291,17 +296,6 @@ def test_head_steps_add_the_head_on_the_frozen_body_from_the_networks_best(tmp_p
     # after a split run the head stage takes the seed after the refining stage's
     *_, head = _trains(tmp_path, HEAD_STEPS="10", CONFIG="lrrep_span_shot", DIRECT_STEPS="100", SEED="5")
     assert _values(head, "--seed") == ["7"] and _values(head, "--config") == ["lrrep_span_shot_head"]
-
-
-def test_a_head_stage_with_a_checkpoint_is_resumed(tmp_path):
-    if not (ROOT / ".venv" / "bin" / "python").exists():
-        pytest.skip("the script runs the project's .venv")
-    for stage in ("a", "h"):
-        (tmp_path / "r" / stage).mkdir(parents=True)
-        (tmp_path / "r" / stage / "last.pt").write_bytes(b"")
-    trains = _trains(tmp_path, HEAD_STEPS="1500", CONFIG="lrrep_span_shot_direct")
-    assert [_values(c, "-o") for c in trains] == [[str(tmp_path / "r" / "a")], [str(tmp_path / "r" / "h")]]
-    assert all("--resume" in c and "--init" not in c for c in trains)
 
 
 def test_the_head_configs_are_the_refining_config_with_the_body_frozen():

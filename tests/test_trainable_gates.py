@@ -84,6 +84,8 @@ def test_gates_alone_need_a_refining_head_and_the_option_is_checked():
         TrainConfig(trainable="body")
     with pytest.raises(ValueError, match="needs a refining head"):
         trainable_parameters(build_model(TINY), "gates")
+    with pytest.raises(ValueError, match="trainable must be one of"):
+        trainable_parameters(build_model(TINY), "body")
 
 
 def test_the_head_alone_trains_on_the_frozen_body():
