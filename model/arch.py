@@ -11,7 +11,7 @@ with a() the PCD alignment shared by both directions and g = conv 2C->C + leaky 
 """
 from __future__ import annotations
 
-from typing import Callable, NamedTuple
+from typing import Callable, Iterator, NamedTuple
 
 import torch
 from torch import nn
@@ -129,11 +129,23 @@ class ReconNet(nn.Module):
         maps: the representation's maps (B, K, H, W); computed from these K windows alone when
         omitted (GISI with the "never fired" sentinels -1 and K*T).
         """
+        return torch.stack([y for _, y in self.frames(spikes, maps)], 1)
+
+    def frames(self, spikes: torch.Tensor, maps: torch.Tensor | None = None,
+               take: range | None = None) -> Iterator[tuple[int, torch.Tensor]]:
+        """(i, frame (B, H, W)) for each window i of `take` (default all K), in order: what forward
+        stacks. The forward recurrence runs up to take's last window and the backward one down to its
+        first, nothing further; each frame is decoded just before it is yielded (so a refine_observer
+        sees one decode per frame). Horizon inference (model/streaming.py) takes the middle windows
+        of a K-window piece this way."""
         if spikes.dim() != 5:
             raise ValueError(f"spikes must be (B, K, T, H, W), got shape {tuple(spikes.shape)}")
         b, k, t, h, w = spikes.shape
         if t != self.cfg.window:
             raise ValueError(f"windows have {t} steps but the model was built for window={self.cfg.window}")
+        take = range(k) if take is None else take
+        if not (len(take) and take.step == 1 and 0 <= take.start and take.stop <= k):
+            raise ValueError(f"take={take}: expected consecutive windows within the sequence's {k}")
         if maps is None:
             maps, _, _ = self.input_maps(spikes)
         elif tuple(maps.shape) != (b, k, h, w):
@@ -143,22 +155,25 @@ class ReconNet(nn.Module):
         ph, pw = x.shape[-2:]
         feats = self.encode(x.reshape(b * k, t, ph, pw), None if m is None else m.reshape(b * k, ph, pw))
         feats = feats.reshape(b, k, -1, ph, pw)
-        fwd: list[torch.Tensor] = []
+        fwd: dict[int, torch.Tensor] = {}
         state = None
-        for i in range(k):
+        for i in range(take.stop):
             state = self.step(feats[:, i], state, backward=False)
-            fwd.append(state)
-        out: list[torch.Tensor] = [torch.empty(0)] * k
-        spans = span_rates(x, self.cfg.refine_span) if self.cfg.refine_span > 1 else None
+            if i in take:
+                fwd[i] = state
+        bwd: dict[int, torch.Tensor] = {}
         state = None
-        for i in range(k - 1, -1, -1):
+        for i in range(k - 1, take.start - 1, -1):
             state = self.step(feats[:, i], state, backward=True)
-            out[i] = self.decode(fwd[i], state, x[:, i] if self.cfg.decode_needs_window else None,
-                                 None if spans is None else spans[:, i])
-        return torch.stack(out, 1)[..., :h, :w]
+            if i in take:
+                bwd[i] = state
+        spans = span_rates(x, self.cfg.refine_span) if self.cfg.refine_span > 1 else None
+        for i in take:
+            y = self.decode(fwd.pop(i), bwd.pop(i), x[:, i] if self.cfg.decode_needs_window else None,
+                            None if spans is None else spans[:, i])
+            yield i, y[..., :h, :w]
 
 
-# ---- input normalisation by the window's firing rate ----------------------------------------------
 def window_rate_scale(window: torch.Tensor, floor_rate: float) -> torch.Tensor:
     """Each window's mean firing rate (spikes per step over its steps and pixels), at least
     `floor_rate`: window (N, T, H, W) 0/1 -> (N,). Why: the y a network must give is proportional to

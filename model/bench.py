@@ -19,7 +19,7 @@ import torch
 from .arch import build_model, count_parameters
 from .config import load_config
 from .losses import build_loss
-from .streaming import reconstruct_windows
+from .streaming import TensorWindows, default_horizon_stride, horizon_reconstruct, reconstruct_windows
 
 
 def synthetic_windows(windows: int, window: int, height: int, width: int, rate: float, seed: int) -> torch.Tensor:
@@ -29,20 +29,27 @@ def synthetic_windows(windows: int, window: int, height: int, width: int, rate: 
 
 @torch.no_grad()
 def time_inference(config: str, height: int, width: int, windows: int, chunk: int | None, seed: int = 0,
-                   repeats: int = 1) -> dict:
+                   repeats: int = 1, horizon: int | None = None, stride: int | None = None) -> dict:
+    """Seconds per frame of one-shot streaming (`chunk` windows at a time), or with `horizon` of
+    horizon inference (pieces of `horizon` windows, `stride` frames from each)."""
     exp = load_config(config)
     torch.manual_seed(seed)
     model = build_model(exp.model).eval()
     spikes = synthetic_windows(windows, exp.model.window, height, width, 0.05, seed)
     reconstruct_windows(model, spikes[: min(2, windows)], chunk=None)  # warm-up
+    if horizon is not None:
+        stride = stride or default_horizon_stride(horizon)
+        run = lambda: [y for _, y in horizon_reconstruct(model, TensorWindows(spikes), horizon, stride)]  # noqa: E731
+    else:
+        run = lambda: reconstruct_windows(model, spikes, chunk=chunk)  # noqa: E731
     best = float("inf")
     for _ in range(repeats):
         t0 = time.perf_counter()
-        reconstruct_windows(model, spikes, chunk=chunk)
+        run()
         best = min(best, time.perf_counter() - t0)
     return {"config": config, "parameters": count_parameters(model), "height": height, "width": width,
-            "windows": windows, "chunk": chunk, "threads": torch.get_num_threads(),
-            "seconds_total": best, "seconds_per_frame": best / windows}
+            "windows": windows, "chunk": chunk, "horizon": horizon, "horizon_stride": stride,
+            "threads": torch.get_num_threads(), "seconds_total": best, "seconds_per_frame": best / windows}
 
 
 def time_training(config: str, steps: int, seed: int = 0, precision: str = "fp32", channels_last: bool = False) -> dict:
@@ -119,6 +126,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--width", type=int, default=400)
     p.add_argument("--windows", type=int, default=7)
     p.add_argument("--chunk", type=int, default=None, help="streaming chunk (default: one-shot)")
+    p.add_argument("--horizon", type=int, default=None, help="time horizon inference with pieces of this many windows")
+    p.add_argument("--horizon-stride", type=int, default=None, help="frames per piece (default: the horizon less 2)")
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--repeats", type=int, default=1)
     p.add_argument("--train-steps", type=int, default=0, help="also time this many training steps")
@@ -136,7 +145,8 @@ def main(argv: list[str] | None = None) -> int:
             print(json.dumps(row))
         return 0
     torch.set_num_threads(a.threads)
-    print(json.dumps(time_inference(a.config, a.height, a.width, a.windows, a.chunk, repeats=a.repeats)))
+    print(json.dumps(time_inference(a.config, a.height, a.width, a.windows, a.chunk, repeats=a.repeats,
+                                         horizon=a.horizon, stride=a.horizon_stride)))
     if a.train_steps and a.train_variants:
         variants = [(p, cl) for p in ("fp32", "bf16") for cl in (False, True)]
         rates: dict[tuple[str, bool], list[float]] = {v: [] for v in variants}

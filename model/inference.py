@@ -80,7 +80,8 @@ def _check_reader_args(**given: Any) -> None:
 def reconstruct(spikes: Any, method: str = "lrrep", window: int = 41, threads: int = 0, chunk: int = 8,
                 device: str = "cpu", height: int | None = None, width: int | None = None,
                 header_columns: int | str | None = "auto", flip: bool | None = None,
-                drop_partial: bool = False) -> np.ndarray:
+                drop_partial: bool = False, horizon: int | str = "trained",
+                horizon_stride: int | None = None) -> np.ndarray:
     """Frames (M, H, W), float32 on the y scale (expected spikes per step), one per whole `window`-step
     window of `spikes`: a (steps, H, W) 0/1 array (NumPy or torch, row 0 at the top), a
     `spikesim.stream.SpikeStream` (what `DatReader.read` returns), a `DatReader`, or the path
@@ -90,7 +91,10 @@ def reconstruct(spikes: Any, method: str = "lrrep", window: int = 41, threads: i
     `drop_partial` for a file cut off mid-frame. `method` is any spec
     `evaluate` takes (lrrep, tfp, tfi, tfp:N, a checkpoint path, label=spec). `device` (cpu, cuda,
     cuda:N, mps, auto) is checked for every method, a device this machine lacks refused naming it;
-    the window averages (tfp, tfi, tfp:N) compute on the CPU whatever it is."""
+    the window averages (tfp, tfi, tfp:N) compute on the CPU whatever it is. A network runs over a
+    long stream in pieces of its training horizon (`horizon` "trained"), of `horizon` windows, or
+    over the whole stream at once ("all"); `horizon_stride` frames are taken from each piece
+    (model.methods.ModelMethod)."""
     _check_reader_args(height=height, width=width, flip=flip, drop_partial=drop_partial, threads=threads, chunk=chunk)
     if isinstance(method, Path):  # the README says "a checkpoint path": a pathlib.Path is one (round eight)
         method = str(method)
@@ -134,7 +138,7 @@ def reconstruct(spikes: Any, method: str = "lrrep", window: int = 41, threads: i
     from .training import resolve_device
     device = str(resolve_device(device, "device"))  # "mps" blamed the weights and "gpu" raised torch's own error
     set_cpu_threads(threads)
-    chosen = method_from_spec(method, window, chunk, device)
+    chosen = method_from_spec(method, window, chunk, device, horizon, horizon_stride)
     if isinstance(spikes, (DatReader, SpikeStream)):
         source: Any = StepWindows(read_steps, 0, window, m)
     else:

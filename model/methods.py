@@ -12,7 +12,8 @@ import torch
 from .checkpoint import for_inference, model_from_checkpoint
 from .classic_methods import CLASSIC_METHODS, classic_method
 from .representations import tfi_windows, tfp_windows
-from .streaming import WindowSource, stream_reconstruct
+from .arch import ReconNet
+from .streaming import WindowSource, default_horizon_stride, horizon_reconstruct, stream_reconstruct
 
 
 class Method(Protocol):
@@ -137,16 +138,24 @@ def span_method_spec(body: str, window: int) -> int | None:
 
 @dataclass
 class ModelMethod:
-    """A trained network (any config), run with exact chunked streaming inference: a checkpoint
-    file, or shipped weights by name (`pretrained`, model/pretrained.py)."""
+    """A trained network (any config), run over the stream in pieces of its training horizon
+    (model.streaming.horizon_reconstruct) or, with horizon "all", by exact chunked streaming: a
+    checkpoint file, or shipped weights by name (`pretrained`, model/pretrained.py)."""
 
     name: str
     checkpoint: Path | None
     chunk: int = 8
     device: str = "cpu"
     pretrained: str | None = None
+    #: windows the recurrence runs over at once (model.streaming.horizon_reconstruct): "trained" (the
+    #: network's training sequences' K, the default), a number, or "all" (exact one-shot streaming
+    #: over the whole stream, `chunk` windows in memory). A published network ignores it.
+    horizon: int | str = "trained"
+    #: frames taken from each piece; None = default_horizon_stride(horizon)
+    horizon_stride: int | None = None
 
     def __post_init__(self) -> None:
+        check_horizon(self.horizon, self.horizon_stride)
         if self.pretrained is not None:
             from .pretrained import load_pretrained
             self.model, self.experiment = load_pretrained(self.pretrained, self.device)
@@ -154,6 +163,15 @@ class ModelMethod:
             self.model, self.experiment = model_from_checkpoint(self.checkpoint, self.device)
             for_inference(self.model, self.experiment)
         self.window = self.experiment.model.window
+        #: the resolved horizon in windows, None for one-shot streaming
+        self.horizon_windows: int | None = None
+        if isinstance(self.model, ReconNet) and self.horizon != "all":
+            self.horizon_windows = self.experiment.train.num_windows if self.horizon == "trained" else int(self.horizon)
+            if self.horizon_stride is None:
+                self.horizon_stride = default_horizon_stride(self.horizon_windows)
+            elif self.horizon_stride > self.horizon_windows:
+                raise ValueError(f"{self.name}: horizon stride {self.horizon_stride} is more than its horizon of "
+                                 f"{self.horizon_windows} windows")
 
     @property
     def span(self) -> int:
@@ -161,7 +179,26 @@ class ModelMethod:
         return self.experiment.train.num_windows * self.window
 
     def frames(self, source: WindowSource) -> Iterator[tuple[int, torch.Tensor]]:
-        yield from stream_reconstruct(self.model, source, self.chunk, self.device)
+        if self.horizon_windows is None:
+            yield from stream_reconstruct(self.model, source, self.chunk, self.device)
+        else:
+            yield from horizon_reconstruct(self.model, source, self.horizon_windows, self.horizon_stride, self.device)
+
+
+#: What a network's `horizon` takes besides a number of windows.
+HORIZON_NAMES = ("trained", "all")
+
+
+def check_horizon(horizon: int | str, stride: int | None = None) -> None:
+    """Refuse a horizon that is not "trained", "all" or a whole number >= 1, and a stride < 1."""
+    number = isinstance(horizon, int) and not isinstance(horizon, bool)
+    if not (horizon in HORIZON_NAMES or (number and horizon >= 1)):
+        raise ValueError(f"horizon {horizon!r}: expected a number of windows >= 1, 'trained' (the network's "
+                         "training sequences) or 'all' (the whole stream at once)")
+    if stride is not None and (isinstance(stride, bool) or not isinstance(stride, int) or stride < 1):
+        raise ValueError(f"horizon stride {stride!r}: expected a whole number of frames per piece >= 1")
+    if stride is not None and horizon == "all":
+        raise ValueError("a horizon stride applies to pieces; horizon 'all' runs the whole stream at once")
 
 
 #: The spatial flips of the self-ensemble (dims of an (..., H, W) tensor): each is its own inverse.
@@ -229,18 +266,21 @@ UNSHIPPED_NETWORKS = {"s2i": "cpu_s2i", "spk2imgnet": "cpu_s2i", "wgse": "cpu_wg
                       "ssml": "cpu_ssml"}
 
 
-def method_from_spec(spec: str, window: int = 41, chunk: int = 8, device: str = "cpu") -> Method:
+def method_from_spec(spec: str, window: int = 41, chunk: int = 8, device: str = "cpu",
+                     horizon: int | str = "trained", horizon_stride: int | None = None) -> Method:
     """"tfp", "tfi", "stp", "snm" (the traditional STP and SNM), "black", "mean", "tfp:N" (TFP over
     N steps), "lrrep" (the shipped weights; any
     name of model.pretrained.PRETRAINED, e.g. the earlier lrrep_v1) or
     a checkpoint path; "flips:NETWORK" is that network's flip self-ensemble (FlipEnsembleMethod);
-    "label=..." names the method in tables."""
+    "label=..." names the method in tables. `horizon` and `horizon_stride` say how a network runs
+    over a long stream (ModelMethod); the other methods do not depend on them."""
+    check_horizon(horizon, horizon_stride)
     # a checkpoint path may hold "=" (runs/lr=3e-4/best.pt): an existing file is a path, not label=spec
     label, eq, body = spec.partition("=") if "=" in spec and not Path(spec).is_file() else ("", "", spec)
     if eq and not label.strip():  # a blank label named the method "" in every table (round twenty)
         raise ValueError(f"method {spec!r}: the label before '=' is blank; give one (mine={body}) or none ({body})")
     if body.startswith(FLIPS_PREFIX) and not Path(body).is_file():
-        inner = method_from_spec(body.removeprefix(FLIPS_PREFIX), window, chunk, device)
+        inner = method_from_spec(body.removeprefix(FLIPS_PREFIX), window, chunk, device, horizon, horizon_stride)
         if not isinstance(inner, ModelMethod):
             raise ValueError(f"method {spec!r}: a flip self-ensemble is of a network (shipped weights or a "
                              f"checkpoint); {inner.name} gives the same frame under every flip")
@@ -254,7 +294,8 @@ def method_from_spec(spec: str, window: int = 41, chunk: int = 8, device: str = 
         return SpanTFPMethod(label or f"TFP-{span}", span, window, chunk)
     from .pretrained import PRETRAINED
     if body in PRETRAINED:
-        return ModelMethod(label or pretrained_label(body), None, chunk, device, pretrained=body)
+        return ModelMethod(label or pretrained_label(body), None, chunk, device, pretrained=body, horizon=horizon,
+                           horizon_stride=horizon_stride)
     path = Path(body.removeprefix("ckpt:"))
     if not path.is_file() and body.lower() in UNSHIPPED_NETWORKS:
         config = UNSHIPPED_NETWORKS[body.lower()]
@@ -265,4 +306,5 @@ def method_from_spec(spec: str, window: int = 41, chunk: int = 8, device: str = 
         raise ValueError(f"method {spec!r}: expected one of {', '.join([*MAP_METHODS, *CLASSIC_METHODS])}, tfp:N, "
                          f"shipped weights "
                          f"({', '.join(PRETRAINED)}) or an existing checkpoint file")
-    return ModelMethod(label or path.parent.name or path.stem, path, chunk, device)
+    return ModelMethod(label or path.parent.name or path.stem, path, chunk, device, horizon=horizon,
+                       horizon_stride=horizon_stride)

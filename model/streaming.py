@@ -1,6 +1,13 @@
-"""Chunked inference over long streams with memory bounded by the chunk size.
+"""Inference over long streams with memory bounded: horizon inference (the default) and exact
+one-shot streaming.
 
-Definition. For a stream cut into M consecutive windows, the output for window i is exactly the
+Horizon inference (horizon_reconstruct). The network was trained on sequences of K windows; run
+over a whole stream of M > K windows its recurrence goes on for M windows, which it never saw, and
+in the dark that drifts (docs/model.md, "Horizon inference": one run lost 5.3 dB on a 0.38-lx scene
+over 9 windows that it kept over 5). So by default each frame comes from the network run on a piece
+of K windows on its own, as in training, pieces overlapping by K - stride windows.
+
+One-shot streaming (stream_reconstruct, horizon "all"). Definition. For a stream cut into M consecutive windows, the output for window i is exactly the
 one-shot output of the network on all M windows (model(spikes of the M windows)): forward state
 and last-spike times from window 0, backward state and next-spike times from window M-1, GISI
 sentinels -1 (before the first window's first step) and M*T (after the last window's last step).
@@ -209,6 +216,52 @@ def stream_reconstruct(model: ReconNet | PublishedNet, source: WindowSource, chu
                 y = model.decode(state_f, bwd[i], window, span_rate)[0, :h, :w]
                 yield starts[c] + i, y.float().cpu()
             del feats, bwd
+
+
+def default_horizon_stride(horizon: int) -> int:
+    """Frames taken from each piece by default: all but one window at each end of the piece, so
+    every frame but the stream's first and last has at least one window of context on each side
+    (docs/model.md, "Horizon inference": with K = 5, stride 3 costs 0.6 of the one-shot streaming
+    and scores within 0.1 dB of stride 1, which costs twice the one-shot streaming)."""
+    return max(1, horizon - 2)
+
+
+def horizon_pieces(num_windows: int, horizon: int, stride: int) -> list[tuple[int, range]]:
+    """The pieces of horizon inference: (first window of a piece of min(horizon, num_windows)
+    windows, the windows whose frames it gives). Every window is given by exactly one piece, from
+    the middle `stride` positions of the piece where the stream allows (the first piece also gives
+    the windows before them, the last one those after)."""
+    if horizon < 1 or not 1 <= stride <= horizon:
+        raise ValueError(f"horizon {horizon}, stride {stride}: expected horizon >= 1 and 1 <= stride <= horizon")
+    if num_windows <= horizon:
+        return [(0, range(num_windows))]
+    offset = (horizon - stride) // 2  # the first taken position within a piece
+    pieces, nxt = [], 0
+    while nxt < num_windows:
+        start = min(max(0, nxt - offset), num_windows - horizon)
+        stop = num_windows if start == num_windows - horizon else start + offset + stride
+        pieces.append((start, range(nxt, stop)))
+        nxt = stop
+    return pieces
+
+
+@torch.no_grad()
+def horizon_reconstruct(model: ReconNet, source: WindowSource, horizon: int, stride: int,
+                        device: torch.device | str = "cpu") -> Iterator[tuple[int, torch.Tensor]]:
+    """Yield (window index, frame float32 (H, W) on the CPU) for every window, in order, each from
+    the network run on a piece of `horizon` windows on its own (horizon_pieces), as it was trained
+    on K-window sequences: the recurrence never runs longer, and GISI takes the piece's own
+    "never fired" sentinels. On a stream of at most `horizon` windows it is model(all windows).
+    Memory holds one piece; a window is read once per piece that holds it."""
+    if source.window != model.cfg.window:
+        raise ValueError(f"source windows have {source.window} steps, model expects {model.cfg.window}")
+    device = torch.device(device)
+    model.eval()
+    m = source.num_windows
+    for start, given in horizon_pieces(m, horizon, stride):
+        spk = source.windows(start, start + min(horizon, m)).to(device).unsqueeze(0)
+        for i, y in model.frames(spk, take=range(given.start - start, given.stop - start)):
+            yield start + i, y[0].float().cpu()
 
 
 #: Windows a published (per-window or forward-recurrent) network runs at once: bigger chunks only

@@ -31,7 +31,7 @@ from model.evaluation import (ALL, CONDITIONS, CSV_FIELDS, DEFAULT_OUT, RESULT_F
                               pooled, scores_json, training_scene_notes, write_results)
 from model.methods import Method, method_from_spec
 from model.threads import set_cpu_threads
-from pipelines.argtypes import (add_threads_argument, existing_file, nonnegative_int, png_rate, positive_float,
+from pipelines.argtypes import (add_horizon_arguments, add_threads_argument, existing_file, nonnegative_int, png_rate, positive_float,
                                 positive_int, window_steps)
 from pipelines.inspect_cmd import header_columns_arg
 
@@ -39,7 +39,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     from model.training import resolve_device
     device = str(resolve_device(args.device))
     set_cpu_threads(args.threads)
-    methods = [method_from_spec(s, args.window, args.chunk, device) for s in args.methods]
+    methods = [method_from_spec(s, args.window, args.chunk, device, args.horizon, args.horizon_stride)
+               for s in args.methods]
     names = [m.name for m in methods]
     if len(set(names)) != len(names):
         raise ValueError(f"method names must be unique, got {names}; name them with label=spec")
@@ -187,6 +188,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                                         f"{DEFAULT_OUT} unless --json; with --dat, written only when -o is given)")
     p.add_argument("--window", type=window_steps, default=41, help="readout steps per window")
     p.add_argument("--chunk", type=positive_int, default=8, help="windows held in memory by a network")
+    add_horizon_arguments(p)
     p.add_argument("--device", default="auto", help="auto (CUDA when present), cpu, cuda, cuda:N or mps")
     add_threads_argument(p)
     p.add_argument("--quiet", action="store_true", help="no per-scene progress lines")

@@ -31,7 +31,7 @@ import torch
 from model.methods import method_from_spec
 from model.streaming import StepWindows
 from model.threads import set_cpu_threads
-from pipelines.argtypes import (add_threads_argument, float_in, nonnegative_int, positive_float, positive_int,
+from pipelines.argtypes import (add_horizon_arguments, add_threads_argument, float_in, nonnegative_int, positive_float, positive_int,
                                 window_steps)
 from pipelines.inspect_cmd import header_columns_arg, open_stream
 from spikesim._optional import require
@@ -122,7 +122,8 @@ def reconstruct_file(path: Path, out: Path, method_spec: str = "tfp", height: in
                      start: int = 0, num_windows: int | None = None, window: int = 41, chunk: int = 8,
                      device: str = "cpu", enhance: str = "auto", gamma: float = 2.2, scale: float = 1.0,
                      percentile: float = 99.5, fps: float = 10.0, gif: bool = True, mp4: bool = True,
-                     save_npy: bool = False, progress: bool = True, drop_partial: bool = False) -> dict:
+                     save_npy: bool = False, progress: bool = True, drop_partial: bool = False,
+                     horizon: int | str = "trained", horizon_stride: int | None = None) -> dict:
     """Reconstruct `path` into `out`; returns a summary (also written to out/reconstruct.json).
 
     height / width / flip None: as recorded beside the stream, else 250 x 400 bottom-up;
@@ -133,7 +134,7 @@ def reconstruct_file(path: Path, out: Path, method_spec: str = "tfp", height: in
         raise ValueError(f"fps: expected 0.01 to 1000 frames per second, got {fps!r}")
     reader, header_columns = open_stream(path, height, width, flip, header_columns, drop_partial)
     height, width, flip = reader.height, reader.width, reader.flip
-    method = method_from_spec(method_spec, window, chunk, device)
+    method = method_from_spec(method_spec, window, chunk, device, horizon, horizon_stride)
     window = method.window
     available = (reader.num_steps - start) // window
     if start < 0 or available < 1:
@@ -339,7 +340,8 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
                                args.flip, args.start, args.num_windows, args.window, args.chunk,
                                device, args.enhance, args.gamma, args.scale,
                                args.percentile, args.fps, not args.no_gif, not args.no_mp4, args.save_npy,
-                               progress=not args.quiet, drop_partial=args.drop_partial)
+                               progress=not args.quiet, drop_partial=args.drop_partial,
+                               horizon=args.horizon, horizon_stride=args.horizon_stride)
     for note in summary.get("notes", []):
         print(f"[reconstruct] note: {note}", file=sys.stderr)
     if args.json:
@@ -377,6 +379,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--window", type=window_steps, default=41,
                    help="steps per window for tfp/tfi/stp/snm (a model uses its own)")
     p.add_argument("--chunk", type=positive_int, default=8, help="windows held in memory at once, by every method (the frames do not depend on it)")
+    add_horizon_arguments(p)
     p.add_argument("--device", default="auto", help="auto (CUDA when present), cpu, cuda, cuda:N or mps")
     add_threads_argument(p)
     p.add_argument("--enhance", choices=["auto", "none", "gamma", "stretch"], default="auto",
