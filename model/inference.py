@@ -86,8 +86,8 @@ def reconstruct(spikes: Any, method: str = "lrrep", window: int = 41, threads: i
     window of `spikes`: a (steps, H, W) 0/1 array (NumPy or torch, row 0 at the top), a
     `spikesim.stream.SpikeStream` (what `DatReader.read` returns), a `DatReader`, or the path
     of a `.dat` stream, read as `spikesim reconstruct` reads one, a few windows at a time (memory
-    bounded by `chunk`, not by the file): `height`/`width`/`flip` as recorded
-    beside it unless given (else 250 x 400, rows bottom-up), `header_columns` detected unless given,
+    bounded by `chunk`, or a network's by its horizon's piece, not by the file):
+    `height`/`width`/`flip` as recorded beside it unless given (else 250 x 400, rows bottom-up), `header_columns` detected unless given,
     `drop_partial` for a file cut off mid-frame. `method` is any spec
     `evaluate` takes (lrrep, tfp, tfi, tfp:N, a checkpoint path, label=spec). `device` (cpu, cuda,
     cuda:N, mps, auto) is checked for every method, a device this machine lacks refused naming it;

@@ -340,7 +340,8 @@ def horizon_arg(text: str) -> int | str:
     try:
         return positive_int(text)
     except argparse.ArgumentTypeError:
-        raise argparse.ArgumentTypeError(f"expected 'trained', 'all' or a number of windows >= 1, got {text!r}") from None
+        raise argparse.ArgumentTypeError(
+            f"expected 'trained', 'all' or a number of windows >= 1, got {text!r}") from None
 
 
 def add_horizon_arguments(parser: argparse.ArgumentParser) -> None:
@@ -354,7 +355,8 @@ def add_horizon_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--horizon-stride", type=positive_int, default=None,
                         help="frames taken from each piece, at most the horizon (default: the horizon less 2, "
                              "so every frame has a window of context on each side; 1 centres every frame, about "
-                             "3.5 times the cost, for about +0.05 dB)")
+                             "1.8 times the cost, for +0.01-0.06 dB on validation; docs/model.md, "
+                             "\"Horizon inference\")")
 
 
 def cpu_threads(text: str) -> int:
