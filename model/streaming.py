@@ -9,8 +9,9 @@ of K windows on its own, as in training, pieces overlapping by K - stride window
 
 One-shot streaming (stream_reconstruct, horizon "all"). Definition. For a stream cut into M
 consecutive windows, the output for window i is exactly the one-shot output of the network on
-all M windows (model(spikes of the M windows)): forward state and last-spike times from window 0, backward state and next-spike times from window M-1, GISI
-sentinels -1 (before the first window's first step) and M*T (after the last window's last step).
+all M windows (model(spikes of the M windows)): forward state and last-spike times from window
+0, backward state and next-spike times from window M-1, GISI sentinels -1 (before the first
+window's first step) and M*T (after the last window's last step).
 The bidirectional recurrence makes the backward half depend on everything later, so it is
 computed in two passes over the stream, each holding one chunk of C windows:
 
