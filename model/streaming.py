@@ -222,8 +222,8 @@ def stream_reconstruct(model: ReconNet | PublishedNet, source: WindowSource, chu
 def default_horizon_stride(horizon: int) -> int:
     """Frames taken from each piece by default: all but one window at each end of the piece, so
     every frame but the stream's first and last has at least one window of context on each side
-    (docs/model.md, "Horizon inference", measured with K = 5: stride 3 costs 0.88 of the one-shot
-    streaming and scores within 0.06 dB of stride 1 on validation, which costs 1.60 of it)."""
+    (docs/model.md, "Horizon inference", measured with K = 5: stride 3 costs 0.87 of the one-shot
+    streaming and scores within 0.06 dB of stride 1 on validation, which costs 1.62 of it)."""
     return max(1, horizon - 2)
 
 
