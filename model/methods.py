@@ -185,6 +185,18 @@ class ModelMethod:
             yield from horizon_reconstruct(self.model, source, self.horizon_windows, self.horizon_stride, self.device)
 
 
+def inference_record(methods: "list[Method] | tuple[Method, ...]") -> dict[str, str]:
+    """How each network among `methods` ran over the streams (its horizon), for a results table:
+    a table made with the default reads otherwise like one made with `--horizon all`."""
+    out = {}
+    for m in methods:
+        net = getattr(m, "inner", m)  # a flip self-ensemble runs its network four times alike
+        if isinstance(net, ModelMethod) and isinstance(net.model, ReconNet):
+            out[m.name] = ("one pass over the whole stream (horizon all)" if net.horizon_windows is None else
+                           f"pieces of {net.horizon_windows} windows, {net.horizon_stride} frame(s) from each")
+    return out
+
+
 #: What a network's `horizon` takes besides a number of windows.
 HORIZON_NAMES = ("trained", "all")
 

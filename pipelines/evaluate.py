@@ -29,7 +29,7 @@ from model.evaluation import (ALL, CONDITIONS, CSV_FIELDS, DEFAULT_OUT, RESULT_F
                               check_results, evaluate, evaluate_pair, evaluate_scene, evaluation_run, group_name,
                               json_safe, light_condition, markdown_table, method_label, notes_markdown, pair_table,
                               pooled, scores_json, training_scene_notes, write_results)
-from model.methods import Method, method_from_spec
+from model.methods import Method, inference_record, method_from_spec
 from model.threads import set_cpu_threads
 from pipelines.argtypes import (add_horizon_arguments, add_threads_argument, existing_file, nonnegative_int, png_rate, positive_float,
                                 positive_int, window_steps)
@@ -62,19 +62,29 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     from spikesim.dataset import select_scenes
     scenes = select_scenes(open_scenes(args.data), args.scenes, args.data)
     rows = evaluate(scenes, methods, args.window, progress=not (args.quiet or args.json))
-    return _report(args, rows, names, {"data": str(args.data)}, training_scene_notes(methods, scenes))
+    return _report(args, rows, names, {"data": str(args.data)}, training_scene_notes(methods, scenes), methods)
+
+
+def horizon_markdown(horizons: dict[str, str]) -> str:
+    """metrics.md's line on how each network ran over the streams ("" without networks)."""
+    if not horizons:
+        return ""
+    return ("\n**Inference** (`--horizon`): " + "; ".join(f"{name}: {how}" for name, how in horizons.items())
+            + ".\n")
 
 
 def _report(args: argparse.Namespace, rows: Sequence[Score], names: Sequence[str], source: dict,
-            notes: Sequence[str] = ()) -> int:
+            notes: Sequence[str] = (), methods: Sequence[Method] = ()) -> int:
     """Print the tables (or JSON) and write metrics.csv and metrics.md, as --data does. `notes`
     (a checkpoint scored on scenes it trained on: round ten) go to stderr, the JSON's "notes" and
-    metrics.md."""
+    metrics.md; how each network ran over the streams (its horizon) to the JSON and metrics.md."""
     for note in notes:
         print(f"[evaluate] note: {note}", file=sys.stderr)
-    table = markdown_table(rows, names) + notes_markdown(notes)
+    horizons = inference_record(list(methods))
+    table = markdown_table(rows, names) + notes_markdown(notes) + horizon_markdown(horizons)
     if args.json:
-        print(json.dumps(json_safe(scores_json(rows, names, {**source, "notes": list(notes)})), indent=2))
+        print(json.dumps(json_safe(scores_json(rows, names, {**source, "notes": list(notes), "horizon": horizons})),
+                         indent=2))
     else:
         print(table)
     _write(args, rows, names, markdown=table)
@@ -131,7 +141,7 @@ def _evaluate_spikezoo_cmd(args: argparse.Namespace, methods: Sequence[Method], 
     scenes = list(dict.fromkeys(p.scene or p.name for p in layout.pairs))
     return _report(args, rows, names, {"spikezoo": str(args.spikezoo), "split": args.split,
                                        "rates": {p.name: p.rate for p in layout.pairs}},
-                   training_scene_notes(methods, scenes))
+                   training_scene_notes(methods, scenes), methods)
 
 
 def _evaluate_pair_cmd(args: argparse.Namespace, methods: Sequence[Method], names: Sequence[str]) -> int:
@@ -143,12 +153,15 @@ def _evaluate_pair_cmd(args: argparse.Namespace, methods: Sequence[Method], name
     gt = read_image_y(args.gt, args.gt_scale)
     rows, read = evaluate_pair(Path(args.dat), gt, args.center, methods, args.window, args.height, args.width,
                                header, False if args.no_flip else None)
+    horizons = inference_record(list(methods))
+    table = pair_table(rows, names, read) + horizon_markdown(horizons)
     if args.json:
-        doc = scores_json(rows, names, {"input": {**read, "gt": str(args.gt), "gt_scale": args.gt_scale}})
+        doc = scores_json(rows, names, {"input": {**read, "gt": str(args.gt), "gt_scale": args.gt_scale},
+                                        "horizon": horizons})
         print(json.dumps(json_safe(doc), indent=2))
     else:
-        print(pair_table(rows, names, read))
-    _write(args, rows, names, markdown=pair_table(rows, names, read))  # only with -o: else printed only
+        print(table)
+    _write(args, rows, names, markdown=table)  # only with -o: else printed only
     return 0
 
 

@@ -147,3 +147,21 @@ def test_the_command_line_takes_a_horizon():
     assert (args.horizon, args.horizon_stride) == ("all", None)
     args = build_parser().parse_args(["reconstruct", "x.dat", "-o", "o", "--horizon", "4", "--horizon-stride", "1"])
     assert (args.horizon, args.horizon_stride) == (4, 1)
+
+
+def test_results_record_how_each_network_ran(tmp_path):
+    """evaluate's metrics.md and JSON say the horizon: a table made with the default reads otherwise
+    like one made with --horizon all."""
+    from model.methods import inference_record
+    from pipelines.evaluate import horizon_markdown
+    path = _checkpoint(tmp_path, num_windows=3)
+    methods = [method_from_spec("tfp", window=5), method_from_spec(f"a={path}", window=5),
+               method_from_spec(f"b={path}", window=5, horizon="all"),
+               method_from_spec(f"c=flips:{path}", window=5, horizon=4, horizon_stride=2)]
+    record = inference_record(methods)
+    assert record == {"a": "pieces of 3 windows, 1 frame(s) from each",
+                      "b": "one pass over the whole stream (horizon all)",
+                      "c": "pieces of 4 windows, 2 frame(s) from each"}
+    line = horizon_markdown(record)
+    assert "a: pieces of 3 windows" in line and "b: one pass" in line
+    assert horizon_markdown(inference_record(methods[:1])) == ""
