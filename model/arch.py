@@ -174,6 +174,7 @@ class ReconNet(nn.Module):
             yield i, y[..., :h, :w]
 
 
+# ---- input normalisation by the window's firing rate ----------------------------------------------
 def window_rate_scale(window: torch.Tensor, floor_rate: float) -> torch.Tensor:
     """Each window's mean firing rate (spikes per step over its steps and pixels), at least
     `floor_rate`: window (N, T, H, W) 0/1 -> (N,). Why: the y a network must give is proportional to
