@@ -8,6 +8,13 @@ Every method sees the same windows (all the whole windows of the stream, or --nu
 own 99.5th percentile, since methods differ in gain. Flat regions and edges are chosen on TFP over
 all the windows read, so every method is measured on the same pixels: right for a still or slow
 scene, where that long average is sharp; say so where it is not.
+
+A simulated stream has a ground truth: --gt IMAGE (EXR, .npy or an 8/16-bit picture, times
+--gt-scale, as `evaluate --gt` reads it) puts it first in the panel, and each method's aligned PSNR
+against it (clipped at saturation, as `evaluate` scores) joins the measures. The image must show the
+frame's centre step, which the command prints:
+
+    spikesim panel data/llr/cook_low/spikes.dat --frame 10 --gt data/llr/cook_low/gt/step_000430.exr -o cook.png
 """
 from __future__ import annotations
 
@@ -19,7 +26,8 @@ import numpy as np
 import torch
 
 from model.threads import set_cpu_threads
-from pipelines.argtypes import add_threads_argument, nonnegative_int, output_file_in, positive_int, window_steps
+from pipelines.argtypes import (add_threads_argument, existing_file, nonnegative_int, output_file_in, positive_float, positive_int,
+                                 window_steps)
 from pipelines.inspect_cmd import header_columns_arg, open_stream
 from spikesim import outputs
 from spikesim.config_io import standard_json
@@ -86,6 +94,27 @@ def compose_panel(frames: dict[str, np.ndarray], captions: dict[str, str], perce
     return canvas
 
 
+GT_TILE = "ground truth"
+
+
+def with_ground_truth(frames: dict[str, np.ndarray], gt: np.ndarray, source: str = "--gt"
+                      ) -> tuple[dict[str, np.ndarray], dict[str, float]]:
+    """The tiles with the ground truth first, and each method's aligned PSNR against it (clipped at
+    saturation, as `evaluate` scores). A ground truth of another size, or one a method is named
+    after, is refused: the panel would compare pictures of different things."""
+    from model.metrics import psnr_aligned
+    from spikesim.dataset import SATURATION_Y
+
+    shape = next(iter(frames.values())).shape
+    if gt.shape != shape:
+        raise ValueError(f"{source} is {gt.shape[0]} x {gt.shape[1]} but the frames are {shape[0]} x {shape[1]}; "
+                         "give the ground truth of this stream (and --height/--width as it was recorded)")
+    if GT_TILE in frames:
+        raise ValueError(f"--methods: a method is labelled {GT_TILE!r}, the ground truth's tile; name it otherwise")
+    target = np.clip(np.asarray(gt, dtype=np.float64), 0.0, SATURATION_Y)
+    return {GT_TILE: target, **frames}, {name: float(psnr_aligned(f, target)) for name, f in frames.items()}
+
+
 def run(args: argparse.Namespace) -> int:
     from model.noref import no_reference_scores
     from model.training import resolve_device
@@ -97,13 +126,22 @@ def run(args: argparse.Namespace) -> int:
     check_outside_datasets(out_path)  # a panel written into a dataset, which verify then reports (round ten)
     outputs.check_results_owned(out_path.parent, [out_path.name], "panel")  # a user's PNG there is refused (round eight)
     set_cpu_threads(args.threads)
+    gt = None
+    if args.gt is not None:  # read before the methods run: a bad image costs nothing
+        from spikesim.imageio import read_image_y
+        gt = read_image_y(args.gt, args.gt_scale)
     header = None if args.header_columns == "auto" else args.header_columns
     frames, reference, read = panel_frames(args.input, args.methods, args.height, args.width, header, args.flip,
                                            args.start, args.num_windows, args.frame, args.window, device,
                                            args.drop_partial)
     scores = {name: no_reference_scores(f, reference) for name, f in frames.items()}
     captions = {n: f"noise {s['flat_noise']:.3f}\nedge {s['edge_sharpness']:.3f}" for n, s in scores.items()}
-    image = compose_panel(frames, captions)
+    tiles = frames
+    if gt is not None:
+        tiles, aligned = with_ground_truth(frames, gt, f"--gt {args.gt}")
+        for name, value in aligned.items():
+            scores[name]["psnr_aligned"] = value
+    image = compose_panel(tiles, captions)
     with outputs.output_file(args.out) as out:
         # again, as it is written: a PNG the user put there while the methods ran was replaced (round ten)
         # recorded as it is written (round twelve: a full disk at the record orphaned it)
@@ -116,14 +154,21 @@ def run(args: argparse.Namespace) -> int:
                                           "gradients (higher: sharper)",
                         "edge_to_noise": "edge_sharpness / flat_noise",
                         "reference": f"TFP over all {read['windows']} windows read"}}
+    if gt is not None:
+        doc["ground_truth"] = {"path": str(args.gt), "scale": args.gt_scale}
+        doc["measures"]["psnr_aligned"] = ("aligned PSNR (dB) against --gt, clipped at saturation (higher: closer; "
+                                           "docs/model.md, \"The aligned PSNR\")")
     if args.json:
         print(standard_json(doc, indent=2))
     else:
         print(f"{read['input']}: {read['height']} x {read['width']}, frame {read['frame']} of {read['windows']} windows "
               f"(centre step {read['frame_centre_step']}), mean rate {read['mean_rate']:.4f} spikes/step")
-        print("| method | flat noise (lower) | edge sharpness (higher) | edge / noise |\n|---|---|---|---|")
+        aligned = " aligned PSNR (dB) |" if gt is not None else ""
+        print(f"| method | flat noise (lower) | edge sharpness (higher) | edge / noise |{aligned}\n"
+              f"|---|---|---|---|{'---|' if gt is not None else ''}")
         for name, s in scores.items():
-            print(f"| {name} | {s['flat_noise']:.4f} | {s['edge_sharpness']:.4f} | {s['edge_to_noise']:.2f} |")
+            extra = f" {s['psnr_aligned']:.2f} |" if gt is not None else ""
+            print(f"| {name} | {s['flat_noise']:.4f} | {s['edge_sharpness']:.4f} | {s['edge_to_noise']:.2f} |{extra}")
         if not args.quiet:
             print(f"[panel] wrote {out}", file=sys.stderr)
     return 0
@@ -152,6 +197,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                       help="rows stored bottom-up (a real PKU camera's files; the default where nothing is recorded)")
     flip.add_argument("--no-flip", dest="flip", action="store_false",
                       help="rows stored top-down (SPCS/SCSim); default: as recorded, else rows stored bottom-up (flip)")
+    p.add_argument("--gt", type=existing_file,
+                   help="the ground truth of the frame shown (PNG/JPEG/TIFF, EXR or .npy, at its centre step): drawn "
+                        "first, and each method's aligned PSNR against it")
+    p.add_argument("--gt-scale", type=positive_float, default=1.0,
+                   help="y = scale x the --gt image's value (an 8/16-bit picture: of its full scale; default 1)")
     p.add_argument("--device", default="auto", help="auto (CUDA when present), cpu, cuda, cuda:N or mps")
     add_threads_argument(p)
     p.add_argument("--json", action="store_true", help="print the measures as JSON")
