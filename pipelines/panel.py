@@ -26,8 +26,8 @@ import numpy as np
 import torch
 
 from model.threads import set_cpu_threads
-from pipelines.argtypes import (add_threads_argument, existing_file, nonnegative_int, output_file_in, positive_float, positive_int,
-                                 window_steps)
+from pipelines.argtypes import (add_threads_argument, existing_file, nonnegative_int, output_file_in, positive_float,
+                                positive_int, window_steps)
 from pipelines.inspect_cmd import header_columns_arg, open_stream
 from spikesim import outputs
 from spikesim.config_io import standard_json
