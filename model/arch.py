@@ -128,33 +128,40 @@ class ReconNet(nn.Module):
 
         maps: the representation's maps (B, K, H, W); computed from these K windows alone when
         omitted (GISI with the "never fired" sentinels -1 and K*T).
+
+        The graph is built in the order every run of this project was trained with: the forward
+        recurrence, then the backward one with each window decoded as it is reached. Autograd
+        accumulates a parameter's gradient in reverse creation order, so decoding in another order
+        (as `frames` does) gives the same frames but other last bits in the gradients: a run
+        rerun or resumed from an earlier checkpoint would then differ from the one it continues
+        (measured: from step 4 of the shipped network's run; tested against a reference loop).
         """
-        return torch.stack([y for _, y in self.frames(spikes, maps)], 1)
+        x, feats, (k, h, w) = self._features(spikes, maps)
+        fwd: list[torch.Tensor] = []
+        state = None
+        for i in range(k):
+            state = self.step(feats[:, i], state, backward=False)
+            fwd.append(state)
+        out: list[torch.Tensor] = [torch.empty(0)] * k
+        spans = span_rates(x, self.cfg.refine_span) if self.cfg.refine_span > 1 else None
+        state = None
+        for i in range(k - 1, -1, -1):
+            state = self.step(feats[:, i], state, backward=True)
+            out[i] = self.decode(fwd[i], state, x[:, i] if self.cfg.decode_needs_window else None,
+                                 None if spans is None else spans[:, i])
+        return torch.stack(out, 1)[..., :h, :w]
 
     def frames(self, spikes: torch.Tensor, maps: torch.Tensor | None = None,
                take: range | None = None) -> Iterator[tuple[int, torch.Tensor]]:
-        """(i, frame (B, H, W)) for each window i of `take` (default all K), in order: what forward
-        stacks. The forward recurrence runs up to take's last window and the backward one down to its
-        first, nothing further; each frame is decoded just before it is yielded (so a refine_observer
-        sees one decode per frame). Horizon inference (model/streaming.py) takes the middle windows
-        of a K-window piece this way."""
-        if spikes.dim() != 5:
-            raise ValueError(f"spikes must be (B, K, T, H, W), got shape {tuple(spikes.shape)}")
-        b, k, t, h, w = spikes.shape
-        if t != self.cfg.window:
-            raise ValueError(f"windows have {t} steps but the model was built for window={self.cfg.window}")
+        """(i, frame (B, H, W)) for each window i of `take` (default all K), in order: the frames
+        forward gives, made for inference. The forward recurrence runs up to take's last window
+        and the backward one down to its first, nothing further; each frame is decoded just before
+        it is yielded (so a refine_observer sees one decode per frame). Horizon inference
+        (model/streaming.py) takes the middle windows of a K-window piece this way."""
+        x, feats, (k, h, w) = self._features(spikes, maps)
         take = range(k) if take is None else take
         if not (len(take) and take.step == 1 and 0 <= take.start and take.stop <= k):
             raise ValueError(f"take={take}: expected consecutive windows within the sequence's {k}")
-        if maps is None:
-            maps, _, _ = self.input_maps(spikes)
-        elif tuple(maps.shape) != (b, k, h, w):
-            raise ValueError(f"maps must be (B, K, H, W) = {(b, k, h, w)}, got {tuple(maps.shape)}")
-        x = self.pad(spikes.to(torch.float32))
-        m = None if maps is None else self.pad(maps.to(torch.float32))
-        ph, pw = x.shape[-2:]
-        feats = self.encode(x.reshape(b * k, t, ph, pw), None if m is None else m.reshape(b * k, ph, pw))
-        feats = feats.reshape(b, k, -1, ph, pw)
         fwd: dict[int, torch.Tensor] = {}
         state = None
         for i in range(take.stop):
@@ -172,6 +179,25 @@ class ReconNet(nn.Module):
             y = self.decode(fwd.pop(i), bwd.pop(i), x[:, i] if self.cfg.decode_needs_window else None,
                             None if spans is None else spans[:, i])
             yield i, y[..., :h, :w]
+
+    def _features(self, spikes: torch.Tensor, maps: torch.Tensor | None
+                  ) -> tuple[torch.Tensor, torch.Tensor, tuple[int, int, int]]:
+        """The checked, padded windows x (B, K, T, H', W'), their features (B, K, C, H', W') and
+        (K, H, W): what forward and frames share before the recurrences."""
+        if spikes.dim() != 5:
+            raise ValueError(f"spikes must be (B, K, T, H, W), got shape {tuple(spikes.shape)}")
+        b, k, t, h, w = spikes.shape
+        if t != self.cfg.window:
+            raise ValueError(f"windows have {t} steps but the model was built for window={self.cfg.window}")
+        if maps is None:
+            maps, _, _ = self.input_maps(spikes)
+        elif tuple(maps.shape) != (b, k, h, w):
+            raise ValueError(f"maps must be (B, K, H, W) = {(b, k, h, w)}, got {tuple(maps.shape)}")
+        x = self.pad(spikes.to(torch.float32))
+        m = None if maps is None else self.pad(maps.to(torch.float32))
+        ph, pw = x.shape[-2:]
+        feats = self.encode(x.reshape(b * k, t, ph, pw), None if m is None else m.reshape(b * k, ph, pw))
+        return x, feats.reshape(b, k, -1, ph, pw), (k, h, w)
 
 
 # ---- input normalisation by the window's firing rate ----------------------------------------------

@@ -165,3 +165,43 @@ def test_results_record_how_each_network_ran(tmp_path):
     line = horizon_markdown(record)
     assert "a: pieces of 3 windows" in line and "b: one pass" in line
     assert horizon_markdown(inference_record(methods[:1])) == ""
+
+
+def _reference_order_forward(model, spikes):
+    """The training forward pass as every run was made with (before frames() existed): forward
+    recurrence, then the backward one with each window decoded as it is reached."""
+    from model.arch import span_rates
+
+    x, feats, (k, h, w) = model._features(spikes, None)
+    fwd, state = [], None
+    for i in range(k):
+        state = model.step(feats[:, i], state, backward=False)
+        fwd.append(state)
+    out = [None] * k
+    spans = span_rates(x, model.cfg.refine_span) if model.cfg.refine_span > 1 else None
+    state = None
+    for i in range(k - 1, -1, -1):
+        state = model.step(feats[:, i], state, backward=True)
+        out[i] = model.decode(fwd[i], state, x[:, i] if model.cfg.decode_needs_window else None,
+                              None if spans is None else spans[:, i])
+    return torch.stack(out, 1)[..., :h, :w]
+
+
+def _gradients(model, run, spikes):
+    model.zero_grad(set_to_none=True)
+    run(spikes).abs().sum().backward()
+    return {n: p.grad.clone() for n, p in model.named_parameters() if p.grad is not None}
+
+
+@pytest.mark.parametrize("switches", [{}, {"output": "refine", "refine_span": 3}, {"interval": "lisi"}])
+def test_forward_builds_the_graph_in_the_order_runs_were_trained_with(switches):
+    """Bit for bit, the gradients of forward are those of the construction order every training run
+    used: decoding in another order (frames' order) changes their last bits, and a run rerun or
+    resumed from an older checkpoint would drift from step 4 (measured on the shipped network's)."""
+    model = tiny_model(**switches).train()
+    s = torch.stack([sparse_windows(5, seed) for seed in (3, 4)]).float()
+    got = _gradients(model, model, s)
+    want = _gradients(model, lambda t: _reference_order_forward(model, t), s)
+    assert got.keys() == want.keys() and got
+    for name in want:
+        assert torch.equal(got[name], want[name]), name
