@@ -37,7 +37,6 @@ def test_the_model_card_names_the_shipped_fingerprints(name):
     assert not model.training and model.max_interval == experiment.train.num_windows * experiment.model.window + 1
 
 
-
 def test_the_shipped_network_is_the_budget_run_and_fine_tunes_with_its_named_config():
     """`lrrep` is the budget run's network (docs/model.md, "The budget run ships"): a refining
     network whose model section is the named config `lrrep_span_shot`'s, so `train --config
@@ -53,6 +52,7 @@ def test_the_shipped_network_is_the_budget_run_and_fine_tunes_with_its_named_con
     assert "DATA_VARIANT=procedural" in provenance["command"] and "budget_run.sh" in provenance["command"]
     card = (ROOT / "docs" / "model.md").read_text()
     assert provenance["command"] in card.replace("\n", " ")
+
 
 def _still_scene(h: int = 48, w: int = 64) -> np.ndarray:
     """A bright square on a dim background, in low light (a few spikes per pixel per window)."""
